@@ -1,0 +1,57 @@
+"""jaxtree: differentiable dynamics of hinge-connected rigid-body trees in JAX.
+
+An implementation of P. W. Likins, *Large-Deformation Modal Coordinates for
+Nonrigid Vehicle Dynamics*, JPL TR 32-1565 (1972). Importing jaxtree turns on
+JAX's float64 mode (``jax_enable_x64``): float64 is the default everywhere;
+float32 models (``model.astype(jnp.float32)``) work for GPU batches.
+"""
+
+import jax as _jax
+
+_jax.config.update("jax_enable_x64", True)
+
+from .topology import Topology as Topology
+from .model import (
+    Model as Model,
+    State as State,
+    Prescription as Prescription,
+    SinePrescription as SinePrescription,
+    BodyLoads as BodyLoads,
+    FunctionLoads as FunctionLoads,
+)
+from .scene import (
+    Body as Body,
+    Free as Free,
+    SpringDamper as SpringDamper,
+    PrescribedSine as PrescribedSine,
+    Prescribed as Prescribed,
+    SceneError as SceneError,
+    build_model as build_model,
+    load_scene as load_scene,
+    scene_from_dict as scene_from_dict,
+    scene_to_dict as scene_to_dict,
+    save_scene as save_scene,
+    scene_path as scene_path,
+    list_scenes as list_scenes,
+)
+from .kinematics import (
+    tilde as tilde,
+    hinge_rotation as hinge_rotation,
+    body_rotations as body_rotations,
+    relative_rotations as relative_rotations,
+    dcm_rate as dcm_rate,
+)
+from .dynamics import (
+    Accelerations as Accelerations,
+    configuration as configuration,
+    mass_matrix as mass_matrix,
+    rotational_equations as rotational_equations,
+    forward_dynamics as forward_dynamics,
+    solve_accelerations as solve_accelerations,
+    hinge_torques as hinge_torques,
+    kinetic_energy as kinetic_energy,
+    angular_momentum as angular_momentum,
+    mass_center_acceleration as mass_center_acceleration,
+)
+
+__version__ = "0.1.0"

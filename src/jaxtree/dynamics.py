@@ -1,0 +1,345 @@
+"""The unrestricted discrete-coordinate equations: Eq. (1) and Eq. (2) of Likins (1972).
+
+Eq. (1) is ``[a] [omega0_dot; gamma_ddot] = rhs`` with the coefficient matrix of
+Defs. 38-40 and the right side assembled from Def. 41 and the hinge torques.
+This module evaluates *the same matrix and right side* with the sums over path
+elements reorganised so that they cost O(n log depth) plus one entry per
+nonzero path element; :mod:`jaxtree.barycentric` evaluates the printed
+formulas term by term, and the tests check that the two agree.
+
+The reorganisation. Def. 37-40 write ``[a] = sum_{r,s} J_r^T Phi^{rs} J_s`` where
+``J_r`` maps ``(omega0, gamma_dot)`` to the angular velocity of body r (its
+columns are ``U`` and ``epsilon_{kr} g^k``) and ``Phi`` holds the barycentric
+inertia dyadics. With the barycentric identity ``r_k = sum_j D^{jk}`` (the mass
+center of b_k relative to the system mass center, Sec. II A.3) this quadratic
+form is the kinetic energy of the motion relative to the system mass center,
+``2T = sum_k m_k |dr_k/dt|^2 + w_k . I^k w_k``. Written with the vectors
+``rho_k`` (mass center of b_k from the system mass center, {b^0} components)
+and the hinge points ``h_s``, the entry of hinges ``s`` and ``k`` with
+``epsilon_{sk} = 1`` is
+
+    a_sk = S_s . (I^c_k S_k) - p_s . p_k / M,
+
+where ``S_s = (g_s, h_s x g_s)`` is the motion of hinge s, ``I^c_k`` the inertia
+of all bodies outboard of hinge k about the system mass center (a path-element
+sum, ``sum_r epsilon_{kr}``) and ``p_k`` the momentum of those bodies. Entries
+of hinges not on one path keep only the ``-p_s . p_k / M`` part, which is the
+``-M D^{jk} . D^{kj}`` coupling of Def. 37. The right side is the virtual power of
+the external loads and hinge torques minus that of the velocity-product
+(gyroscopic, centripetal) accelerations of Def. 41, accumulated over the same
+outboard sets.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .kinematics import ancestor_sum, body_rotations, subtree_sum, tilde
+from .model import Model, State
+
+__all__ = [
+    "Configuration",
+    "configuration",
+    "mass_matrix",
+    "rotational_equations",
+    "forward_dynamics",
+    "solve_accelerations",
+    "hinge_torques",
+    "external_loads",
+    "kinetic_energy",
+    "angular_momentum",
+    "body_angular_velocities",
+    "mass_center_acceleration",
+]
+
+
+class Configuration(NamedTuple):
+    """Geometry of the tree at one set of hinge angles, in {b^0} components."""
+
+    R: jax.Array  # (n+1, 3, 3)  C^{0k}
+    axis: jax.Array  # (n, 3)     g^k
+    to_hinge: jax.Array  # (n, 3) from the parent's mass center to h_k
+    from_hinge: jax.Array  # (n, 3) from h_k to the mass center of b_k
+    rho: jax.Array  # (n+1, 3) mass center of b_k from the system mass center
+    hinge: jax.Array  # (n, 3)   h_k from the system mass center
+    body_inertia: jax.Array  # (n+1, 3, 3) R_k I^k R_k^T about each mass center
+
+
+def _parents(model):
+    return np.asarray(model.topology.parents, dtype=np.int32)
+
+
+def _dtype(model, *xs):
+    return jnp.result_type(model.mass, *xs)
+
+
+def configuration(model: Model, gamma) -> Configuration:
+    """Rotations (Eqs. 4-5, 21-22), hinge axes, hinge points and mass centers at angles `gamma`."""
+    dtype = _dtype(model, gamma)
+    gamma = jnp.asarray(gamma, dtype)
+    topo = model.topology
+    par = _parents(model)
+    R = body_rotations(topo, model.axis.astype(dtype), gamma)
+    Rp = R[par]
+    axis = jnp.einsum("kij,kj->ki", Rp, model.axis.astype(dtype))
+    to_hinge = jnp.einsum("kij,kj->ki", Rp, model.hinge_on_parent.astype(dtype))
+    from_hinge = -jnp.einsum("kij,kj->ki", R[1:], model.hinge_on_body.astype(dtype))
+    zero = jnp.zeros((1, 3), dtype)
+    rho = ancestor_sum(topo, jnp.concatenate([zero, to_hinge + from_hinge], 0))
+    mass = model.mass.astype(dtype)
+    rho = rho - jnp.einsum("k,ki->i", mass, rho) / jnp.sum(mass)
+    hinge = rho[par] + to_hinge
+    idx = np.asarray(model.massive)
+    Jm = jnp.einsum("kij,kjl,kml->kim", R[idx], model.inertia[idx].astype(dtype), R[idx])
+    body_inertia = _scatter(model, Jm)
+    return Configuration(R, axis, to_hinge, from_hinge, rho, hinge, body_inertia)
+
+
+def _scatter(model, x):
+    """Rows given for the massive bodies -> rows for all bodies (zeros for massless ones)."""
+    n1 = model.n + 1
+    if len(model.massive) == n1:
+        return x
+    return jnp.zeros((n1,) + x.shape[1:], x.dtype).at[np.asarray(model.massive)].set(x)
+
+
+def _composite(model, cfg):
+    """Mass, first moment and inertia about the system mass center of the bodies outboard of
+    each hinge (row 0: all bodies): the path-element sums ``sum_r epsilon_{kr}`` of Defs. 38-40."""
+    mass = model.mass.astype(cfg.rho.dtype)
+    rho = cfg.rho
+    eye = jnp.eye(3, dtype=rho.dtype)
+    J = cfg.body_inertia + mass[:, None, None] * (
+        jnp.einsum("ki,ki->k", rho, rho)[:, None, None] * eye - rho[:, :, None] * rho[:, None, :]
+    )
+    packed = jnp.concatenate([mass[:, None], mass[:, None] * rho, J.reshape(-1, 9)], 1)
+    sub = subtree_sum(model.topology, packed)
+    return sub[:, 0], sub[:, 1:4], sub[:, 4:].reshape(-1, 3, 3)
+
+
+def _hinge_momenta(model, cfg):
+    """Momentum ``p_k`` and angular momentum ``L_k`` (about the system mass center) of the bodies
+    outboard of hinge k for a unit rate of hinge k alone, and the hinge point velocity ``v_k``."""
+    Mc, cc, Jc = _composite(model, cfg)
+    G = cfg.axis
+    v = jnp.cross(cfg.hinge, G)  # velocity of the point at the system mass center, fixed to b_k
+    p = Mc[1:, None] * v + jnp.cross(G, cc[1:])
+    L = jnp.cross(cc[1:], v) + jnp.einsum("kij,kj->ki", Jc[1:], G)
+    return Mc[0], Jc[0], v, p, L
+
+
+def mass_matrix(model: Model, gamma) -> jax.Array:
+    """The (n+3) x (n+3) coefficient matrix of Eq. (1) (Defs. 38-40) at hinge angles `gamma` (n,).
+
+    Rows and columns: ``omega0`` (3, in {b^0}), then ``gamma_1 .. gamma_n``.
+    """
+    cfg = configuration(model, gamma)
+    return _mass_matrix(model, cfg)
+
+
+def _mass_matrix(model, cfg):
+    n = model.n
+    total_mass, J0, v, p, L = _hinge_momenta(model, cfg)
+    G = cfg.axis
+    A = jnp.zeros((n + 3, n + 3), v.dtype)
+    A = A.at[:3, :3].set(J0)
+    if n == 0:
+        return A
+    A = A.at[:3, 3:].set(L.T).at[3:, :3].set(L)
+    s, k = model.topology.ancestor_pairs
+    keep = k >= 1
+    s, k = s[keep] - 1, k[keep] - 1
+    vals = jnp.einsum("pi,pi->p", G[s], L[k]) + jnp.einsum("pi,pi->p", v[s], p[k])
+    hh = jnp.zeros((n, n), v.dtype).at[s, k].set(vals).at[k, s].set(vals)
+    hh = hh - p @ p.T / total_mass
+    return A.at[3:, 3:].set(hh)
+
+
+def body_angular_velocities(model: Model, cfg: Configuration, omega0, gamma_dot):
+    """``omega^k`` of every body in {b^0} components: ``omega0 + sum_r epsilon_{rk} gamma_dot_r g^r``."""
+    terms = jnp.concatenate([omega0[None, :], cfg.axis * gamma_dot[:, None]], 0)
+    return ancestor_sum(model.topology, terms)
+
+
+def _velocities(model, cfg, omega):
+    """Velocities of the mass centers relative to the system mass center, {b^0} components."""
+    par = _parents(model)
+    inc = jnp.cross(omega[par], cfg.to_hinge) + jnp.cross(omega[1:], cfg.from_hinge)
+    vel = ancestor_sum(model.topology, jnp.concatenate([jnp.zeros((1, 3), inc.dtype), inc], 0))
+    mass = model.mass.astype(vel.dtype)
+    return vel - jnp.einsum("k,ki->i", mass, vel) / jnp.sum(mass)
+
+
+def hinge_torques(model: Model, gamma, gamma_dot):
+    """Joint-law torques tau_k (Def. 21): springs and dampers on `model.sprung`, zero elsewhere."""
+    dtype = _dtype(model, gamma, gamma_dot)
+    tau = jnp.zeros((model.n,), dtype)
+    if not model.sprung:
+        return tau
+    i = np.asarray(model.sprung) - 1
+    law = -model.stiffness[i] * gamma[i] - model.damping[i] * gamma_dot[i]
+    return tau.at[i].set(law.astype(dtype))
+
+
+def external_loads(model: Model, t, state: State, cfg: Configuration):
+    """``(bodies, force, torque)`` of the model's external loads in {b^0} components, or None."""
+    if model.loads is None:
+        return None
+    bodies = np.asarray(model.loads.bodies, dtype=np.int32)
+    F, T = model.loads(t, state)
+    R = cfg.R[bodies]
+    dtype = cfg.R.dtype
+    return bodies, jnp.einsum("kij,kj->ki", R, F.astype(dtype)), jnp.einsum("kij,kj->ki", R, T.astype(dtype))
+
+
+def _rhs(model, cfg, omega0, gamma_dot, tau, loads):
+    """Right side of Eq. (1) (Def. 41 projected as in Eq. 1, plus tau)."""
+    topo = model.topology
+    par = _parents(model)
+    dtype = cfg.rho.dtype
+    G = cfg.axis
+    omega = body_angular_velocities(model, cfg, omega0, gamma_dot)
+    zero = jnp.zeros((1, 3), dtype)
+    # velocity-product parts of the angular accelerations: sum_r epsilon_{rk} gamma_dot_r (omega^r x g^r)
+    alpha = ancestor_sum(topo, jnp.concatenate([zero, jnp.cross(omega[par], G) * gamma_dot[:, None]], 0))
+    wp, ap, wk, ak = omega[par], alpha[par], omega[1:], alpha[1:]
+    inc = (
+        jnp.cross(ap, cfg.to_hinge)
+        + jnp.cross(wp, jnp.cross(wp, cfg.to_hinge))
+        + jnp.cross(ak, cfg.from_hinge)
+        + jnp.cross(wk, jnp.cross(wk, cfg.from_hinge))
+    )
+    acc = ancestor_sum(topo, jnp.concatenate([zero, inc], 0))
+    mass = model.mass.astype(dtype)
+    total = jnp.sum(mass)
+    acc = acc - jnp.einsum("k,ki->i", mass, acc) / total
+    Jw = jnp.einsum("kij,kj->ki", cfg.body_inertia, omega)
+    force = -mass[:, None] * acc
+    torque = -(jnp.einsum("kij,kj->ki", cfg.body_inertia, alpha) + jnp.cross(omega, Jw))
+    if loads is not None:
+        bodies, F, T = loads
+        force = force.at[bodies].add(F) - mass[:, None] * (jnp.sum(F, 0) / total)
+        torque = torque.at[bodies].add(T)
+    moment = torque + jnp.cross(cfg.rho, force)
+    sub = subtree_sum(topo, jnp.concatenate([moment, force], 1))
+    rhs0 = sub[0, :3]
+    hinge = jnp.einsum("ki,ki->k", G, sub[1:, :3] - jnp.cross(cfg.hinge, sub[1:, 3:])) + tau
+    return jnp.concatenate([rhs0, hinge])
+
+
+def _complete_state(model, t, state: State):
+    """Fill the prescribed hinges of `state` from the prescription at time t."""
+    if model.prescription is None:
+        return state, None
+    dtype = _dtype(model, state.gamma)
+    g, gd, gdd = model.prescription.derivatives(jnp.asarray(t, dtype))
+    i = np.asarray(model.prescription.hinges) - 1
+    state = state._replace(
+        gamma=state.gamma.astype(dtype).at[i].set(g.astype(dtype)),
+        gamma_dot=state.gamma_dot.astype(dtype).at[i].set(gd.astype(dtype)),
+    )
+    return state, gdd.astype(dtype)
+
+
+def rotational_equations(model: Model, state: State, t=0.0, tau=None):
+    """Matrix and right side of Eq. (1) for all n hinges, ``(A (n+3, n+3), rhs (n+3,))``.
+
+    `tau` (n,) adds hinge torques to the joint laws of the model. Prescribed hinges
+    are not treated specially here (see :func:`solve_accelerations`).
+    """
+    dtype = _dtype(model, state.gamma, state.gamma_dot, state.omega0)
+    gamma = jnp.asarray(state.gamma, dtype)
+    gamma_dot = jnp.asarray(state.gamma_dot, dtype)
+    omega0 = jnp.asarray(state.omega0, dtype)
+    state = State(jnp.asarray(state.dcm, dtype), omega0, gamma, gamma_dot)
+    cfg = configuration(model, gamma)
+    torque = hinge_torques(model, gamma, gamma_dot)
+    if tau is not None:
+        torque = torque + tau
+    A = _mass_matrix(model, cfg)
+    rhs = _rhs(model, cfg, omega0, gamma_dot, torque, external_loads(model, t, state, cfg))
+    return A, rhs
+
+
+class Accelerations(NamedTuple):
+    """Solution of Eq. (1): accelerations and, for prescribed hinges, the torque that holds them."""
+
+    omega0_dot: jax.Array  # (3,)
+    gamma_ddot: jax.Array  # (n,), prescribed hinges included
+    hold_torque: jax.Array  # (len(model.prescribed),)
+
+
+def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelerations:
+    """Solve Eq. (1) by Cholesky factorization, with prescribed hinges as in Sec. II B.
+
+    A prescribed hinge j takes ``gamma_j``, ``gamma_dot_j`` and ``gamma_ddot_j`` from
+    the prescription at time t (its entries in `state` are ignored); its row and
+    column leave the matrix and ``a_{.j} gamma_ddot_j`` moves to the right side.
+    The torque needed to hold the prescription is returned as `hold_torque`.
+    """
+    state, gdd_p = _complete_state(model, t, state)
+    A, rhs = rotational_equations(model, state, t, tau)
+    n = model.n
+    if gdd_p is None:
+        x = _cholesky_solve(A, rhs)
+        return Accelerations(x[:3], x[3:], jnp.zeros((0,), x.dtype))
+    p = np.asarray(model.prescribed) + 2
+    u = np.concatenate([np.arange(3), np.asarray(model.unknown_hinges, dtype=np.int64) + 2])
+    rhs_u = rhs[u] - A[np.ix_(u, p)] @ gdd_p
+    xu = _cholesky_solve(A[np.ix_(u, u)], rhs_u)
+    x = jnp.zeros((n + 3,), xu.dtype).at[u].set(xu).at[p].set(gdd_p)
+    hold = A[p] @ x - rhs[p]
+    return Accelerations(x[:3], x[3:], hold)
+
+
+def _cholesky_solve(A, b):
+    c = jax.scipy.linalg.cho_factor(A, lower=True)
+    return jax.scipy.linalg.cho_solve(c, b)
+
+
+def forward_dynamics(model: Model, dcm, omega0, gamma, gamma_dot, t=0.0):
+    """Accelerations of Eq. (1): ``(omega0_dot (3,), gamma_ddot (n,))``.
+
+    **Arguments:** `dcm` C of Def. 9 ({b^0} = C {i}); `omega0` (3,) in {b^0};
+    `gamma`, `gamma_dot` (n,) with ``gamma[k-1] = gamma_k``; `t` time. Hinge torques
+    come from the model's joint laws, external loads from `model.loads` (none
+    traced when it is None), prescribed hinges from `model.prescription`.
+    Jittable and vmappable.
+    """
+    acc = solve_accelerations(model, State(dcm, omega0, gamma, gamma_dot), t)
+    return acc.omega0_dot, acc.gamma_ddot
+
+
+def kinetic_energy(model: Model, state: State):
+    """Kinetic energy relative to the system mass center (the quadratic form of Eq. 1's matrix)."""
+    cfg = configuration(model, state.gamma)
+    omega = body_angular_velocities(model, cfg, jnp.asarray(state.omega0, cfg.R.dtype), state.gamma_dot)
+    vel = _velocities(model, cfg, omega)
+    mass = model.mass.astype(vel.dtype)
+    Jw = jnp.einsum("kij,kj->ki", cfg.body_inertia, omega)
+    return 0.5 * (jnp.sum(mass * jnp.sum(vel * vel, -1)) + jnp.sum(omega * Jw))
+
+
+def angular_momentum(model: Model, state: State):
+    """Angular momentum about the system mass center, inertial components ``{i}`` (3,)."""
+    cfg = configuration(model, state.gamma)
+    omega = body_angular_velocities(model, cfg, jnp.asarray(state.omega0, cfg.R.dtype), state.gamma_dot)
+    vel = _velocities(model, cfg, omega)
+    mass = model.mass.astype(vel.dtype)
+    H0 = jnp.sum(jnp.cross(cfg.rho, mass[:, None] * vel) + jnp.einsum("kij,kj->ki", cfg.body_inertia, omega), 0)
+    return jnp.asarray(state.dcm, H0.dtype).T @ H0
+
+
+def mass_center_acceleration(model: Model, state: State, t=0.0):
+    """Eq. (2): ``X_ddot = F / M`` in inertial components (zero when the model has no loads)."""
+    cfg = configuration(model, state.gamma)
+    dtype = cfg.R.dtype
+    loads = external_loads(model, t, state, cfg)
+    if loads is None:
+        return jnp.zeros((3,), dtype)
+    _, F, _ = loads
+    return jnp.asarray(state.dcm, dtype).T @ jnp.sum(F, 0) / jnp.sum(model.mass.astype(dtype))

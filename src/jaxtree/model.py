@@ -1,0 +1,167 @@
+"""The vehicle model: user input of Sec. II D of Likins (1972) as an equinox Module.
+
+Physical parameters are JAX array leaves (differentiable, vmappable); the tree
+(Defs. 4-5) and every structural choice (which hinges are prescribed, which
+carry springs, which bodies are massless, which bodies feel external loads)
+are static fields, fixed when the model is built, so that what a scene does
+not need is never traced.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .topology import Topology
+
+__all__ = ["Model", "State", "Prescription", "SinePrescription", "BodyLoads", "FunctionLoads"]
+
+
+class State(NamedTuple):
+    """Instantaneous state of Eq. (1): ``dcm`` is C of Def. 9 ({b^0} = C {i}); ``omega0`` in {b^0};
+    ``gamma[k-1]`` and ``gamma_dot[k-1]`` are the angle and rate of hinge k."""
+
+    dcm: jax.Array
+    omega0: jax.Array
+    gamma: jax.Array
+    gamma_dot: jax.Array
+
+
+class Prescription(eqx.Module):
+    """Kinematically prescribed hinge angles ``gamma_j(t)`` (Sec. II B).
+
+    Subclasses set `hinges` (static tuple of hinge indices 1..n) and implement
+    ``__call__(t) -> angles`` of shape ``(len(hinges),)``; rates and accelerations
+    are taken by forward-mode differentiation, so any JAX-differentiable
+    function of time works.
+    """
+
+    hinges: eqx.AbstractVar[tuple[int, ...]]
+
+    def __call__(self, t):
+        raise NotImplementedError
+
+    def derivatives(self, t):
+        """``(gamma, gamma_dot, gamma_ddot)`` of the prescribed hinges at time t."""
+        t = jnp.asarray(t)
+        first = lambda s: jax.jvp(self.__call__, (s,), (jnp.ones_like(s),))
+        (g, gd), (_, gdd) = jax.jvp(first, (t,), (jnp.ones_like(t),))
+        return g, gd, gdd
+
+
+class SinePrescription(Prescription):
+    """The scene format's ``sine`` form: ``gamma_j(t) = A_j sin(W_j t + P_j)``."""
+
+    hinges: tuple[int, ...] = eqx.field(static=True)
+    amplitude: jax.Array
+    frequency: jax.Array
+    phase: jax.Array
+
+    def __call__(self, t):
+        return self.amplitude * jnp.sin(self.frequency * t + self.phase)
+
+
+class BodyLoads(eqx.Module):
+    """External forces F^k and torques T^k (Defs. 19-20) on a static subset of bodies.
+
+    ``__call__(t, state)`` returns ``(force, torque)``, each ``(len(bodies), 3)`` in
+    the frames of the listed bodies: the force acts at the body's mass center and
+    the torque is the moment about it. Bodies not listed feel nothing, and a model
+    with no loads traces no load terms at all.
+    """
+
+    bodies: eqx.AbstractVar[tuple[int, ...]]
+
+    def __call__(self, t, state: State):
+        raise NotImplementedError
+
+
+class FunctionLoads(BodyLoads):
+    """Loads from a plain function ``fn(t, state) -> (force, torque)``; see :class:`BodyLoads`."""
+
+    bodies: tuple[int, ...] = eqx.field(static=True)
+    fn: Callable = eqx.field(static=True)
+
+    def __call__(self, t, state):
+        return self.fn(t, state)
+
+
+class Model(eqx.Module):
+    """A tree of n+1 rigid bodies joined by n revolute hinges (Likins 1972, Sec. II D).
+
+    Array leaves (float, differentiable):
+
+    - `mass` (n+1,), `inertia` (n+1, 3, 3) about each mass center in the body frame;
+    - `axis` (n, 3) unit hinge axes g^k; `hinge_on_parent` (n, 3) = p^{N_k k};
+      `hinge_on_body` (n, 3) = p^{k N_k} (Def. 13);
+    - `stiffness`, `damping` (n,): spring-damper law ``tau_k = -k gamma_k - d gamma_dot_k``
+      on the hinges listed in `sprung` (zero and unused elsewhere);
+    - `initial`: the scene's initial :class:`State`.
+
+    Static fields: `topology`, `joints` (joint kind per hinge), `sprung` (hinges
+    whose spring law is traced), `massive` (bodies whose mass or inertia is not
+    structurally zero), `prescription`, `loads`.
+
+    Build models with :func:`jaxtree.build_model` or :func:`jaxtree.load_scene`,
+    which validate the input before anything is traced.
+    """
+
+    mass: jax.Array
+    inertia: jax.Array
+    axis: jax.Array
+    hinge_on_parent: jax.Array
+    hinge_on_body: jax.Array
+    stiffness: jax.Array
+    damping: jax.Array
+    initial: State
+    prescription: Prescription | None
+    loads: BodyLoads | None
+    topology: Topology = eqx.field(static=True)
+    joints: tuple[str, ...] = eqx.field(static=True)
+    sprung: tuple[int, ...] = eqx.field(static=True)
+    massive: tuple[int, ...] = eqx.field(static=True)
+    name: str = eqx.field(static=True, default="")
+
+    @property
+    def n(self) -> int:
+        return self.topology.n
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.topology.names
+
+    @property
+    def prescribed(self) -> tuple[int, ...]:
+        """Indices (1..n) of the kinematically prescribed hinges."""
+        return () if self.prescription is None else tuple(self.prescription.hinges)
+
+    @property
+    def unknown_hinges(self) -> tuple[int, ...]:
+        """Indices (1..n) of hinges whose angles are unknowns of Eq. (1)."""
+        p = set(self.prescribed)
+        return tuple(k for k in range(1, self.n + 1) if k not in p)
+
+    def body_index(self, name_or_index) -> int:
+        """Index of a body given its name (or the index itself)."""
+        if isinstance(name_or_index, str):
+            try:
+                return self.names.index(name_or_index)
+            except ValueError:
+                raise KeyError(f"no body named {name_or_index!r}; bodies are {self.names}") from None
+        k = int(name_or_index)
+        if not 0 <= k <= self.n:
+            raise IndexError(f"body index {k} outside 0..{self.n}")
+        return k
+
+    def with_loads(self, loads: BodyLoads | None) -> "Model":
+        """A copy of the model with other external loads (or none)."""
+        return eqx.tree_at(lambda m: m.loads, self, loads, is_leaf=lambda x: x is None)
+
+    def astype(self, dtype) -> "Model":
+        """All floating leaves cast to `dtype` (e.g. ``jnp.float32`` for GPU batches)."""
+        return jax.tree_util.tree_map(
+            lambda x: x.astype(dtype) if eqx.is_inexact_array(x) else x, self
+        )

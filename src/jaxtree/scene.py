@@ -1,0 +1,462 @@
+"""Scenes: the ``jaxtree-scene/1`` JSON format, a Python builder, and validation.
+
+The format is defined in the docstring of ``make_scenes.py`` of the shared
+reference scenes (bundled here under ``jaxtree/scenes``). All validation runs
+on plain numpy data before anything is traced, and every error names the body
+and the field at fault.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import pathlib
+import tempfile
+from typing import Any, Callable, Sequence
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from .model import BodyLoads, Model, Prescription, SinePrescription, State
+from .topology import Topology
+
+__all__ = [
+    "Body",
+    "Free",
+    "SpringDamper",
+    "PrescribedSine",
+    "Prescribed",
+    "SceneError",
+    "build_model",
+    "load_scene",
+    "scene_from_dict",
+    "scene_to_dict",
+    "save_scene",
+    "scene_path",
+    "list_scenes",
+]
+
+FORMAT = "jaxtree-scene/1"
+_SCENES = pathlib.Path(__file__).resolve().parent / "scenes"
+
+
+class SceneError(ValueError):
+    """Invalid vehicle description; the message names the body and the field."""
+
+
+# ----------------------------------------------------------------------------- joints
+@dataclasses.dataclass(frozen=True)
+class Free:
+    """A hinge with no torque law (tau_k = 0 unless a controller adds one)."""
+
+    kind = "free"
+
+
+@dataclasses.dataclass(frozen=True)
+class SpringDamper:
+    """``tau_k = -stiffness * gamma_k - damping * gamma_dot_k``."""
+
+    stiffness: float
+    damping: float = 0.0
+    kind = "spring_damper"
+
+
+@dataclasses.dataclass(frozen=True)
+class PrescribedSine:
+    """Prescribed ``gamma_k(t) = amplitude * sin(frequency * t + phase)`` (the scene's ``sine``)."""
+
+    amplitude: float
+    frequency: float
+    phase: float = 0.0
+    kind = "prescribed"
+
+
+@dataclasses.dataclass(frozen=True)
+class Prescribed:
+    """Prescribed ``gamma_k(t) = fn(t)`` for any JAX-differentiable scalar function of time."""
+
+    fn: Callable
+    kind = "prescribed"
+
+
+@dataclasses.dataclass(frozen=True)
+class Body:
+    """One body of the tree (Sec. II D input). The first body is the reference body b_0 and
+    has no hinge fields; every other body names its `parent` (index or name, Def. 4)."""
+
+    name: str
+    mass: float
+    inertia: Any
+    parent: int | str | None = None
+    axis: Any = None
+    hinge_on_parent: Any = None
+    hinge_on_body: Any = None
+    joint: Any = Free()
+
+
+class _PrescriptionGroup(Prescription):
+    """Several prescriptions side by side (e.g. sine hinges and user functions)."""
+
+    hinges: tuple[int, ...] = eqx.field(static=True)
+    parts: tuple[Prescription, ...]
+
+    def __call__(self, t):
+        return jnp.concatenate([jnp.atleast_1d(p(t)) for p in self.parts])
+
+
+class _FunctionPrescription(Prescription):
+    hinges: tuple[int, ...] = eqx.field(static=True)
+    fns: tuple[Callable, ...] = eqx.field(static=True)
+
+    def __call__(self, t):
+        return jnp.stack([jnp.asarray(f(t)) for f in self.fns])
+
+
+# ----------------------------------------------------------------------------- validation
+def _where(k, name):
+    return f"body {k} ({name!r})"
+
+
+def _vector(value, k, name, field, length=3):
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise SceneError(f"{_where(k, name)}: field {field!r} must be numeric, got {value!r}") from None
+    if a.shape != (length,):
+        raise SceneError(f"{_where(k, name)}: field {field!r} must have length {length}, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise SceneError(f"{_where(k, name)}: field {field!r} must be finite, got {a.tolist()}")
+    return a
+
+
+def _scalar(value, k, name, field):
+    try:
+        a = float(value)
+    except (TypeError, ValueError):
+        raise SceneError(f"{_where(k, name)}: field {field!r} must be a number, got {value!r}") from None
+    if not np.isfinite(a):
+        raise SceneError(f"{_where(k, name)}: field {field!r} must be finite, got {a}")
+    return a
+
+
+def _inertia(value, mass, k, name):
+    try:
+        J = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise SceneError(f"{_where(k, name)}: field 'inertia' must be a 3x3 numeric matrix") from None
+    if J.shape != (3, 3):
+        raise SceneError(f"{_where(k, name)}: field 'inertia' must be 3x3, got shape {J.shape}")
+    if not np.all(np.isfinite(J)):
+        raise SceneError(f"{_where(k, name)}: field 'inertia' must be finite")
+    scale = max(float(np.abs(J).max()), 1e-300)
+    tol = 1e-9 * scale
+    if np.abs(J - J.T).max() > tol:
+        raise SceneError(f"{_where(k, name)}: field 'inertia' is not symmetric: {J.tolist()}")
+    if mass == 0.0 and np.abs(J).max() > 0.0:
+        raise SceneError(f"{_where(k, name)}: a massless body must have zero 'inertia', got {J.tolist()}")
+    ev = np.linalg.eigvalsh(0.5 * (J + J.T))
+    if ev[0] < -tol:
+        raise SceneError(f"{_where(k, name)}: field 'inertia' is not positive semidefinite (eigenvalues {ev.tolist()})")
+    if ev[0] + ev[1] < ev[2] - tol:
+        raise SceneError(
+            f"{_where(k, name)}: field 'inertia' violates the triangle inequality of principal moments "
+            f"({ev.tolist()}: {ev[0]:.6g} + {ev[1]:.6g} < {ev[2]:.6g}); no mass distribution has it"
+        )
+    return 0.5 * (J + J.T)
+
+
+def _joint(joint, k, name):
+    if isinstance(joint, (Free, SpringDamper, PrescribedSine, Prescribed)):
+        j = joint
+    elif isinstance(joint, dict):
+        kind = joint.get("kind")
+        if kind == "free":
+            j = Free()
+        elif kind == "spring_damper":
+            j = SpringDamper(joint.get("stiffness", 0.0), joint.get("damping", 0.0))
+        elif kind == "prescribed":
+            fn = joint.get("function")
+            if fn != "sine":
+                raise SceneError(f"{_where(k, name)}: field 'joint.function' must be 'sine', got {fn!r}")
+            j = PrescribedSine(joint.get("amplitude"), joint.get("frequency"), joint.get("phase", 0.0))
+        else:
+            raise SceneError(
+                f"{_where(k, name)}: unknown joint kind {kind!r} in field 'joint' "
+                "(expected 'free', 'spring_damper' or 'prescribed')"
+            )
+    elif joint is None:
+        j = Free()
+    else:
+        raise SceneError(f"{_where(k, name)}: field 'joint' has an unknown joint {joint!r}")
+    if isinstance(j, SpringDamper):
+        j = SpringDamper(_scalar(j.stiffness, k, name, "joint.stiffness"), _scalar(j.damping, k, name, "joint.damping"))
+    if isinstance(j, PrescribedSine):
+        j = PrescribedSine(
+            _scalar(j.amplitude, k, name, "joint.amplitude"),
+            _scalar(j.frequency, k, name, "joint.frequency"),
+            _scalar(j.phase, k, name, "joint.phase"),
+        )
+    if isinstance(j, Prescribed) and not callable(j.fn):
+        raise SceneError(f"{_where(k, name)}: field 'joint.fn' must be callable")
+    return j
+
+
+def _initial(initial, n):
+    initial = {} if initial is None else dict(initial)
+    if isinstance(initial.get("dcm"), type(None)) and "attitude_dcm" in initial:
+        initial["dcm"] = initial.pop("attitude_dcm")
+    known = {"gamma", "gamma_dot", "omega0", "dcm"}
+    extra = set(initial) - known
+    if extra:
+        raise SceneError(f"initial: unknown fields {sorted(extra)} (expected {sorted(known)} or 'attitude_dcm')")
+
+    def vec(field, length, default):
+        v = initial.get(field, default)
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            raise SceneError(f"initial: field {field!r} must be numeric") from None
+        if a.shape != (length,):
+            raise SceneError(f"initial: field {field!r} must have length {length}, got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise SceneError(f"initial: field {field!r} must be finite")
+        return a
+
+    gamma = vec("gamma", n, np.zeros(n))
+    gamma_dot = vec("gamma_dot", n, np.zeros(n))
+    omega0 = vec("omega0", 3, np.zeros(3))
+    C = np.asarray(initial.get("dcm", np.eye(3)), dtype=float)
+    if C.shape != (3, 3) or not np.all(np.isfinite(C)):
+        raise SceneError(f"initial: field 'attitude_dcm' must be a finite 3x3 matrix, got shape {C.shape}")
+    if np.abs(C @ C.T - np.eye(3)).max() > 1e-9 or np.linalg.det(C) < 0:
+        raise SceneError("initial: field 'attitude_dcm' must be a proper rotation (orthonormal, det +1)")
+    return State(jnp.asarray(C), jnp.asarray(omega0), jnp.asarray(gamma), jnp.asarray(gamma_dot))
+
+
+# ----------------------------------------------------------------------------- building
+def build_model(
+    bodies: Sequence[Body | dict],
+    initial: dict | State | None = None,
+    *,
+    loads: BodyLoads | None = None,
+    name: str = "",
+) -> Model:
+    """Validate a list of bodies and build a :class:`~jaxtree.Model`.
+
+    **Arguments:**
+
+    - `bodies`: :class:`Body` records (or dicts with the scene format's keys),
+      the reference body first; a parent may be given by index or by name.
+    - `initial`: dict with `gamma`, `gamma_dot`, `omega0`, `dcm` (or
+      `attitude_dcm`), or a :class:`~jaxtree.State`; missing entries are zero / identity.
+    - `loads`: optional external loads (:class:`~jaxtree.BodyLoads`).
+
+    Raises :class:`SceneError` naming the body and field of any invalid input.
+    """
+    bodies = [b if isinstance(b, Body) else _body_from_dict(b, i) for i, b in enumerate(bodies)]
+    if not bodies:
+        raise SceneError("bodies: a scene needs at least the reference body")
+    n = len(bodies) - 1
+    names = [str(b.name) for b in bodies]
+    for k, nm in enumerate(names):
+        if names.index(nm) != k:
+            raise SceneError(f"{_where(k, nm)}: field 'name' duplicates body {names.index(nm)}")
+
+    parents, axes, on_parent, on_body, masses, inertias, joints = [], [], [], [], [], [], []
+    for k, b in enumerate(bodies):
+        nm = names[k]
+        m = _scalar(b.mass, k, nm, "mass")
+        if m < 0:
+            raise SceneError(f"{_where(k, nm)}: field 'mass' must be >= 0, got {m}")
+        masses.append(m)
+        inertias.append(_inertia(b.inertia, m, k, nm))
+        if k == 0:
+            if b.parent is not None:
+                raise SceneError(f"{_where(0, nm)}: the reference body must not have a 'parent'")
+            continue
+        if b.parent is None:
+            raise SceneError(f"{_where(k, nm)}: field 'parent' is missing (every body but the first needs one)")
+        p = b.parent
+        if isinstance(p, str):
+            if p not in names[:k]:
+                raise SceneError(
+                    f"{_where(k, nm)}: field 'parent' names {p!r}, which is not an earlier body (Def. 4)"
+                )
+            p = names.index(p)
+        if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or not 0 <= int(p) < k:
+            raise SceneError(
+                f"{_where(k, nm)}: field 'parent' must be an index in 0..{k - 1} (Def. 4: parents before children), got {p!r}"
+            )
+        parents.append(int(p))
+        if b.axis is None:
+            raise SceneError(f"{_where(k, nm)}: field 'axis' is missing")
+        g = _vector(b.axis, k, nm, "axis")
+        norm = np.linalg.norm(g)
+        if norm < 1e-12:
+            raise SceneError(f"{_where(k, nm)}: field 'axis' must be a nonzero 3-vector, got {g.tolist()}")
+        axes.append(g / norm)
+        for field, store in (("hinge_on_parent", on_parent), ("hinge_on_body", on_body)):
+            v = getattr(b, field)
+            if v is None:
+                raise SceneError(f"{_where(k, nm)}: field {field!r} is missing")
+            store.append(_vector(v, k, nm, field))
+        joints.append(_joint(b.joint, k, nm))
+
+    if sum(masses) <= 0:
+        raise SceneError("bodies: the total mass must be positive")
+    topology = Topology(parents, names)
+
+    stiffness = np.zeros(n)
+    damping = np.zeros(n)
+    sprung, sine, funcs = [], [], []
+    for k, j in enumerate(joints, start=1):
+        if isinstance(j, SpringDamper):
+            stiffness[k - 1], damping[k - 1] = j.stiffness, j.damping
+            sprung.append(k)
+        elif isinstance(j, PrescribedSine):
+            sine.append((k, j))
+        elif isinstance(j, Prescribed):
+            funcs.append((k, j))
+    parts = []
+    if sine:
+        parts.append(
+            SinePrescription(
+                tuple(k for k, _ in sine),
+                jnp.asarray([j.amplitude for _, j in sine]),
+                jnp.asarray([j.frequency for _, j in sine]),
+                jnp.asarray([j.phase for _, j in sine]),
+            )
+        )
+    if funcs:
+        parts.append(_FunctionPrescription(tuple(k for k, _ in funcs), tuple(j.fn for _, j in funcs)))
+    prescription = None
+    if len(parts) == 1:
+        prescription = parts[0]
+    elif parts:
+        prescription = _PrescriptionGroup(sum((p.hinges for p in parts), ()), tuple(parts))
+
+    state = initial if isinstance(initial, State) else _initial(initial, n)
+    massive = tuple(k for k in range(n + 1) if masses[k] > 0)
+    if loads is not None:
+        for k in loads.bodies:
+            if not 0 <= int(k) <= n:
+                raise SceneError(f"loads: body index {k} outside 0..{n}")
+
+    return Model(
+        mass=jnp.asarray(masses),
+        inertia=jnp.asarray(np.stack(inertias)),
+        axis=jnp.asarray(np.stack(axes).reshape(n, 3)),
+        hinge_on_parent=jnp.asarray(np.stack(on_parent).reshape(n, 3)),
+        hinge_on_body=jnp.asarray(np.stack(on_body).reshape(n, 3)),
+        stiffness=jnp.asarray(stiffness),
+        damping=jnp.asarray(damping),
+        initial=state,
+        prescription=prescription,
+        loads=loads,
+        topology=topology,
+        joints=tuple(j.kind for j in joints),
+        sprung=tuple(sprung),
+        massive=massive,
+        name=name,
+    )
+
+
+_BODY_KEYS = {"name", "mass", "inertia", "parent", "axis", "hinge_on_parent", "hinge_on_body", "joint"}
+
+
+def _body_from_dict(d, k):
+    if not isinstance(d, dict):
+        raise SceneError(f"body {k}: expected an object, got {type(d).__name__}")
+    extra = set(d) - _BODY_KEYS
+    if extra:
+        raise SceneError(f"{_where(k, d.get('name', '?'))}: unknown fields {sorted(extra)}")
+    for field in ("name", "mass", "inertia"):
+        if field not in d:
+            raise SceneError(f"{_where(k, d.get('name', '?'))}: field {field!r} is missing")
+    return Body(**{key: d[key] for key in _BODY_KEYS if key in d})
+
+
+# ----------------------------------------------------------------------------- JSON
+def scene_from_dict(data: dict) -> Model:
+    """Build a model from a parsed ``jaxtree-scene/1`` document."""
+    if not isinstance(data, dict):
+        raise SceneError("scene: expected a JSON object")
+    if data.get("format") != FORMAT:
+        raise SceneError(f"scene: field 'format' must be {FORMAT!r}, got {data.get('format')!r}")
+    if "bodies" not in data or not isinstance(data["bodies"], list):
+        raise SceneError("scene: field 'bodies' must be a list")
+    return build_model(data["bodies"], data.get("initial"), name=str(data.get("name", "")))
+
+
+def scene_path(name: str) -> pathlib.Path:
+    """Path of a bundled reference scene, e.g. ``scene_path("fig4")``."""
+    p = _SCENES / f"{name}.json"
+    if not p.exists():
+        raise FileNotFoundError(f"no bundled scene {name!r}; available: {list_scenes()}")
+    return p
+
+
+def list_scenes() -> list[str]:
+    """Names of the bundled reference scenes."""
+    return sorted(p.stem for p in _SCENES.glob("*.json"))
+
+
+def load_scene(path) -> Model:
+    """Load a ``jaxtree-scene/1`` JSON file; a bare name (``"fig4"``) loads a bundled scene."""
+    p = pathlib.Path(path)
+    if not p.exists() and p.suffix == "" and p.parent == pathlib.Path("."):
+        p = scene_path(str(path))
+    with open(p) as f:
+        try:
+            data = json.load(f)
+        except json.JSONDecodeError as e:
+            raise SceneError(f"{p}: not valid JSON ({e})") from None
+    return scene_from_dict(data)
+
+
+def scene_to_dict(model: Model, description: str = "") -> dict:
+    """The ``jaxtree-scene/1`` document of a model (sine and free/spring joints only)."""
+    pres = model.prescription
+    sine = {}
+    if isinstance(pres, SinePrescription):
+        for i, k in enumerate(pres.hinges):
+            sine[k] = (float(pres.amplitude[i]), float(pres.frequency[i]), float(pres.phase[i]))
+    elif pres is not None:
+        raise ValueError("scene_to_dict: only 'sine' prescriptions have a JSON form")
+    f = lambda a: np.asarray(a, dtype=float).tolist()
+    bodies = [{"name": model.names[0], "mass": float(model.mass[0]), "inertia": f(model.inertia[0])}]
+    for k in range(1, model.n + 1):
+        if k in sine:
+            A, W, P = sine[k]
+            joint = {"kind": "prescribed", "function": "sine", "amplitude": A, "frequency": W, "phase": P}
+        elif k in model.sprung:
+            joint = {"kind": "spring_damper", "stiffness": float(model.stiffness[k - 1]),
+                     "damping": float(model.damping[k - 1])}
+        else:
+            joint = {"kind": "free"}
+        bodies.append({
+            "name": model.names[k], "mass": float(model.mass[k]), "inertia": f(model.inertia[k]),
+            "parent": model.topology.parents[k - 1], "axis": f(model.axis[k - 1]),
+            "hinge_on_parent": f(model.hinge_on_parent[k - 1]), "hinge_on_body": f(model.hinge_on_body[k - 1]),
+            "joint": joint,
+        })
+    s = model.initial
+    return {"format": FORMAT, "name": model.name, "description": description, "bodies": bodies,
+            "initial": {"gamma": f(s.gamma), "gamma_dot": f(s.gamma_dot), "omega0": f(s.omega0),
+                        "attitude_dcm": f(s.dcm)}}
+
+
+def save_scene(model: Model, path, description: str = "") -> None:
+    """Write a model as ``jaxtree-scene/1`` JSON, atomically (temporary file, then rename)."""
+    path = pathlib.Path(path)
+    text = json.dumps(scene_to_dict(model, description), indent=1) + "\n"
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
