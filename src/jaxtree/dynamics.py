@@ -66,7 +66,7 @@ class Configuration(NamedTuple):
     from_hinge: jax.Array  # (n, 3) from h_k to the mass center of b_k
     rho: jax.Array  # (n+1, 3) mass center of b_k from the system mass center
     hinge: jax.Array  # (n, 3)   h_k from the system mass center
-    body_inertia: jax.Array  # (n+1, 3, 3) R_k I^k R_k^T about each mass center
+    inertia: jax.Array  # (len(model.massive), 3, 3) R_k I^k R_k^T of the massive bodies
 
 
 def _parents(model):
@@ -94,30 +94,26 @@ def configuration(model: Model, gamma) -> Configuration:
     rho = rho - jnp.einsum("k,ki->i", mass, rho) / jnp.sum(mass)
     hinge = rho[par] + to_hinge
     idx = np.asarray(model.massive)
-    Jm = jnp.einsum("kij,kjl,kml->kim", R[idx], model.inertia[idx].astype(dtype), R[idx])
-    body_inertia = _scatter(model, Jm)
-    return Configuration(R, axis, to_hinge, from_hinge, rho, hinge, body_inertia)
+    inertia = jnp.einsum("kij,kjl,kml->kim", R[idx], model.inertia[idx].astype(dtype), R[idx])
+    return Configuration(R, axis, to_hinge, from_hinge, rho, hinge, inertia)
 
 
-def _scatter(model, x):
-    """Rows given for the massive bodies -> rows for all bodies (zeros for massless ones)."""
-    n1 = model.n + 1
-    if len(model.massive) == n1:
-        return x
-    return jnp.zeros((n1,) + x.shape[1:], x.dtype).at[np.asarray(model.massive)].set(x)
+def _massive(model, x):
+    """Rows of the massive bodies (all of `x` when no body is massless)."""
+    return x if len(model.massive) == model.n + 1 else x[np.asarray(model.massive)]
 
 
 def _composite(model, cfg):
     """Mass, first moment and inertia about the system mass center of the bodies outboard of
     each hinge (row 0: all bodies): the path-element sums ``sum_r epsilon_{kr}`` of Defs. 38-40."""
-    mass = model.mass.astype(cfg.rho.dtype)
-    rho = cfg.rho
+    mass = _massive(model, model.mass.astype(cfg.rho.dtype))
+    rho = _massive(model, cfg.rho)
     eye = jnp.eye(3, dtype=rho.dtype)
-    J = cfg.body_inertia + mass[:, None, None] * (
+    J = cfg.inertia + mass[:, None, None] * (
         jnp.einsum("ki,ki->k", rho, rho)[:, None, None] * eye - rho[:, :, None] * rho[:, None, :]
     )
     packed = jnp.concatenate([mass[:, None], mass[:, None] * rho, J.reshape(-1, 9)], 1)
-    sub = subtree_sum(model.topology, packed)
+    sub = subtree_sum(model.topology, packed, model.massive)
     return sub[:, 0], sub[:, 1:4], sub[:, 4:].reshape(-1, 3, 3)
 
 
@@ -145,18 +141,16 @@ def _mass_matrix(model, cfg):
     n = model.n
     total_mass, J0, v, p, L = _hinge_momenta(model, cfg)
     G = cfg.axis
-    A = jnp.zeros((n + 3, n + 3), v.dtype)
-    A = A.at[:3, :3].set(J0)
     if n == 0:
-        return A
-    A = A.at[:3, 3:].set(L.T).at[3:, :3].set(L)
-    s, k = model.topology.ancestor_pairs
-    keep = k >= 1
-    s, k = s[keep] - 1, k[keep] - 1
-    vals = jnp.einsum("pi,pi->p", G[s], L[k]) + jnp.einsum("pi,pi->p", v[s], p[k])
-    hh = jnp.zeros((n, n), v.dtype).at[s, k].set(vals).at[k, s].set(vals)
-    hh = hh - p @ p.T / total_mass
-    return A.at[3:, 3:].set(hh)
+        return J0
+    # X[s, k] = S_s . (I^c_k S_k); it is an entry of [a] where epsilon_{sk} = 1 (s inboard of k),
+    # its transpose where epsilon_{ks} = 1, and absent for hinges on different branches.
+    X = G @ L.T + v @ p.T
+    eps = model.topology.path_elements[:, 1:]
+    upper = jnp.asarray(eps, X.dtype)
+    strict = jnp.asarray(eps - np.eye(n, dtype=eps.dtype), X.dtype)
+    hh = upper * X + (strict * X).T - p @ p.T / total_mass
+    return jnp.block([[J0, L.T], [L, hh]])
 
 
 def body_angular_velocities(model: Model, cfg: Configuration, omega0, gamma_dot):
@@ -177,12 +171,15 @@ def _velocities(model, cfg, omega):
 def hinge_torques(model: Model, gamma, gamma_dot):
     """Joint-law torques tau_k (Def. 21): springs and dampers on `model.sprung`, zero elsewhere."""
     dtype = _dtype(model, gamma, gamma_dot)
-    tau = jnp.zeros((model.n,), dtype)
     if not model.sprung:
-        return tau
+        return jnp.zeros((model.n,), dtype)
+    if len(model.sprung) == model.n:
+        return (-model.stiffness * gamma - model.damping * gamma_dot).astype(dtype)
     i = np.asarray(model.sprung) - 1
     law = -model.stiffness[i] * gamma[i] - model.damping[i] * gamma_dot[i]
-    return tau.at[i].set(law.astype(dtype))
+    select = np.zeros((model.n, len(i)))
+    select[i, np.arange(len(i))] = 1.0
+    return jnp.asarray(select, dtype) @ law.astype(dtype)
 
 
 def external_loads(model: Model, t, state: State, cfg: Configuration):
@@ -213,22 +210,32 @@ def _rhs(model, cfg, omega0, gamma_dot, tau, loads):
         + jnp.cross(ak, cfg.from_hinge)
         + jnp.cross(wk, jnp.cross(wk, cfg.from_hinge))
     )
-    acc = ancestor_sum(topo, jnp.concatenate([zero, inc], 0))
-    mass = model.mass.astype(dtype)
+    acc = _massive(model, ancestor_sum(topo, jnp.concatenate([zero, inc], 0)))
+    mass = _massive(model, model.mass.astype(dtype))
     total = jnp.sum(mass)
     acc = acc - jnp.einsum("k,ki->i", mass, acc) / total
-    Jw = jnp.einsum("kij,kj->ki", cfg.body_inertia, omega)
+    w, al, rho = _massive(model, omega), _massive(model, alpha), _massive(model, cfg.rho)
     force = -mass[:, None] * acc
-    torque = -(jnp.einsum("kij,kj->ki", cfg.body_inertia, alpha) + jnp.cross(omega, Jw))
+    torque = -(jnp.einsum("kij,kj->ki", cfg.inertia, al) + jnp.cross(w, jnp.einsum("kij,kj->ki", cfg.inertia, w)))
     if loads is not None:
         bodies, F, T = loads
-        force = force.at[bodies].add(F) - mass[:, None] * (jnp.sum(F, 0) / total)
-        torque = torque.at[bodies].add(T)
-    moment = torque + jnp.cross(cfg.rho, force)
-    sub = subtree_sum(topo, jnp.concatenate([moment, force], 1))
+        force = force - mass[:, None] * (jnp.sum(F, 0) / total)  # the mass-center share of F (Eq. 2)
+    wrench = jnp.concatenate([torque + jnp.cross(rho, force), force], 1)
+    sub = subtree_sum(topo, wrench, model.massive)
+    if loads is not None:
+        applied = jnp.concatenate([T + jnp.cross(cfg.rho[bodies], F), F], 1)
+        sub = sub + subtree_sum(topo, applied, tuple(int(b) for b in bodies))
     rhs0 = sub[0, :3]
     hinge = jnp.einsum("ki,ki->k", G, sub[1:, :3] - jnp.cross(cfg.hinge, sub[1:, 3:])) + tau
     return jnp.concatenate([rhs0, hinge])
+
+
+def _split(model):
+    """Static index arrays: unknown and prescribed hinges (0-based), and the inverse permutation."""
+    u = np.asarray(model.unknown_hinges, dtype=np.int64) - 1
+    p = np.asarray(model.prescribed, dtype=np.int64) - 1
+    inverse = np.argsort(np.concatenate([u, p]))
+    return u, p, inverse
 
 
 def _complete_state(model, t, state: State):
@@ -237,11 +244,9 @@ def _complete_state(model, t, state: State):
         return state, None
     dtype = _dtype(model, state.gamma)
     g, gd, gdd = model.prescription.derivatives(jnp.asarray(t, dtype))
-    i = np.asarray(model.prescription.hinges) - 1
-    state = state._replace(
-        gamma=state.gamma.astype(dtype).at[i].set(g.astype(dtype)),
-        gamma_dot=state.gamma_dot.astype(dtype).at[i].set(gd.astype(dtype)),
-    )
+    u, _, inverse = _split(model)
+    merge = lambda full, pres: jnp.concatenate([full.astype(dtype)[u], pres.astype(dtype)])[inverse]
+    state = state._replace(gamma=merge(state.gamma, g), gamma_dot=merge(state.gamma_dot, gd))
     return state, gdd.astype(dtype)
 
 
@@ -287,13 +292,15 @@ def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelera
     if gdd_p is None:
         x = _cholesky_solve(A, rhs)
         return Accelerations(x[:3], x[3:], jnp.zeros((0,), x.dtype))
-    p = np.asarray(model.prescribed) + 2
-    u = np.concatenate([np.arange(3), np.asarray(model.unknown_hinges, dtype=np.int64) + 2])
+    u, p, inverse = _split(model)
+    u = np.concatenate([np.arange(3), u + 3])
+    p = p + 3
     rhs_u = rhs[u] - A[np.ix_(u, p)] @ gdd_p
     xu = _cholesky_solve(A[np.ix_(u, u)], rhs_u)
-    x = jnp.zeros((n + 3,), xu.dtype).at[u].set(xu).at[p].set(gdd_p)
+    gdd = jnp.concatenate([xu[3:], gdd_p])[inverse]
+    x = jnp.concatenate([xu[:3], gdd])
     hold = A[p] @ x - rhs[p]
-    return Accelerations(x[:3], x[3:], hold)
+    return Accelerations(x[:3], gdd, hold)
 
 
 def _cholesky_solve(A, b):
@@ -314,23 +321,25 @@ def forward_dynamics(model: Model, dcm, omega0, gamma, gamma_dot, t=0.0):
     return acc.omega0_dot, acc.gamma_ddot
 
 
-def kinetic_energy(model: Model, state: State):
-    """Kinetic energy relative to the system mass center (the quadratic form of Eq. 1's matrix)."""
+def _momenta(model, state):
     cfg = configuration(model, state.gamma)
     omega = body_angular_velocities(model, cfg, jnp.asarray(state.omega0, cfg.R.dtype), state.gamma_dot)
-    vel = _velocities(model, cfg, omega)
-    mass = model.mass.astype(vel.dtype)
-    Jw = jnp.einsum("kij,kj->ki", cfg.body_inertia, omega)
-    return 0.5 * (jnp.sum(mass * jnp.sum(vel * vel, -1)) + jnp.sum(omega * Jw))
+    vel = _massive(model, _velocities(model, cfg, omega))
+    w = _massive(model, omega)
+    mass = _massive(model, model.mass.astype(vel.dtype))
+    return cfg, mass, vel, w, jnp.einsum("kij,kj->ki", cfg.inertia, w)
+
+
+def kinetic_energy(model: Model, state: State):
+    """Kinetic energy relative to the system mass center (the quadratic form of Eq. 1's matrix)."""
+    _, mass, vel, w, Jw = _momenta(model, state)
+    return 0.5 * (jnp.sum(mass * jnp.sum(vel * vel, -1)) + jnp.sum(w * Jw))
 
 
 def angular_momentum(model: Model, state: State):
     """Angular momentum about the system mass center, inertial components ``{i}`` (3,)."""
-    cfg = configuration(model, state.gamma)
-    omega = body_angular_velocities(model, cfg, jnp.asarray(state.omega0, cfg.R.dtype), state.gamma_dot)
-    vel = _velocities(model, cfg, omega)
-    mass = model.mass.astype(vel.dtype)
-    H0 = jnp.sum(jnp.cross(cfg.rho, mass[:, None] * vel) + jnp.einsum("kij,kj->ki", cfg.body_inertia, omega), 0)
+    cfg, mass, vel, w, Jw = _momenta(model, state)
+    H0 = jnp.sum(jnp.cross(_massive(model, cfg.rho), mass[:, None] * vel) + Jw, 0)
     return jnp.asarray(state.dcm, H0.dtype).T @ H0
 
 

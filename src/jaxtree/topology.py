@@ -129,6 +129,17 @@ class Topology:
         return (s + 1).astype(np.int32), k.astype(np.int32)
 
     @functools.cached_property
+    def descendants(self) -> np.ndarray:
+        """``E[s, k] = 1`` iff body k is outboard of hinge s or is s (``epsilon_{sk}``); row 0 is all ones.
+
+        Sums over outboard sets are products with this static matrix (see
+        :func:`jaxtree.kinematics.subtree_sum`).
+        """
+        E = np.concatenate([np.ones((1, self.n + 1), np.int8), self.path_elements], 0)
+        E.setflags(write=False)
+        return E
+
+    @functools.cached_property
     def jump_tables(self) -> tuple[np.ndarray, ...]:
         """Pointer-jumping tables: ``tables[i][k]`` is the ``2**i``-th ancestor of body k, or ``n + 1``.
 
