@@ -55,3 +55,20 @@ from .dynamics import (
 )
 
 __version__ = "0.1.0"
+from .linearize import (
+    LinearSystem as LinearSystem,
+    PartialLinearization as PartialLinearization,
+    Structure as Structure,
+    linearized_equations as linearized_equations,
+    linearize as linearize,
+    linearize_vehicle as linearize_vehicle,
+    structure as structure,
+)
+from .modes import (
+    Modes as Modes,
+    ModalError as ModalError,
+    UnstableError as UnstableError,
+    DefectiveError as DefectiveError,
+    modes as modes,
+    first_order as first_order,
+)
