@@ -55,14 +55,24 @@ def _model(parents, mass, inertia, axis, hinge_on_parent, hinge_on_body):
 
 def _kinematics(m, gamma):
     """Attitudes R_k (body k -> body 0 components) and mass-center positions r_k
-    relative to body 0's mass center, in {b^0} components. Plain loop over the tree."""
-    R, r = [jnp.eye(3)], [jnp.zeros(3)]
-    for k in range(1, m["n"] + 1):
-        N = m["parents"][k - 1]
+    relative to body 0's mass center, in {b^0} components. One pass over the tree in
+    label order (parents first, Def. 4), as a scan so that compile time does not grow
+    with the number of bodies."""
+    n = m["n"]
+    R0 = jnp.zeros((n + 1, 3, 3)).at[0].set(jnp.eye(3))
+    r0 = jnp.zeros((n + 1, 3))
+    if n == 0:
+        return R0, r0
+
+    def step(carry, k):
+        R, r = carry
+        N = jnp.asarray(m["parents"])[k - 1]
         Rk = R[N] @ hinge_dcm(m["axis"][k - 1], gamma[k - 1]).T
-        R.append(Rk)
-        r.append(r[N] + R[N] @ m["hop"][k - 1] - Rk @ m["hob"][k - 1])
-    return jnp.stack(R), jnp.stack(r)
+        rk = r[N] + R[N] @ m["hop"][k - 1] - Rk @ m["hob"][k - 1]
+        return (R.at[k].set(Rk), r.at[k].set(rk)), None
+
+    (R, r), _ = jax.lax.scan(step, (R0, r0), jnp.arange(1, n + 1))
+    return R, r
 
 
 def _velocities(m, gamma, u):
@@ -96,10 +106,8 @@ def _full_system(m, gamma, u, tau, F, T):
     pv, pw = p[:3], p[3:6]
     h = jnp.concatenate([jnp.cross(w0, pv), jnp.cross(w0, pw) + jnp.cross(v, pv), -dT_dg])
     # hinge torques as body torques: +tau a on body k, -tau a on the parent
-    Tl = jnp.asarray(T)
-    for k in range(1, m["n"] + 1):
-        ta = tau[k - 1] * m["axis"][k - 1]
-        Tl = Tl.at[k].add(ta).at[m["parents"][k - 1]].add(-ta)
+    ta = tau[:, None] * m["axis"]
+    Tl = jnp.asarray(T).at[1:].add(ta).at[np.asarray(m["parents"], dtype=int)].add(-ta)
 
     def power(uu):                                   # virtual power of all loads
         R, _, vel, omg = _velocities(m, gamma, uu)

@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .kinematics import ancestor_sum, body_rotations, subtree_sum, tilde
+from .kinematics import ancestor_sum, body_rotations, cross, dot, mm, mv, subtree_sum, tilde
 from .model import Model, State
 
 __all__ = [
@@ -85,16 +85,17 @@ def configuration(model: Model, gamma) -> Configuration:
     par = _parents(model)
     R = body_rotations(topo, model.axis.astype(dtype), gamma)
     Rp = R[par]
-    axis = jnp.einsum("kij,kj->ki", Rp, model.axis.astype(dtype))
-    to_hinge = jnp.einsum("kij,kj->ki", Rp, model.hinge_on_parent.astype(dtype))
-    from_hinge = -jnp.einsum("kij,kj->ki", R[1:], model.hinge_on_body.astype(dtype))
+    axis = mv(Rp, model.axis.astype(dtype))
+    to_hinge = mv(Rp, model.hinge_on_parent.astype(dtype))
+    from_hinge = -mv(R[1:], model.hinge_on_body.astype(dtype))
     zero = jnp.zeros((1, 3), dtype)
     rho = ancestor_sum(topo, jnp.concatenate([zero, to_hinge + from_hinge], 0))
     mass = model.mass.astype(dtype)
-    rho = rho - jnp.einsum("k,ki->i", mass, rho) / jnp.sum(mass)
+    rho = rho - jnp.sum(mass[:, None] * rho, 0) / jnp.sum(mass)
     hinge = rho[par] + to_hinge
     idx = np.asarray(model.massive)
-    inertia = jnp.einsum("kij,kjl,kml->kim", R[idx], model.inertia[idx].astype(dtype), R[idx])
+    Ri = R[idx]
+    inertia = mm(mm(Ri, model.inertia[idx].astype(dtype)), jnp.swapaxes(Ri, -1, -2))
     return Configuration(R, axis, to_hinge, from_hinge, rho, hinge, inertia)
 
 
@@ -110,7 +111,7 @@ def _composite(model, cfg):
     rho = _massive(model, cfg.rho)
     eye = jnp.eye(3, dtype=rho.dtype)
     J = cfg.inertia + mass[:, None, None] * (
-        jnp.einsum("ki,ki->k", rho, rho)[:, None, None] * eye - rho[:, :, None] * rho[:, None, :]
+        dot(rho, rho)[:, None, None] * eye - rho[:, :, None] * rho[:, None, :]
     )
     packed = jnp.concatenate([mass[:, None], mass[:, None] * rho, J.reshape(-1, 9)], 1)
     sub = subtree_sum(model.topology, packed, model.massive)
@@ -122,9 +123,9 @@ def _hinge_momenta(model, cfg):
     outboard of hinge k for a unit rate of hinge k alone, and the hinge point velocity ``v_k``."""
     Mc, cc, Jc = _composite(model, cfg)
     G = cfg.axis
-    v = jnp.cross(cfg.hinge, G)  # velocity of the point at the system mass center, fixed to b_k
-    p = Mc[1:, None] * v + jnp.cross(G, cc[1:])
-    L = jnp.cross(cc[1:], v) + jnp.einsum("kij,kj->ki", Jc[1:], G)
+    v = cross(cfg.hinge, G)  # velocity of the point at the system mass center, fixed to b_k
+    p = Mc[1:, None] * v + cross(G, cc[1:])
+    L = cross(cc[1:], v) + mv(Jc[1:], G)
     return Mc[0], Jc[0], v, p, L
 
 
@@ -162,10 +163,10 @@ def body_angular_velocities(model: Model, cfg: Configuration, omega0, gamma_dot)
 def _velocities(model, cfg, omega):
     """Velocities of the mass centers relative to the system mass center, {b^0} components."""
     par = _parents(model)
-    inc = jnp.cross(omega[par], cfg.to_hinge) + jnp.cross(omega[1:], cfg.from_hinge)
+    inc = cross(omega[par], cfg.to_hinge) + cross(omega[1:], cfg.from_hinge)
     vel = ancestor_sum(model.topology, jnp.concatenate([jnp.zeros((1, 3), inc.dtype), inc], 0))
     mass = model.mass.astype(vel.dtype)
-    return vel - jnp.einsum("k,ki->i", mass, vel) / jnp.sum(mass)
+    return vel - jnp.sum(mass[:, None] * vel, 0) / jnp.sum(mass)
 
 
 def hinge_torques(model: Model, gamma, gamma_dot):
@@ -190,7 +191,7 @@ def external_loads(model: Model, t, state: State, cfg: Configuration):
     F, T = model.loads(t, state)
     R = cfg.R[bodies]
     dtype = cfg.R.dtype
-    return bodies, jnp.einsum("kij,kj->ki", R, F.astype(dtype)), jnp.einsum("kij,kj->ki", R, T.astype(dtype))
+    return bodies, mv(R, F.astype(dtype)), mv(R, T.astype(dtype))
 
 
 def _rhs(model, cfg, omega0, gamma_dot, tau, loads):
@@ -202,39 +203,41 @@ def _rhs(model, cfg, omega0, gamma_dot, tau, loads):
     omega = body_angular_velocities(model, cfg, omega0, gamma_dot)
     zero = jnp.zeros((1, 3), dtype)
     # velocity-product parts of the angular accelerations: sum_r epsilon_{rk} gamma_dot_r (omega^r x g^r)
-    alpha = ancestor_sum(topo, jnp.concatenate([zero, jnp.cross(omega[par], G) * gamma_dot[:, None]], 0))
+    alpha = ancestor_sum(topo, jnp.concatenate([zero, cross(omega[par], G) * gamma_dot[:, None]], 0))
     wp, ap, wk, ak = omega[par], alpha[par], omega[1:], alpha[1:]
     inc = (
-        jnp.cross(ap, cfg.to_hinge)
-        + jnp.cross(wp, jnp.cross(wp, cfg.to_hinge))
-        + jnp.cross(ak, cfg.from_hinge)
-        + jnp.cross(wk, jnp.cross(wk, cfg.from_hinge))
+        cross(ap, cfg.to_hinge)
+        + cross(wp, cross(wp, cfg.to_hinge))
+        + cross(ak, cfg.from_hinge)
+        + cross(wk, cross(wk, cfg.from_hinge))
     )
     acc = _massive(model, ancestor_sum(topo, jnp.concatenate([zero, inc], 0)))
     mass = _massive(model, model.mass.astype(dtype))
     total = jnp.sum(mass)
-    acc = acc - jnp.einsum("k,ki->i", mass, acc) / total
+    acc = acc - jnp.sum(mass[:, None] * acc, 0) / total
     w, al, rho = _massive(model, omega), _massive(model, alpha), _massive(model, cfg.rho)
     force = -mass[:, None] * acc
-    torque = -(jnp.einsum("kij,kj->ki", cfg.inertia, al) + jnp.cross(w, jnp.einsum("kij,kj->ki", cfg.inertia, w)))
+    torque = -(mv(cfg.inertia, al) + cross(w, mv(cfg.inertia, w)))
     if loads is not None:
         bodies, F, T = loads
         force = force - mass[:, None] * (jnp.sum(F, 0) / total)  # the mass-center share of F (Eq. 2)
-    wrench = jnp.concatenate([torque + jnp.cross(rho, force), force], 1)
+    wrench = jnp.concatenate([torque + cross(rho, force), force], 1)
     sub = subtree_sum(topo, wrench, model.massive)
     if loads is not None:
-        applied = jnp.concatenate([T + jnp.cross(cfg.rho[bodies], F), F], 1)
+        applied = jnp.concatenate([T + cross(cfg.rho[bodies], F), F], 1)
         sub = sub + subtree_sum(topo, applied, tuple(int(b) for b in bodies))
     rhs0 = sub[0, :3]
-    hinge = jnp.einsum("ki,ki->k", G, sub[1:, :3] - jnp.cross(cfg.hinge, sub[1:, 3:])) + tau
+    hinge = dot(G, sub[1:, :3] - cross(cfg.hinge, sub[1:, 3:])) + tau
     return jnp.concatenate([rhs0, hinge])
 
 
 def _split(model):
-    """Static index arrays: unknown and prescribed hinges (0-based), and the inverse permutation."""
+    """Static index arrays (0-based hinges): unknowns, prescribed, and the inverse permutation
+    that puts ``[unknowns, prescribed, inert]`` back in hinge order."""
     u = np.asarray(model.unknown_hinges, dtype=np.int64) - 1
     p = np.asarray(model.prescribed, dtype=np.int64) - 1
-    inverse = np.argsort(np.concatenate([u, p]))
+    i = np.asarray(model.inert, dtype=np.int64) - 1
+    inverse = np.argsort(np.concatenate([u, p, i]))
     return u, p, inverse
 
 
@@ -244,8 +247,10 @@ def _complete_state(model, t, state: State):
         return state, None
     dtype = _dtype(model, state.gamma)
     g, gd, gdd = model.prescription.derivatives(jnp.asarray(t, dtype))
-    u, _, inverse = _split(model)
-    merge = lambda full, pres: jnp.concatenate([full.astype(dtype)[u], pres.astype(dtype)])[inverse]
+    i = np.asarray(model.prescribed) - 1
+    keep = np.setdiff1d(np.arange(model.n), i)
+    inverse = np.argsort(np.concatenate([keep, i]))
+    merge = lambda full, pres: jnp.concatenate([full.astype(dtype)[keep], pres.astype(dtype)])[inverse]
     state = state._replace(gamma=merge(state.gamma, g), gamma_dot=merge(state.gamma_dot, gd))
     return state, gdd.astype(dtype)
 
@@ -288,16 +293,16 @@ def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelera
     """
     state, gdd_p = _complete_state(model, t, state)
     A, rhs = rotational_equations(model, state, t, tau)
-    n = model.n
-    if gdd_p is None:
+    u, p, inverse = _split(model)
+    if gdd_p is None and not model.inert:
         x = _cholesky_solve(A, rhs)
         return Accelerations(x[:3], x[3:], jnp.zeros((0,), x.dtype))
-    u, p, inverse = _split(model)
     u = np.concatenate([np.arange(3), u + 3])
     p = p + 3
+    gdd_p = jnp.zeros((0,), A.dtype) if gdd_p is None else gdd_p
     rhs_u = rhs[u] - A[np.ix_(u, p)] @ gdd_p
     xu = _cholesky_solve(A[np.ix_(u, u)], rhs_u)
-    gdd = jnp.concatenate([xu[3:], gdd_p])[inverse]
+    gdd = jnp.concatenate([xu[3:], gdd_p, jnp.zeros((len(model.inert),), xu.dtype)])[inverse]
     x = jnp.concatenate([xu[:3], gdd])
     hold = A[p] @ x - rhs[p]
     return Accelerations(x[:3], gdd, hold)
@@ -327,7 +332,7 @@ def _momenta(model, state):
     vel = _massive(model, _velocities(model, cfg, omega))
     w = _massive(model, omega)
     mass = _massive(model, model.mass.astype(vel.dtype))
-    return cfg, mass, vel, w, jnp.einsum("kij,kj->ki", cfg.inertia, w)
+    return cfg, mass, vel, w, mv(cfg.inertia, w)
 
 
 def kinetic_energy(model: Model, state: State):
@@ -339,7 +344,7 @@ def kinetic_energy(model: Model, state: State):
 def angular_momentum(model: Model, state: State):
     """Angular momentum about the system mass center, inertial components ``{i}`` (3,)."""
     cfg, mass, vel, w, Jw = _momenta(model, state)
-    H0 = jnp.sum(jnp.cross(_massive(model, cfg.rho), mass[:, None] * vel) + Jw, 0)
+    H0 = jnp.sum(cross(_massive(model, cfg.rho), mass[:, None] * vel) + Jw, 0)
     return jnp.asarray(state.dcm, H0.dtype).T @ H0
 
 

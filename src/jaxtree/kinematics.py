@@ -30,6 +30,34 @@ __all__ = [
 ]
 
 
+# Small 3-vector / 3x3 algebra written as broadcasts and sums, so that XLA fuses it with its
+# neighbours instead of emitting one tiny batched matrix product per call.
+def mv(A, x):
+    """``A @ x`` for stacks of 3x3 matrices and 3-vectors."""
+    return jnp.sum(A * x[..., None, :], -1)
+
+
+def mtv(A, x):
+    """``A.T @ x`` for stacks of 3x3 matrices and 3-vectors."""
+    return jnp.sum(A * x[..., :, None], -2)
+
+
+def mm(A, B):
+    """``A @ B`` for stacks of 3x3 matrices."""
+    return jnp.sum(A[..., :, :, None] * B[..., None, :, :], -2)
+
+
+def cross(a, b):
+    """``a x b`` for stacks of 3-vectors."""
+    a1, a2, a3 = a[..., 0], a[..., 1], a[..., 2]
+    b1, b2, b3 = b[..., 0], b[..., 1], b[..., 2]
+    return jnp.stack([a2 * b3 - a3 * b2, a3 * b1 - a1 * b3, a1 * b2 - a2 * b1], -1)
+
+
+def dot(a, b):
+    return jnp.sum(a * b, -1)
+
+
 def tilde(v):
     """Cross-product matrix of Def. 24: ``tilde(v) @ w == cross(v, w)``; batches over leading axes."""
     v1, v2, v3 = v[..., 0], v[..., 1], v[..., 2]
@@ -68,7 +96,7 @@ def body_rotations(topology: Topology, axis, gamma):
     R = jnp.concatenate([eye[None], local], 0)
     # Invariant: R[k] = C^{a k} with a the current jump target of k (initially the parent).
     for table in topology.jump_tables:
-        R = jnp.einsum("kij,kjl->kil", _pad(R, eye)[table[:-1]], R)
+        R = mm(_pad(R, eye)[table[:-1]], R)
     return R
 
 
@@ -110,4 +138,4 @@ def subtree_sum(topology: Topology, x, bodies=None):
 
 def dcm_rate(dcm, omega0):
     """Eq. (3): ``dC/dt = -tilde(omega0) C``."""
-    return -tilde(omega0) @ dcm
+    return -mm(tilde(omega0), dcm)

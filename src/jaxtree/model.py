@@ -14,6 +14,7 @@ from typing import Callable, NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .topology import Topology
 
@@ -139,10 +140,19 @@ class Model(eqx.Module):
         return () if self.prescription is None else tuple(self.prescription.hinges)
 
     @property
+    def inert(self) -> tuple[int, ...]:
+        """Hinges (1..n) with nothing but massless bodies outboard: their rows and columns of
+        Eq. (1) vanish, so they are left out of the unknowns and their accelerations are zero."""
+        eps = self.topology.path_elements
+        heavy = np.zeros(self.n + 1, dtype=bool)
+        heavy[list(self.massive)] = True
+        return tuple(s for s in range(1, self.n + 1) if not heavy[eps[s - 1].astype(bool)].any())
+
+    @property
     def unknown_hinges(self) -> tuple[int, ...]:
         """Indices (1..n) of hinges whose angles are unknowns of Eq. (1)."""
-        p = set(self.prescribed)
-        return tuple(k for k in range(1, self.n + 1) if k not in p)
+        skip = set(self.prescribed) | set(self.inert)
+        return tuple(k for k in range(1, self.n + 1) if k not in skip)
 
     def body_index(self, name_or_index) -> int:
         """Index of a body given its name (or the index itself)."""

@@ -339,6 +339,14 @@ def build_model(
 
     state = initial if isinstance(initial, State) else _initial(initial, n)
     massive = tuple(k for k in range(n + 1) if masses[k] > 0)
+    heavy = np.zeros(n + 1, dtype=bool)
+    heavy[list(massive)] = True
+    for k in sprung:
+        if not heavy[topology.path_elements[k - 1].astype(bool)].any():
+            raise SceneError(
+                f"{_where(k, names[k])}: field 'joint' puts a spring or damper on a hinge with only massless "
+                "bodies outboard (zero inertia about the hinge: the motion is undetermined)"
+            )
     if loads is not None:
         for k in loads.bodies:
             if not 0 <= int(k) <= n:

@@ -1,0 +1,170 @@
+"""Hinge laws and controllers: the torques tau_k of Def. 21 beyond the model's joint laws.
+
+Sec. II D, inputs 7-8: ``tau_k`` "as functions of the system variables or as control-law ODEs".
+:func:`jaxtree.simulate` takes either
+
+- a **hinge law**, any callable ``tau(t, state, params) -> (n,)`` of time, the full
+  :class:`~jaxtree.State` (prescribed hinges filled in, ``state.dcm`` from the attitude
+  variables) and the user's ``params`` pytree; :class:`HingePD` is one (a PD pointing law); or
+- a **controller** with internal states, an :class:`AbstractController`: its states ``z``
+  are appended to the ODE state and integrated with the motion (:class:`HingePID` holds an
+  integrator and a first-order rate filter; :class:`Controller` wraps two plain functions).
+
+The torques add to the model's spring-damper laws. Entries for prescribed hinges are
+accepted and change the hold torque, not the motion (Sec. II B).
+Laws written as equinox Modules keep their gains as array leaves, so they are traced
+(no recompilation when a gain changes) and differentiable; plain functions are static and
+must be the same object from call to call to reuse a compiled simulation.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import Any, Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .model import State
+
+__all__ = ["AbstractController", "Controller", "HingePD", "HingePID", "hinge_torque_vector"]
+
+
+def hinge_torque_vector(n: int, hinges, torque):
+    """Scatter torques on `hinges` (1-based, static) into an (n,) vector (a constant 0/1 product)."""
+    hinges = tuple(int(k) for k in np.atleast_1d(hinges))
+    select = np.zeros((n, len(hinges)))
+    select[np.asarray(hinges) - 1, np.arange(len(hinges))] = 1.0
+    torque = jnp.atleast_1d(torque)
+    return jnp.asarray(select, torque.dtype) @ torque
+
+
+def _reference(reference, t, hinges, dtype):
+    """Reference angles and rates of `hinges` at t (a function of t, an array, or None)."""
+    if reference is None:
+        z = jnp.zeros((len(hinges),), dtype)
+        return z, z
+    if callable(reference):
+        t = jnp.asarray(t, dtype)
+        g, gd = jax.jvp(lambda s: jnp.broadcast_to(jnp.asarray(reference(s), dtype), (len(hinges),)), (t,),
+                        (jnp.ones_like(t),))
+        return g, gd
+    g = jnp.broadcast_to(jnp.asarray(reference, dtype), (len(hinges),))
+    return g, jnp.zeros_like(g)
+
+
+class HingePD(eqx.Module):
+    """PD law ``tau_k = -kp (gamma_k - r_k(t)) - kd (gamma_dot_k - r_dot_k(t))`` on static `hinges`.
+
+    **Arguments:** `n` number of hinges of the model; `hinges` (1-based); `kp`, `kd` gains
+    (scalars or one per hinge); `reference` a function of time (differentiated for the rate
+    reference), an array of constant angles, or None (zero).
+    Called as a hinge law ``law(t, state, params)``; `params` is not used.
+    """
+
+    kp: jax.Array
+    kd: jax.Array
+    n: int = eqx.field(static=True)
+    hinges: tuple[int, ...] = eqx.field(static=True)
+    reference: Any = eqx.field(static=True, default=None)
+
+    def __init__(self, n, hinges, kp, kd, reference=None):
+        self.n = int(n)
+        self.hinges = tuple(int(k) for k in np.atleast_1d(hinges))
+        self.kp = jnp.broadcast_to(jnp.asarray(kp, float), (len(self.hinges),))
+        self.kd = jnp.broadcast_to(jnp.asarray(kd, float), (len(self.hinges),))
+        self.reference = reference
+
+    def __call__(self, t, state: State, params=None):
+        i = np.asarray(self.hinges) - 1
+        dtype = state.gamma.dtype
+        r, rd = _reference(self.reference, t, self.hinges, dtype)
+        tau = -self.kp.astype(dtype) * (state.gamma[i] - r) - self.kd.astype(dtype) * (state.gamma_dot[i] - rd)
+        return hinge_torque_vector(self.n, self.hinges, tau)
+
+
+class AbstractController(eqx.Module):
+    """A control law with internal states ``z`` (any pytree of arrays) integrated with the motion.
+
+    Subclasses implement :meth:`initial`, :meth:`torque` and :meth:`rate`.
+    """
+
+    @abc.abstractmethod
+    def initial(self):
+        """Initial internal states ``z(t0)`` (a pytree of arrays)."""
+
+    @abc.abstractmethod
+    def torque(self, t, state: State, z, params):
+        """Hinge torques (n,) at time t."""
+
+    @abc.abstractmethod
+    def rate(self, t, state: State, z, params):
+        """``dz/dt`` (same structure as z)."""
+
+
+class Controller(AbstractController):
+    """A controller from plain functions ``torque(t, state, z, params) -> (n,)`` and
+    ``rate(t, state, z, params) -> dz/dt``, with initial states `z0`."""
+
+    z0: Any
+    torque_fn: Callable = eqx.field(static=True)
+    rate_fn: Callable = eqx.field(static=True)
+
+    def initial(self):
+        return self.z0
+
+    def torque(self, t, state, z, params):
+        return self.torque_fn(t, state, z, params)
+
+    def rate(self, t, state, z, params):
+        return self.rate_fn(t, state, z, params)
+
+
+class HingePID(AbstractController):
+    """PID law on static `hinges` with an integrator and a first-order filtered rate.
+
+    ``e = gamma - r(t)``; internal states ``z = (integral of e, filtered e_dot)`` with
+    ``d/dt integral = e`` and ``d/dt f = (e_dot - f) / filter_time``;
+    ``tau = -kp e - ki integral - kd f``.
+
+    **Arguments:** `n` number of hinges of the model; `hinges` (1-based); gains `kp`, `ki`,
+    `kd` and `filter_time` (scalars or one per hinge); `reference` as for :class:`HingePD`.
+    """
+
+    kp: jax.Array
+    ki: jax.Array
+    kd: jax.Array
+    filter_time: jax.Array
+    n: int = eqx.field(static=True)
+    hinges: tuple[int, ...] = eqx.field(static=True)
+    reference: Any = eqx.field(static=True, default=None)
+
+    def __init__(self, n, hinges, kp, ki, kd, filter_time, reference=None):
+        self.n = int(n)
+        self.hinges = tuple(int(k) for k in np.atleast_1d(hinges))
+        shape = (len(self.hinges),)
+        self.kp, self.ki, self.kd, self.filter_time = (
+            jnp.broadcast_to(jnp.asarray(x, float), shape) for x in (kp, ki, kd, filter_time)
+        )
+        self.reference = reference
+
+    def initial(self):
+        z = jnp.zeros((len(self.hinges),), self.kp.dtype)
+        return {"integral": z, "rate": z}
+
+    def _error(self, t, state):
+        i = np.asarray(self.hinges) - 1
+        r, rd = _reference(self.reference, t, self.hinges, state.gamma.dtype)
+        return state.gamma[i] - r, state.gamma_dot[i] - rd
+
+    def torque(self, t, state, z, params):
+        e, _ = self._error(t, state)
+        dt = e.dtype
+        tau = -self.kp.astype(dt) * e - self.ki.astype(dt) * z["integral"] - self.kd.astype(dt) * z["rate"]
+        return hinge_torque_vector(self.n, self.hinges, tau)
+
+    def rate(self, t, state, z, params):
+        e, ed = self._error(t, state)
+        return {"integral": e, "rate": (ed - z["rate"]) / self.filter_time.astype(e.dtype)}
