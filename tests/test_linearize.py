@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree import Body, SpringDamper, Free, State
+from jaxtree import Body, SpringDamper, State
 from jaxtree.barycentric import barycentric
 from oracle import oracle_eom
 

@@ -35,7 +35,7 @@ Public functions:
 
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
