@@ -72,3 +72,32 @@ from .modes import (
     modes as modes,
     first_order as first_order,
 )
+from .attitude import (
+    AbstractAttitude as AbstractAttitude,
+    DirectionCosines as DirectionCosines,
+    Euler123 as Euler123,
+    Quaternion as Quaternion,
+)
+from .control import (
+    AbstractController as AbstractController,
+    Controller as Controller,
+    HingePD as HingePD,
+    HingePID as HingePID,
+)
+from .loads import (
+    PerBodyLoads as PerBodyLoads,
+    BodyTorque as BodyTorque,
+    GravityGradient as GravityGradient,
+    CombinedLoads as CombinedLoads,
+    combine_loads as combine_loads,
+    thruster_pulse as thruster_pulse,
+)
+from .simulate import (
+    Problem as Problem,
+    Solution as Solution,
+    SimulationError as SimulationError,
+    simulate as simulate,
+    check_solution as check_solution,
+    hinge_angle_event as hinge_angle_event,
+    state_event as state_event,
+)

@@ -143,6 +143,7 @@ class AbstractAttitude(eqx.Module):
 
     name: ClassVar[str]
     size: ClassVar[int]
+    has_singularity: ClassVar[bool] = False
 
     @abc.abstractmethod
     def from_dcm(self, C):
@@ -185,6 +186,7 @@ class Euler123(AbstractAttitude):
     singularity_tol: float = eqx.field(static=True, default=1e-2)
     name: ClassVar[str] = "euler123"
     size: ClassVar[int] = 3
+    has_singularity: ClassVar[bool] = True
 
     def from_dcm(self, C):
         return dcm_to_euler123(C)
