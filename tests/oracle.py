@@ -107,7 +107,7 @@ def _full_system(m, gamma, u, tau, F, T):
     h = jnp.concatenate([jnp.cross(w0, pv), jnp.cross(w0, pw) + jnp.cross(v, pv), -dT_dg])
     # hinge torques as body torques: +tau a on body k, -tau a on the parent
     ta = tau[:, None] * m["axis"]
-    Tl = jnp.asarray(T).at[1:].add(ta).at[np.asarray(m["parents"], dtype=int)].add(-ta)
+    Tl = jnp.asarray(T).at[1:].add(ta).at[jnp.asarray(m["parents"])].add(-ta)
 
     def power(uu):                                   # virtual power of all loads
         R, _, vel, omg = _velocities(m, gamma, uu)
@@ -151,9 +151,12 @@ def _prep(parents, mass, inertia, axis, hinge_on_parent, hinge_on_body,
             jnp.eye(3) if dcm is None else a(dcm, (3, 3)))
 
 
-@functools.partial(jax.jit, static_argnums=0)
+@jax.jit
 def _eom_core(parents, mass, inertia, axis, hop, hob, omega0, gamma, gamma_dot, tau, F, T, dcm):
-    m = _model(list(parents), mass, inertia, axis, hop, hob)
+    # parents is a traced integer array here (validated by oracle_eom), so one compilation
+    # serves every tree with the same number of bodies
+    n = axis.shape[0]
+    m = dict(parents=parents, n=n, mass=mass, inertia=inertia, axis=axis, hop=hop, hob=hob)
     Mred, bred, M, b = _reduced(m, gamma, omega0, gamma_dot, tau, F, T)
     acc = jnp.linalg.lstsq(Mred, bred)[0]
     ke, H = _relative_quantities(m, gamma, omega0, gamma_dot, dcm)
@@ -174,13 +177,13 @@ def oracle_eom(parents, mass, inertia, axis, hinge_on_parent, hinge_on_body,
     cm_acceleration (inertial acceleration of the system CM, {b^0} components).
     The reduced system is solved by least squares, so a singular mass matrix
     (massless leaf bodies) yields the minimum-norm accelerations instead of NaN.
-    Compiled once per tree structure (parents) and size.
+    Compiled once per number of bodies.
     """
     m, gamma, tau, F, T, dcm = _prep(parents, mass, inertia, axis, hinge_on_parent,
                                      hinge_on_body, gamma, tau, F, T, dcm)
     omega0 = jnp.asarray(omega0, dtype=jnp.float64).reshape(3)
     gamma_dot = jnp.asarray(gamma_dot, dtype=jnp.float64).reshape(m["n"])
-    return _eom_core(tuple(m["parents"]), m["mass"], m["inertia"], m["axis"], m["hop"],
+    return _eom_core(jnp.asarray(m["parents"], dtype=jnp.int32).reshape(m["n"]), m["mass"], m["inertia"], m["axis"], m["hop"],
                      m["hob"], omega0, gamma, gamma_dot, tau, F, T, dcm)
 
 
