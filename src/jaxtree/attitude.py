@@ -162,6 +162,11 @@ class AbstractAttitude(eqx.Module):
         None when the parametrisation has none."""
         return None
 
+    def side(self, x):
+        """A continuous function whose sign changes where the variables cross their singular set
+        (a run that steps across it stops there too); None when there is none."""
+        return None
+
 
 class DirectionCosines(AbstractAttitude):
     """The nine direction cosines of C, integrated with Eq. (3) (row-major)."""
@@ -199,6 +204,9 @@ class Euler123(AbstractAttitude):
 
     def margin(self, x):
         return jnp.abs(jnp.cos(x[1])) - self.singularity_tol
+
+    def side(self, x):
+        return jnp.cos(x[1])
 
 
 class Quaternion(AbstractAttitude):

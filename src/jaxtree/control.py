@@ -41,18 +41,27 @@ def hinge_torque_vector(n: int, hinges, torque):
     return jnp.asarray(select, torque.dtype) @ torque
 
 
-def _reference(reference, t, hinges, dtype):
-    """Reference angles and rates of `hinges` at t (a function of t, an array, or None)."""
+def _split_reference(reference, hinges):
+    """``(function or None, constant angles or None)``: functions are static, arrays are leaves."""
     if reference is None:
-        z = jnp.zeros((len(hinges),), dtype)
-        return z, z
+        return None, None
     if callable(reference):
+        return reference, None
+    return None, jnp.broadcast_to(jnp.asarray(reference, float), (len(hinges),))
+
+
+def _reference(fn, value, t, hinges, dtype):
+    """Reference angles and rates of `hinges` at t."""
+    if fn is not None:
         t = jnp.asarray(t, dtype)
-        g, gd = jax.jvp(lambda s: jnp.broadcast_to(jnp.asarray(reference(s), dtype), (len(hinges),)), (t,),
+        g, gd = jax.jvp(lambda s: jnp.broadcast_to(jnp.asarray(fn(s), dtype), (len(hinges),)), (t,),
                         (jnp.ones_like(t),))
         return g, gd
-    g = jnp.broadcast_to(jnp.asarray(reference, dtype), (len(hinges),))
-    return g, jnp.zeros_like(g)
+    if value is not None:
+        g = value.astype(dtype)
+        return g, jnp.zeros_like(g)
+    z = jnp.zeros((len(hinges),), dtype)
+    return z, z
 
 
 class HingePD(eqx.Module):
@@ -66,21 +75,22 @@ class HingePD(eqx.Module):
 
     kp: jax.Array
     kd: jax.Array
+    reference_value: jax.Array | None
     n: int = eqx.field(static=True)
     hinges: tuple[int, ...] = eqx.field(static=True)
-    reference: Any = eqx.field(static=True, default=None)
+    reference_fn: Callable | None = eqx.field(static=True, default=None)
 
     def __init__(self, n, hinges, kp, kd, reference=None):
         self.n = int(n)
         self.hinges = tuple(int(k) for k in np.atleast_1d(hinges))
         self.kp = jnp.broadcast_to(jnp.asarray(kp, float), (len(self.hinges),))
         self.kd = jnp.broadcast_to(jnp.asarray(kd, float), (len(self.hinges),))
-        self.reference = reference
+        self.reference_fn, self.reference_value = _split_reference(reference, self.hinges)
 
     def __call__(self, t, state: State, params=None):
         i = np.asarray(self.hinges) - 1
         dtype = state.gamma.dtype
-        r, rd = _reference(self.reference, t, self.hinges, dtype)
+        r, rd = _reference(self.reference_fn, self.reference_value, t, self.hinges, dtype)
         tau = -self.kp.astype(dtype) * (state.gamma[i] - r) - self.kd.astype(dtype) * (state.gamma_dot[i] - rd)
         return hinge_torque_vector(self.n, self.hinges, tau)
 
@@ -137,9 +147,10 @@ class HingePID(AbstractController):
     ki: jax.Array
     kd: jax.Array
     filter_time: jax.Array
+    reference_value: jax.Array | None
     n: int = eqx.field(static=True)
     hinges: tuple[int, ...] = eqx.field(static=True)
-    reference: Any = eqx.field(static=True, default=None)
+    reference_fn: Callable | None = eqx.field(static=True, default=None)
 
     def __init__(self, n, hinges, kp, ki, kd, filter_time, reference=None):
         self.n = int(n)
@@ -148,7 +159,7 @@ class HingePID(AbstractController):
         self.kp, self.ki, self.kd, self.filter_time = (
             jnp.broadcast_to(jnp.asarray(x, float), shape) for x in (kp, ki, kd, filter_time)
         )
-        self.reference = reference
+        self.reference_fn, self.reference_value = _split_reference(reference, self.hinges)
 
     def initial(self):
         z = jnp.zeros((len(self.hinges),), self.kp.dtype)
@@ -156,7 +167,7 @@ class HingePID(AbstractController):
 
     def _error(self, t, state):
         i = np.asarray(self.hinges) - 1
-        r, rd = _reference(self.reference, t, self.hinges, state.gamma.dtype)
+        r, rd = _reference(self.reference_fn, self.reference_value, t, self.hinges, state.gamma.dtype)
         return state.gamma[i] - r, state.gamma_dot[i] - rd
 
     def torque(self, t, state, z, params):

@@ -246,8 +246,22 @@ def state_event(fn: Callable, direction: bool | None = None, tol: float = 1e-10)
 
 
 class _Singularity(eqx.Module):
+    """Boolean: the attitude variables are within tolerance of their singularity."""
+
     def __call__(self, t, y, args: Problem, **kwargs):
         return args.attitude.margin(args.unpack(y)[0]) < 0
+
+
+class _Crossing(eqx.Module):
+    """Real: changes sign if a step jumps across the singular set without landing near it."""
+
+    def __call__(self, t, y, args: Problem, **kwargs):
+        return args.attitude.side(args.unpack(y)[0])
+
+
+def _guard_any(mask):
+    near, crossed = mask
+    return jnp.asarray(near) | jnp.asarray(crossed)
 
 
 def _combine_events(event, attitude: AbstractAttitude) -> tuple[Any, bool, bool]:
@@ -261,9 +275,10 @@ def _combine_events(event, attitude: AbstractAttitude) -> tuple[Any, bool, bool]
             raise TypeError(f"event: expected a diffrax.Event or a function (t, state) -> scalar, got {event!r}")
     if not guard:
         return event, False, event is not None
+    guards = (_Singularity(), _Crossing())
     if event is None:
-        return dfx.Event(_Singularity()), True, False
-    return dfx.Event((event.cond_fn, _Singularity()), event.root_finder, (event.direction, None)), True, True
+        return dfx.Event(guards), True, False
+    return dfx.Event((event.cond_fn, guards), event.root_finder, (event.direction, (None, None))), True, True
 
 
 # ----------------------------------------------------------------------------- solution
@@ -455,7 +470,7 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
             mask, guard_mask = mask
         else:
             mask, guard_mask = None, mask
-        singular = jnp.asarray(guard_mask)
+        singular = _guard_any(guard_mask)
     stats = dict(sol.stats)
     stats["rhs_evaluations"] = _rhs_evaluations(solver, sol.stats, dt0 is not None)
     R = dfx.RESULTS

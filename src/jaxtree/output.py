@@ -1,0 +1,170 @@
+"""Result files and summaries of simulations: time histories as ``.npz`` and ``.csv``, a plot
+(matplotlib, optional) and a text summary. Every file is written atomically (a temporary file
+in the same folder, then a rename), so a crash never leaves a half-written result.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import pathlib
+import tempfile
+
+import numpy as np
+
+from .simulate import Solution
+
+__all__ = ["histories", "save_npz", "save_csv", "save_plot", "summary", "atomic_write"]
+
+
+@contextlib.contextmanager
+def atomic_write(path, mode="wb"):
+    """Open a temporary file next to `path`; rename it to `path` when the block succeeds."""
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, mode) as fh:
+            yield fh
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600 files; give the usual permissions
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def histories(sol: Solution) -> dict[str, np.ndarray]:
+    """The saved rows of a solution as numpy arrays (rows after an early stop are dropped)."""
+    ts = np.asarray(sol.ts)
+    keep = np.isfinite(ts)
+    out = {
+        "t": ts, "gamma": sol.gamma, "gamma_dot": sol.gamma_dot, "omega0": sol.omega0, "dcm": sol.dcm,
+        "attitude": sol.attitude, "energy": sol.energy, "angular_momentum": sol.angular_momentum,
+        "hold_torque": sol.hold_torque, "orthogonality": sol.orthogonality,
+    }
+    if sol.X is not None:
+        out.update(X=sol.X, X_dot=sol.X_dot)
+    return {k: np.asarray(v)[keep] for k, v in out.items()}
+
+
+def save_npz(path, runs: dict[str, Solution]) -> None:
+    """One ``.npz`` with the histories of several runs, keys ``"<run>/<field>"``."""
+    arrays = {f"{name}/{k}": v for name, sol in runs.items() for k, v in histories(sol).items()}
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    with atomic_write(path) as fh:
+        fh.write(buf.getvalue())
+
+
+def save_csv(path, sol: Solution) -> None:
+    """One row per saved time: t, gamma_k, gamma_dot_k, omega0_i, C_ij, attitude variables,
+    energy, H_i, hold torques."""
+    h = histories(sol)
+    n = h["gamma"].shape[1]
+    cols, names = [h["t"][:, None]], ["t"]
+    for key, label in (("gamma", "gamma"), ("gamma_dot", "gamma_dot")):
+        cols.append(h[key])
+        names += [f"{label}_{k}" for k in range(1, n + 1)]
+    cols.append(h["omega0"])
+    names += ["omega0_1", "omega0_2", "omega0_3"]
+    cols.append(h["dcm"].reshape(-1, 9))
+    names += [f"C_{i}{j}" for i in range(1, 4) for j in range(1, 4)]
+    cols.append(h["attitude"])
+    names += [f"{sol.problem.attitude.name}_{i}" for i in range(h["attitude"].shape[1])]
+    cols.append(h["energy"][:, None])
+    names.append("energy")
+    cols.append(h["angular_momentum"])
+    names += ["H_1", "H_2", "H_3"]
+    cols.append(h["hold_torque"])
+    names += [f"hold_torque_{k}" for k in sol.problem.model.prescribed]
+    table = np.concatenate(cols, 1)
+    buf = io.StringIO()
+    np.savetxt(buf, table, delimiter=",", header=",".join(names), comments="", fmt="%.17g")
+    with atomic_write(path, "w") as fh:
+        fh.write(buf.getvalue())
+
+
+def save_plot(path, runs: dict[str, Solution], title: str = "") -> bool:
+    """Plot hinge angles, omega0, attitude (C), energy and momentum of several runs into one PNG.
+
+    Returns False (and writes nothing) when matplotlib is not installed.
+    """
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
+    fig, axes = plt.subplots(3, 2, figsize=(13, 10), sharex=True)
+    styles = ["-", "--", ":", "-."]
+    for r, (name, sol) in enumerate(runs.items()):
+        h = histories(sol)
+        t, ls = h["t"], styles[r % len(styles)]
+        n = h["gamma"].shape[1]
+        for k in range(n):
+            if k == 3 and n == 10:  # fig4's rotor: plot its spin separately, it grows linearly
+                continue
+            axes[0, 0].plot(t, h["gamma"][:, k], ls, lw=1, label=f"$\\gamma_{{{k + 1}}}$" if r == 0 else None)
+        axes[0, 1].plot(t, h["gamma_dot"], ls, lw=1)
+        for i in range(3):
+            axes[1, 0].plot(t, h["omega0"][:, i], ls, lw=1, label=f"$\\omega^0_{i + 1}$ ({name})")
+        for i in range(3):
+            axes[1, 1].plot(t, h["dcm"][:, i, i], ls, lw=1, label=f"$C_{{{i + 1}{i + 1}}}$ ({name})")
+        axes[2, 0].plot(t, h["energy"] - h["energy"][0], ls, lw=1, label=name)
+        H = h["angular_momentum"]
+        axes[2, 1].plot(t, np.linalg.norm(H - H[0], axis=1) / np.linalg.norm(H[0]), ls, lw=1, label=name)
+    axes[0, 0].set_title("hinge angles $\\gamma_k$ (rad)")
+    axes[0, 0].legend(ncol=3, fontsize=7)
+    axes[0, 1].set_title("hinge rates $\\dot\\gamma_k$ (rad/s)")
+    axes[1, 0].set_title("$\\omega^0$ in $\\{b^0\\}$ (rad/s)")
+    axes[1, 0].legend(ncol=2, fontsize=7)
+    axes[1, 1].set_title("direction cosines $C_{ii}$ (Def. 9)")
+    axes[1, 1].legend(ncol=2, fontsize=7)
+    axes[2, 0].set_title("energy change $E(t) - E(0)$ (J)")
+    axes[2, 0].legend(fontsize=7)
+    axes[2, 1].set_title("relative angular-momentum drift $|H(t) - H(0)| / |H(0)|$")
+    axes[2, 1].set_yscale("symlog", linthresh=1e-16)
+    axes[2, 1].legend(fontsize=7)
+    for ax in axes[2]:
+        ax.set_xlabel("t (s)")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    with atomic_write(path) as fh:
+        fh.write(buf.getvalue())
+    return True
+
+
+def summary(name: str, sol: Solution, wall: float | None = None, first: float | None = None) -> str:
+    """A few lines: final state, energy and momentum drift, steps and times."""
+    st = {k: int(np.asarray(v)) for k, v in sol.stats.items()}
+    f = sol.final
+    np_opts = dict(precision=6, suppress_small=True, max_line_width=150)
+    lines = [
+        f"[{name}] t_final = {float(sol.t_final):.6g} s, result: {'ok' if sol.ok else 'FAILED'}",
+        f"  gamma     = {np.array2string(np.asarray(f.gamma), **np_opts)}",
+        f"  gamma_dot = {np.array2string(np.asarray(f.gamma_dot), **np_opts)}",
+        f"  omega0    = {np.array2string(np.asarray(f.omega0), **np_opts)}",
+        f"  C         = {np.array2string(np.asarray(f.dcm).ravel(), **np_opts)} (row-major)",
+        f"  energy: E0 = {float(sol.energy[0]):.9g}, max |E - E0| / |E0| = {float(sol.energy_drift()):.3e}"
+        + (" (prescribed hinges do work)" if sol.problem.model.prescribed else ""),
+        f"  angular momentum: max |H - H0| / |H0| = {float(sol.momentum_drift()):.3e}",
+        f"  steps: {st['num_accepted_steps']} accepted, {st['num_rejected_steps']} rejected, "
+        f"{st['rhs_evaluations']} right-hand sides",
+    ]
+    if first is not None or wall is not None:
+        parts = []
+        if first is not None:
+            parts.append(f"first call (compile + run) {first:.2f} s")
+        if wall is not None:
+            parts.append(f"run {wall:.3f} s")
+        lines.append("  wall time: " + ", ".join(parts))
+    return "\n".join(lines)
