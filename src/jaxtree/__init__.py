@@ -6,6 +6,13 @@ JAX's float64 mode (``jax_enable_x64``): float64 is the default everywhere;
 float32 models (``model.astype(jnp.float32)``) work for GPU batches.
 """
 
+import os as _os
+
+# The Cholesky factorizations of Eq. (1) are small (n + 3 rows); a multi-threaded OpenBLAS
+# spins threads against XLA's own and can be 10-100x slower on a busy machine. Respect a
+# user's setting; this only takes effect if scipy's OpenBLAS has not been loaded yet.
+_os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)

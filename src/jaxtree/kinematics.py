@@ -30,21 +30,27 @@ __all__ = [
 ]
 
 
-# Small 3-vector / 3x3 algebra written as broadcasts and sums, so that XLA fuses it with its
-# neighbours instead of emitting one tiny batched matrix product per call.
+# Small 3-vector / 3x3 algebra on stacks (leading axes are batch axes), written out by
+# components: XLA on CPU fuses these elementwise forms, while a batched 3x3 dot (einsum,
+# matmul) or a reduction over an axis of length 3 runs several times slower.
 def mv(A, x):
     """``A @ x`` for stacks of 3x3 matrices and 3-vectors."""
-    return jnp.sum(A * x[..., None, :], -1)
+    return jnp.stack([A[..., i, 0] * x[..., 0] + A[..., i, 1] * x[..., 1] + A[..., i, 2] * x[..., 2] for i in range(3)], -1)
 
 
 def mtv(A, x):
     """``A.T @ x`` for stacks of 3x3 matrices and 3-vectors."""
-    return jnp.sum(A * x[..., :, None], -2)
+    return jnp.stack([A[..., 0, i] * x[..., 0] + A[..., 1, i] * x[..., 1] + A[..., 2, i] * x[..., 2] for i in range(3)], -1)
 
 
 def mm(A, B):
     """``A @ B`` for stacks of 3x3 matrices."""
-    return jnp.sum(A[..., :, :, None] * B[..., None, :, :], -2)
+    rows = [
+        jnp.stack([A[..., i, 0] * B[..., 0, j] + A[..., i, 1] * B[..., 1, j] + A[..., i, 2] * B[..., 2, j]
+                   for j in range(3)], -1)
+        for i in range(3)
+    ]
+    return jnp.stack(rows, -2)
 
 
 def cross(a, b):
