@@ -2,11 +2,11 @@
 
 import pathlib
 
+import jaxtree  # first: it sets the float64 and BLAS-thread defaults before JAX loads
+
 import jax
 import numpy as np
 import pytest
-
-import jaxtree
 
 jax.config.update("jax_enable_x64", True)
 
