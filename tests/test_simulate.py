@@ -103,9 +103,10 @@ def test_trajectory_matches_the_lagrange_oracle_with_scipy_dop853(scenes):
 
     s = model.initial
     x0 = np.concatenate([np.ravel(s.dcm), s.omega0, s.gamma, s.gamma_dot])
-    ts = np.linspace(0.0, 1.0, 11)
+    ts = np.linspace(0.0, 1.0, 101)
     ref = solve_ivp(rhs, (0.0, 1.0), x0, method="DOP853", rtol=TIGHT, atol=TIGHT, t_eval=ts).y.T
-    sol = simulate(model, 1.0, saveat=ts, rtol=TIGHT, atol=TIGHT)
+    sol = simulate(model, 1.0, rtol=TIGHT, atol=TIGHT)  # 101 evenly spaced save times
+    assert np.allclose(np.asarray(sol.ts), ts, rtol=0, atol=1e-15)
     assert maxdiff(sol.dcm, ref[:, :9].reshape(-1, 3, 3)) < GLOBAL
     assert maxdiff(sol.omega0, ref[:, 9:12]) < GLOBAL
     assert maxdiff(sol.gamma, ref[:, 12:12 + n]) < GLOBAL
@@ -113,9 +114,14 @@ def test_trajectory_matches_the_lagrange_oracle_with_scipy_dop853(scenes):
 
 
 # ----------------------------------------------------------------------------- attitude
+# fig4 runs save 101 times and the dense output: the hold-torque test reuses the compiled quaternion run
+FIG4_SAVE = dict(saveat=dfx.SaveAt(ts=jnp.linspace(0.0, 10.0, 101), dense=True), max_steps=4096)
+
+
 def test_quaternion_dcm_and_euler_runs_agree_on_the_sample_problem(scenes):
     model = scenes["fig4"]
-    sols = {a: simulate(model, 10.0, attitude=a, rtol=1e-11, atol=1e-11) for a in ("quaternion", "dcm", "euler123")}
+    sols = {a: simulate(model, 10.0, attitude=a, rtol=1e-11, atol=1e-11, **FIG4_SAVE)
+            for a in ("quaternion", "dcm", "euler123")}
     q = sols["quaternion"]
     for name in ("dcm", "euler123"):
         s = sols[name]
@@ -162,8 +168,8 @@ def test_euler_angles_stop_with_an_error_near_their_singularity():
 # ----------------------------------------------------------------------------- prescribed hinges
 def test_hold_torque_fed_to_the_free_model_recovers_the_trajectory(scenes):
     model = scenes["fig4"]  # gamma_1 = sin(0.5 t) prescribed
-    ts = jnp.linspace(0.0, 10.0, 101)
-    pres = simulate(model, 10.0, saveat=dfx.SaveAt(ts=ts, dense=True), max_steps=4096, rtol=TIGHT, atol=TIGHT)
+    ts = FIG4_SAVE["saveat"].subs.ts
+    pres = simulate(model, 10.0, rtol=TIGHT, atol=TIGHT, **FIG4_SAVE)
     assert pres.gamma.shape == (101, model.n) and pres.hold_torque.shape == (101, 1)
     assert maxdiff(pres.gamma[:, 0], np.sin(0.5 * np.asarray(ts))) < 1e-15  # the prescription itself
     free = free_copy(model, 1)
@@ -187,6 +193,7 @@ def test_event_time_on_a_free_hinge_matches_the_closed_form():
     sol = simulate(model, 5.0, event=jaxtree.hinge_angle_event(1, 0.2, direction=False), rtol=1e-11, atol=1e-11)
     w = np.sqrt(k / I_EFF)
     assert sol.ok and sol.result == dfx.RESULTS.event_occurred
+    assert sol.X is None and sol.control_state is None  # Eq. (2) only when asked for
     assert abs(float(sol.t_final) - np.pi / (3 * w)) < EVENT_TIME
     assert abs(float(sol.final.gamma[0]) - 0.2) < EVENT_TIME
     # saved times after the event are not filled with motion
@@ -212,14 +219,25 @@ def test_latch_event_on_a_prescribed_deployment_and_release(scenes):
 
 
 # ----------------------------------------------------------------------------- hinge laws and controllers
-def test_pd_law_matches_the_closed_form():
+def test_pd_law_matches_the_closed_form_and_rhs_evaluations_are_counted():
+    """A stateless hinge law; the law also counts its calls at run time (one per right side)."""
     kp, kd, r = 2.0, 0.5, 0.2
-    law = jaxtree.HingePD(1, (1,), kp, kd, reference=jnp.asarray([r]))
+    pd = jaxtree.HingePD(1, (1,), kp, kd, reference=jnp.asarray([r]))
+    calls = []
+
+    def law(t, state, params):
+        jax.debug.callback(lambda: calls.append(1))
+        return pd(t, state, params)
+
     sol = simulate(coaxial(gamma0=0.5), 6.0, law=law, rtol=1e-11, atol=1e-11)
     A = np.array([[0.0, 1.0], [-kp / I_EFF, -kd / I_EFF]])
     x = np.stack([scipy.linalg.expm(A * t) @ [0.5 - r, 0.0] for t in np.asarray(sol.ts)])
     assert maxdiff(sol.gamma[:, 0] - r, x[:, 0]) < CLOSED
     assert maxdiff(sol.gamma_dot[:, 0], x[:, 1]) < CLOSED
+    jax.effects_barrier()
+    stats = {k: int(v) for k, v in sol.stats.items()}
+    assert stats["num_steps"] == stats["num_accepted_steps"] + stats["num_rejected_steps"] > 10
+    assert stats["rhs_evaluations"] == len(calls)
 
 
 def test_pid_controller_states_match_expm():
@@ -241,47 +259,25 @@ def test_pid_controller_states_match_expm():
     assert maxdiff(sol.control_state["rate"][:, 0], x[:, 3]) < CLOSED
 
 
-def test_rhs_evaluations_are_counted():
-    """The statistic equals the number of calls of the right side, counted at run time."""
-    calls = []
-
-    def law(t, state, params):
-        jax.debug.callback(lambda: calls.append(1))
-        return jnp.zeros((1,), state.gamma.dtype)
-
-    sol = simulate(coaxial(jaxtree.SpringDamper(3.0), gamma0=0.4), 2.0, law=law, rtol=1e-8, atol=1e-8)
-    jax.effects_barrier()
-    stats = {k: int(v) for k, v in sol.stats.items()}
-    assert stats["num_steps"] == stats["num_accepted_steps"] + stats["num_rejected_steps"] > 10
-    assert stats["rhs_evaluations"] == len(calls)
-
-
 # ----------------------------------------------------------------------------- loads and Eq. (2)
-def test_body_torque_on_the_bus_matches_the_closed_form():
-    """Torque T on the base about z: H_z = T t, and gamma_ddot = -k gamma / I_EFF - T / I0z."""
-    k, T = 3.0, 0.3
-    loads = jaxtree.BodyTorque(0, [0.0, 0.0, T])
-    sol = simulate(coaxial(jaxtree.SpringDamper(k), gamma0=0.4, loads=loads), 4.0, rtol=1e-11, atol=1e-11)
+def test_body_torque_and_force_with_eq2_match_the_closed_forms():
+    """Torque T about z and force F along z on the base: H_z = T t, gamma_ddot = -k gamma / I_EFF
+    - T / I0z, and the mass center moves as X = X0 + V0 t + F t^2 / (2 M) (Eq. 2)."""
+    k, T, F, M = 3.0, 0.3, 0.6, 12.0
+    push = jaxtree.PerBodyLoads({0: lambda t, s: (jnp.asarray([0.0, 0.0, F]), jnp.zeros(3))})
+    loads = jaxtree.combine_loads(jaxtree.BodyTorque(0, [0.0, 0.0, T]), push)
+    X0, V0 = np.array([1.0, 2.0, 3.0]), np.array([0.1, 0.0, -0.2])
+    model = coaxial(jaxtree.SpringDamper(k), gamma0=0.4, loads=loads)
+    sol = simulate(model, 4.0, translation=(X0, V0), rtol=1e-11, atol=1e-11)
     t = np.asarray(sol.ts)
     H = np.asarray(sol.angular_momentum)
     assert np.abs(H[:, 2] - T * t).max() < CLOSED and np.abs(H[:, :2]).max() < CLOSED
     w = np.sqrt(k / I_EFF)
     g_eq = -T * I_EFF / (I0[2, 2] * k)
     assert maxdiff(sol.gamma[:, 0], g_eq + (0.4 - g_eq) * np.cos(w * t)) < CLOSED
-
-
-def test_translation_of_the_mass_center_eq2():
-    F = 0.6
-    loads = jaxtree.PerBodyLoads({0: lambda t, s: (jnp.asarray([0.0, 0.0, F]), jnp.zeros(3))})
-    model = coaxial(jaxtree.SpringDamper(3.0), gamma0=0.4, loads=loads)
-    assert simulate(model, 1.0).X is None  # only when asked for
-    X0, V0 = np.array([1.0, 2.0, 3.0]), np.array([0.1, 0.0, -0.2])
-    sol = simulate(model, 3.0, translation=(X0, V0), rtol=1e-11, atol=1e-11)
-    t = np.asarray(sol.ts)[:, None]
-    M = 12.0
     acc = np.array([0.0, 0.0, F / M])
-    assert maxdiff(sol.X, X0 + V0 * t + 0.5 * acc * t**2) < CLOSED
-    assert maxdiff(sol.X_dot, V0 + acc * t) < CLOSED
+    assert maxdiff(sol.X, X0 + V0 * t[:, None] + 0.5 * acc * t[:, None] ** 2) < CLOSED
+    assert maxdiff(sol.X_dot, V0 + acc * t[:, None]) < CLOSED
 
 
 def test_loads_are_not_traced_when_absent(scenes):
@@ -347,18 +343,19 @@ def test_max_steps_is_reported_eagerly_and_under_jit():
 
 # ----------------------------------------------------------------------------- transformations
 def test_vmap_over_initial_states_and_parameters_matches_closed_forms():
-    k = 3.0
-    model = coaxial(jaxtree.SpringDamper(k), gamma0=0.4)
+    """One batch over initial angles and spring stiffnesses: gamma = g0 cos(sqrt(k / I_EFF) t)."""
+    model = coaxial(jaxtree.SpringDamper(3.0), gamma0=0.4)
     g0 = jnp.asarray([0.1, 0.3, -0.2])
-    run = lambda g, m: simulate(m, 3.0, y0=m.initial._replace(gamma=g[None]), rtol=1e-11, atol=1e-11).gamma[:, 0]
-    out = jax.vmap(run, in_axes=(0, None))(g0, model)
-    t = np.linspace(0.0, 3.0, 101)
-    w = np.sqrt(k / I_EFF)
-    assert maxdiff(out, np.asarray(g0)[:, None] * np.cos(w * t)[None]) < CLOSED
     ks = jnp.asarray([1.0, 3.0, 8.0])
-    models = jax.vmap(lambda s: eqx.tree_at(lambda m: m.stiffness, model, s[None]))(ks)
-    out = jax.vmap(lambda m: run(jnp.asarray(0.4), m))(models)
-    assert maxdiff(out, 0.4 * np.cos(np.sqrt(np.asarray(ks) / I_EFF)[:, None] * t[None])) < CLOSED
+
+    def run(g, k):
+        m = eqx.tree_at(lambda m: m.stiffness, model, k[None])
+        return simulate(m, 3.0, y0=m.initial._replace(gamma=g[None]), rtol=1e-11, atol=1e-11).gamma[:, 0]
+
+    out = jax.vmap(run)(g0, ks)
+    t = np.linspace(0.0, 3.0, 101)
+    expected = np.asarray(g0)[:, None] * np.cos(np.sqrt(np.asarray(ks) / I_EFF)[:, None] * t[None])
+    assert maxdiff(out, expected) < CLOSED
 
 
 def test_gradient_through_simulate_matches_the_closed_form():

@@ -27,7 +27,7 @@ import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
-from .attitude import AbstractAttitude, get_attitude, orthogonality_error
+from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
 from .control import AbstractController
 from .dynamics import (
     angular_momentum,
@@ -363,27 +363,41 @@ class Solution(eqx.Module):
 
 
 def _history(problem: Problem, ts, ys):
-    """Per-row outputs of the saved flat states."""
-
-    model = problem.model
+    """The saved flat states decoded: all hinges, C, attitude variables, controller states, X."""
 
     def row(t, y):
-        if model.prescription is None:
-            state, z = problem.state(t, y), problem.control_state(y)
-            hold = jnp.zeros((0,), y.dtype)
-        else:
-            state, z, _, acc = problem.accelerations(t, y)
-            hold = acc.hold_torque
-        energy = kinetic_energy(model, state) + 0.5 * jnp.sum(model.stiffness * state.gamma**2)
-        H = angular_momentum(model, state)
-        _, _, _, _, _, X, Xd = problem.unpack(y)
+        state = problem.state(t, y)
+        att, _, _, _, _, X, Xd = problem.unpack(y)
         return dict(
-            gamma=state.gamma, gamma_dot=state.gamma_dot, omega0=state.omega0, dcm=state.dcm,
-            attitude=problem.unpack(y)[0], control_state=z, X=X, X_dot=Xd, hold_torque=hold,
-            energy=energy, angular_momentum=H, orthogonality=orthogonality_error(state.dcm),
+            gamma=state.gamma, gamma_dot=state.gamma_dot, omega0=state.omega0, dcm=state.dcm, attitude=att,
+            control_state=problem.control_state(y), X=X, X_dot=Xd, orthogonality=orthogonality_error(state.dcm),
         )
 
     return jax.vmap(row)(ts, ys)
+
+
+@eqx.filter_jit
+def _diagnostics(model: Model, law, controller, params, ts, states: State, zs):
+    """Energy, angular momentum and hold torques of the saved states.
+
+    Compiled apart from the solve, and keyed on the model alone when it has no prescribed hinges
+    (the hold torques need the hinge law only then): runs that differ in attitude variables,
+    solver, tolerances, events or control laws share it.
+    """
+    problem = Problem(model, Quaternion(), law, controller, params, False, 0)
+
+    def row(t, state, z):
+        energy = kinetic_energy(model, state) + 0.5 * jnp.sum(model.stiffness * state.gamma**2)
+        H = angular_momentum(model, state)
+        if model.prescription is None:
+            hold = jnp.zeros((0,), state.gamma.dtype)
+        else:
+            tau = problem.torque(t, state, z)
+            tau = None if tau is None else jnp.asarray(tau, state.gamma.dtype)
+            hold = solve_accelerations(model, state, t, tau).hold_torque
+        return energy, H, hold
+
+    return jax.vmap(row)(ts, states, zs)
 
 
 def _condition(model: Model, state: State, t):
@@ -481,8 +495,7 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     out = Solution(
         ts=ts_h, gamma=hist["gamma"], gamma_dot=hist["gamma_dot"], omega0=hist["omega0"], dcm=hist["dcm"],
         attitude=hist["attitude"], control_state=hist["control_state"], X=hist["X"], X_dot=hist["X_dot"],
-        hold_torque=hist["hold_torque"], energy=hist["energy"], angular_momentum=hist["angular_momentum"],
-        orthogonality=hist["orthogonality"], t_final=t_final, final=final_state,
+        hold_torque=None, energy=None, angular_momentum=None, orthogonality=hist["orthogonality"], t_final=t_final, final=final_state,
         final_control_state=problem.control_state(y_final), final_X=Xf, final_X_dot=Xdf,
         result=sol.result, event_mask=mask, singular=singular, margin=_margin(problem, y_final),
         failure=failure, stats=stats, raw=sol, problem=problem,
@@ -708,6 +721,12 @@ def simulate(
     sol = _solve(problem, y0, as_array(X0), as_array(Xd0), as_array(t0), as_array(t1), as_array(rtol),
                  as_array(atol), as_array(dt0), solver, stepsize_controller, saveat, adjoint, ev,
                  _progress_meter(progress), opts)
+    needs_law = model.prescription is not None
+    diag = _diagnostics(model, law if needs_law else None, controller if needs_law else None,
+                        params if needs_law else None, sol.ts,
+                        State(sol.dcm, sol.omega0, sol.gamma, sol.gamma_dot), sol.control_state if needs_law else None)
+    sol = eqx.tree_at(lambda s: (s.energy, s.angular_momentum, s.hold_torque), sol, diag,
+                      is_leaf=lambda x: x is None)
     if throw and not traced:
         check_solution(sol)
     return sol

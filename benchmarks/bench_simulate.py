@@ -1,0 +1,393 @@
+#!/usr/bin/env python3
+"""Benchmark of `jaxtree.simulate` on fig4_free for 10 s (a benchmark, not a test).
+
+Prints the machine and versions, then for jaxtree (diffrax Dopri8 with PI step control, the
+default of `simulate`):
+
+- compile time (first call minus the run time of a compiled call), kept apart from run time;
+- run time (best of several compiled calls) and the achieved error at rtol = atol = 1e-6 and
+  1e-9, and a sweep of tolerances (work-precision);
+
+and the same scene in the peers, when installed (the optional ``peers`` extra):
+
+- Pinocchio (ABA) integrated by scipy's DOP853 at the same tolerances;
+- MuJoCo with its fixed-step RK4 integrator over a sweep of time steps (massless gimbal frames
+  get a tiny mass and inertia, which MuJoCo requires; printed).
+
+Error = max over 101 evenly spaced times of the largest absolute error in (omega0, gamma),
+against a tight jaxtree reference (Dopri8, rtol = atol = 1e-13), itself checked against
+Pinocchio + DOP853 at 1e-13. The summary prints the time each method needs to reach 1e-6 and
+1e-9, the ratios, and the goal checks: jaxtree reaches 1e-6 in no more than the best peer's
+time, 1e-9 in at most half of it, and compiles in at most 5 s.
+
+XLA flag. Unless XLA_FLAGS already says otherwise, the script sets
+``--xla_cpu_use_fusion_emitters=false`` before JAX starts (``--default-xla`` keeps XLA's
+defaults): XLA:CPU's older emitters compile this program about twice as fast, with the same
+run time. `python -m jaxtree` does the same.
+
+Run:  python benchmarks/bench_simulate.py [--quick] [--default-xla] [--json results/bench_simulate.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+
+T_END = 10.0
+N_SAVE = 101
+TARGETS = (1e-6, 1e-9)
+# the same tolerance grid for jaxtree and scipy; the brief's rtol = 1e-6 and 1e-9 are in it
+TOLS = (1e-6, 5e-7, 2e-7, 1e-7, 5e-8, 2e-8, 1e-8, 5e-9, 2e-9, 1e-9, 5e-10, 2e-10, 1e-10, 5e-11, 2e-11, 1e-11)
+QUICK_TOLS = (1e-6, 2e-7, 1e-7, 1e-8, 1e-9, 2e-10, 1e-10)
+MUJOCO_STEPS_PER_SAVE = (10, 14, 20, 28, 40, 57, 80, 113, 160, 226, 320, 453, 640)  # dt = 0.1 s / k
+QUICK_STEPS = (10, 20, 40, 80, 160, 320)
+MUJOCO_TINY_MASS, MUJOCO_TINY_INERTIA = 1e-9, 1e-12
+REFERENCE_TOL = 1e-13
+
+
+def _args():
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--quick", action="store_true", help="fewer repetitions and settings")
+    p.add_argument("--default-xla", action="store_true", help="keep XLA's default CPU emitters")
+    p.add_argument("--json", help="also write the figures to this JSON file")
+    return p.parse_args()
+
+
+ARGS = _args()
+if not ARGS.default_xla and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+import jaxtree  # noqa: E402
+
+
+def say(*a):
+    print(*a, flush=True)
+
+
+def _version(name):
+    try:
+        mod = __import__(name)
+        return getattr(mod, "__version__", "?")
+    except ImportError:
+        return None
+
+
+def machine():
+    cpu = platform.processor() or "?"
+    try:
+        with open("/proc/cpuinfo") as fh:
+            cpu = next(line.split(":", 1)[1].strip() for line in fh if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    info = {
+        "cpu": cpu, "cores": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
+        "load_average": os.getloadavg() if hasattr(os, "getloadavg") else None,
+        "XLA_FLAGS": os.environ.get("XLA_FLAGS", ""),
+    }
+    for name in ("jax", "jaxlib", "diffrax", "equinox", "numpy", "scipy", "mujoco", "pinocchio"):
+        info[name] = _version(name)
+    return info
+
+
+def best_time(fn, repeats, budget=3.0):
+    """Best wall time of `repeats` calls (fewer if they exceed `budget` seconds)."""
+    times, start = [], time.perf_counter()
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+        if time.perf_counter() - start > budget and len(times) >= 2:
+            break
+    return min(times)
+
+
+def error(w, g, ref):
+    return float(max(np.abs(w - ref[0]).max(), np.abs(g - ref[1]).max()))
+
+
+# ----------------------------------------------------------------------------- jaxtree
+def jaxtree_run(model, tol):
+    sol = jaxtree.simulate(model, T_END, saveat=N_SAVE, rtol=tol, atol=tol)
+    jax.block_until_ready(sol.gamma)
+    return sol
+
+
+def jaxtree_first_call(model, tol):
+    """Wall and CPU time of the very first simulate call of the process (trace + compile + run).
+    On a busy machine the CPU time is the better estimate of the wall time on an idle one."""
+    t, c = time.perf_counter(), time.process_time()
+    jaxtree_run(model, tol)
+    return time.perf_counter() - t, time.process_time() - c
+
+
+def jaxtree_runs(model, ref, tols, repeats, first):
+    run = lambda tol: jaxtree_run(model, tol)
+    rows = []
+    for tol in tols:
+        sol = run(tol)
+        wall = best_time(lambda: run(tol), repeats)
+        rows.append({"setting": f"rtol=atol={tol:g}", "tol": tol, "wall_s": wall,
+                     "error": error(np.asarray(sol.omega0), np.asarray(sol.gamma), ref),
+                     "steps": int(sol.stats["num_steps"]), "rhs": int(sol.stats["rhs_evaluations"]),
+                     "fn": (lambda tol=tol: run(tol))})
+    compile_s = first - next(r["wall_s"] for r in rows if r["tol"] == tols[0])
+    return compile_s, rows
+
+
+# ----------------------------------------------------------------------------- peers
+def _offsets(model):
+    """Frames: body 0's at its mass center, body k's at hinge point k, all parallel at gamma = 0.
+    Per hinge: offset of the hinge point from the parent frame's origin; per body: mass center."""
+    hop = np.asarray(model.hinge_on_parent, float)
+    hob = np.asarray(model.hinge_on_body, float)
+    parents = model.topology.parents
+    origin = np.vstack([np.zeros(3), hob])
+    offsets = np.asarray([hop[k - 1] - origin[parents[k - 1]] for k in range(1, model.n + 1)])
+    return np.asarray(model.axis, float), offsets, np.vstack([np.zeros(3), -hob])
+
+
+def pinocchio_runs(model, ref, tols, repeats):
+    import pinocchio as pin
+    from scipy.integrate import solve_ivp
+
+    t0 = time.perf_counter()
+    axis, offsets, com = _offsets(model)
+    mass, inertia = np.asarray(model.mass, float), np.asarray(model.inertia, float)
+    pm = pin.Model()
+    pm.gravity = pin.Motion.Zero()
+    jid = [pm.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "root")]
+    pm.appendBodyToJoint(jid[0], pin.Inertia(mass[0], com[0], inertia[0]), pin.SE3.Identity())
+    for k in range(1, model.n + 1):
+        j = pm.addJoint(jid[model.topology.parents[k - 1]], pin.JointModelRevoluteUnaligned(axis[k - 1]),
+                        pin.SE3(np.eye(3), offsets[k - 1]), f"h{k}")
+        pm.appendBodyToJoint(j, pin.Inertia(mass[k], com[k], inertia[k]), pin.SE3.Identity())
+        jid.append(j)
+    data = pm.createData()
+    iq = np.array([pm.joints[j].idx_q for j in jid[1:]])
+    iv = np.array([pm.joints[j].idx_v for j in jid[1:]])
+    stiffness = np.asarray(model.stiffness, float)
+    n = model.n
+    build = time.perf_counter() - t0
+
+    # State x = (omega0, gamma, gamma_dot, v): omega0 and v the angular and linear velocity of the
+    # free flyer (body 0's mass center) in its own frame, whose derivatives ABA returns. Without
+    # gravity nothing depends on the position or attitude of body 0, so they are not integrated.
+    q = pin.neutral(pm)
+    v = np.zeros(pm.nv)
+    tau = np.zeros(pm.nv)
+    aba = pin.aba
+
+    def rhs(t, x):
+        w, g, gd, lin = x[:3], x[3:3 + n], x[3 + n:3 + 2 * n], x[3 + 2 * n:]
+        q[iq] = g
+        v[:3], v[3:6], v[iv] = lin, w, gd
+        tau[iv] = -stiffness * g
+        a = aba(pm, data, q, v, tau)
+        return np.concatenate([a[3:6], gd, a[iv], a[:3]])
+
+    s = model.initial
+    # body 0's mass center is at rest at t = 0: the vehicle's momentum is zero and only the rotor
+    # spins, about an axis through its own mass center
+    x0 = np.concatenate([np.asarray(s.omega0), np.asarray(s.gamma), np.asarray(s.gamma_dot), np.zeros(3)])
+    ts = np.linspace(0.0, T_END, N_SAVE)
+
+    def run(tol):
+        return solve_ivp(rhs, (0.0, T_END), x0, method="DOP853", rtol=tol, atol=tol, t_eval=ts)
+
+    rows = []
+    for tol in tols:
+        r = run(tol)
+        wall = best_time(lambda: run(tol), repeats)
+        Y = r.y.T
+        rows.append({"setting": f"DOP853 rtol=atol={tol:g}", "tol": tol, "wall_s": wall,
+                     "error": error(Y[:, :3], Y[:, 3:3 + n], ref), "rhs": int(r.nfev),
+                     "fn": (lambda tol=tol: run(tol))})
+    return build, rows, run
+
+
+def mujoco_runs(model, ref, steps_per_save, repeats):
+    import mujoco
+
+    t0 = time.perf_counter()
+    axis, offsets, com = _offsets(model)
+    mass, inertia = np.asarray(model.mass, float), np.asarray(model.inertia, float)
+    children = model.topology.children
+    stiffness = np.asarray(model.stiffness, float)
+    tiny = []
+    f = lambda v: " ".join(f"{x:.17g}" for x in v)
+
+    def inertial(k):
+        m, J = mass[k], inertia[k]
+        if m == 0.0:
+            if k not in tiny:
+                tiny.append(k)
+            m, J = MUJOCO_TINY_MASS, MUJOCO_TINY_INERTIA * np.eye(3)
+        return (f'<inertial pos="{f(com[k])}" mass="{m:.17g}" '
+                f'fullinertia="{f([J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2]])}"/>')
+
+    def body(k):
+        if k == 0:
+            head = '<body name="b0"><freejoint name="root"/>'
+        else:
+            head = (f'<body name="b{k}" pos="{f(offsets[k - 1])}"><joint name="h{k}" type="hinge" pos="0 0 0" '
+                    f'axis="{f(axis[k - 1])}" stiffness="{stiffness[k - 1]:.17g}" springref="0" damping="0"/>')
+        return head + inertial(k) + "".join(body(c) for c in children[k]) + "</body>"
+
+    def build(dt):
+        xml = (f'<mujoco><option gravity="0 0 0" integrator="RK4" timestep="{dt:.17g}"/>'
+               f"<worldbody>{body(0)}</worldbody></mujoco>")
+        m = mujoco.MjModel.from_xml_string(xml)
+        return m, mujoco.MjData(m)
+
+    m, d = build(0.01)
+    jnt = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"h{k}") for k in range(1, model.n + 1)]
+    iq, iv = m.jnt_qposadr[jnt], m.jnt_dofadr[jnt]
+    build_s = time.perf_counter() - t0
+    s = model.initial
+
+    def run(m, d, k):
+        mujoco.mj_resetData(m, d)
+        d.qpos[3] = 1.0
+        d.qpos[iq] = np.asarray(s.gamma)
+        d.qvel[3:6] = np.asarray(s.omega0)
+        d.qvel[iv] = np.asarray(s.gamma_dot)
+        W, G = [np.array(d.qvel[3:6])], [np.array(d.qpos[iq])]
+        for _ in range(N_SAVE - 1):
+            mujoco.mj_step(m, d, nstep=k)
+            W.append(np.array(d.qvel[3:6]))
+            G.append(np.array(d.qpos[iq]))
+        return np.asarray(W), np.asarray(G)
+
+    rows = []
+    for k in steps_per_save:
+        dt = (T_END / (N_SAVE - 1)) / k
+        m, d = build(dt)
+        W, G = run(m, d, k)
+        wall = best_time(lambda: run(m, d, k), repeats)
+        rows.append({"setting": f"RK4 dt={dt:.3g}", "dt": dt, "wall_s": wall, "error": error(W, G, ref),
+                     "rhs": 4 * k * (N_SAVE - 1), "fn": (lambda m=m, d=d, k=k: run(m, d, k))})
+    return build_s, rows, tiny
+
+
+# ----------------------------------------------------------------------------- report
+def fastest(rows, target):
+    """The fastest row of a sweep whose error is at most `target` (None if none is)."""
+    ok = [r for r in rows if r["error"] <= target]
+    return min(ok, key=lambda r: r["wall_s"]) if ok else None
+
+
+def retime(choices, rounds):
+    """Time the chosen settings again, interleaved round by round (load changes hit all alike)."""
+    best = {name: float("inf") for name in choices}
+    for _ in range(rounds):
+        for name, row in choices.items():
+            t = time.perf_counter()
+            row["fn"]()
+            best[name] = min(best[name], time.perf_counter() - t)
+    return best
+
+
+def table(name, rows):
+    say(f"  {name}")
+    say(f"    {'setting':28s} {'error':>10s} {'wall (ms)':>10s} {'RHS evals':>10s}")
+    for r in rows:
+        say(f"    {r['setting']:28s} {r['error']:10.2e} {1e3 * r['wall_s']:10.2f} {r.get('rhs', 0):10d}")
+
+
+def main():
+    repeats = 3 if ARGS.quick else 7
+    info = machine()
+    say("bench_simulate: fig4_free, 10 s, error = max over 101 times of max |error| in (omega0, gamma)")
+    for k, v in info.items():
+        say(f"  {k}: {v}")
+    model = jaxtree.load_scene("fig4_free")
+
+    tols = QUICK_TOLS if ARGS.quick else TOLS
+    first, first_cpu = jaxtree_first_call(model, tols[0])  # before anything else is compiled
+
+    t = time.perf_counter()
+    refsol = jaxtree.simulate(model, T_END, saveat=N_SAVE, rtol=REFERENCE_TOL, atol=REFERENCE_TOL)
+    ref = (np.asarray(refsol.omega0), np.asarray(refsol.gamma))
+    say(f"reference: jaxtree Dopri8 rtol=atol={REFERENCE_TOL:g}: {int(refsol.stats['num_steps'])} steps, "
+        f"{time.perf_counter() - t:.1f} s")
+
+    results = {"machine": info}
+    compile_s, rows = jaxtree_runs(model, ref, tols, repeats, first)
+    results["jaxtree"] = {"compile_s": compile_s, "first_call_s": first, "first_call_cpu_s": first_cpu, "rows": rows}
+    say(f"jaxtree: first call {first:.2f} s = compile {compile_s:.2f} s + run (CPU time of the first call "
+        f"{first_cpu:.2f} s)")
+    table("jaxtree (diffrax Dopri8, PI control)", rows)
+
+    peers = {}
+    try:
+        build, prow, prun = pinocchio_runs(model, ref, tols, repeats)
+        r = prun(REFERENCE_TOL)
+        check = error(r.y.T[:, :3], r.y.T[:, 3:3 + model.n], ref)
+        say(f"pinocchio: model built in {build * 1e3:.1f} ms; reference check (DOP853 at {REFERENCE_TOL:g} vs "
+            f"jaxtree reference): {check:.2e}")
+        table("Pinocchio ABA + scipy DOP853", prow)
+        peers["pinocchio+scipy"] = prow
+        results["pinocchio"] = {"build_s": build, "rows": prow, "reference_check": check}
+    except ImportError:
+        say("pinocchio is not installed (pip install pin): skipped")
+    try:
+        build, mrow, tiny = mujoco_runs(model, ref, QUICK_STEPS if ARGS.quick else MUJOCO_STEPS_PER_SAVE, repeats)
+        say(f"mujoco: model built in {build * 1e3:.1f} ms; massless bodies {tiny} given mass {MUJOCO_TINY_MASS:g} kg "
+            f"and inertia {MUJOCO_TINY_INERTIA:g} kg m^2")
+        table("MuJoCo RK4", mrow)
+        peers["mujoco-rk4"] = mrow
+        results["mujoco"] = {"build_s": build, "rows": mrow, "tiny_mass_bodies": tiny}
+    except ImportError:
+        say("mujoco is not installed (pip install mujoco): skipped")
+
+    say("summary: wall time to reach the error, fastest setting of each sweep, timed again interleaved")
+    checks = []
+    methods = {"jaxtree": rows, **peers}
+    for target in TARGETS:
+        choices = {name: fastest(r, target) for name, r in methods.items()}
+        reached = {name: row for name, row in choices.items() if row is not None}
+        times = retime(reached, rounds=3 if ARGS.quick else 7)
+        mine = times.get("jaxtree")
+        parts = []
+        for name in methods:
+            if name not in times:
+                parts.append(f"{name} -")
+                continue
+            part = f"{name} {times[name] * 1e3:.1f} ms ({reached[name]['setting']})"
+            if name != "jaxtree" and mine is not None:
+                part += f" = {times[name] / mine:.2f} x jaxtree"
+            parts.append(part)
+        say(f"  error <= {target:g}: " + "; ".join(parts))
+        peer_times = [t for name, t in times.items() if name != "jaxtree"]
+        results[f"time_to_{target:g}"] = {name: t for name, t in times.items()}
+        if peer_times:
+            best_peer = min(peer_times)
+            factor = 1.0 if target == TARGETS[0] else 0.5
+            ok = mine is not None and mine <= factor * best_peer
+            checks.append((f"jaxtree reaches {target:g} in <= {factor:g} x the best peer's time "
+                           f"({factor * best_peer * 1e3:.1f} ms): {'-' if mine is None else f'{mine * 1e3:.1f} ms'}", ok))
+    checks.append((f"compile time {compile_s:.2f} s <= 5 s", compile_s <= 5.0))
+    for label, ok in checks:
+        say(f"  [{'ok' if ok else 'MISSED'}] {label}")
+    say(f"load average at the end: {os.getloadavg() if hasattr(os, 'getloadavg') else '?'}")
+    results["checks"] = [{"check": c, "ok": ok} for c, ok in checks]
+    for block in ("jaxtree", "pinocchio", "mujoco"):
+        for row in results.get(block, {}).get("rows", []):
+            row.pop("fn", None)
+    if ARGS.json:
+        from jaxtree.output import atomic_write
+
+        with atomic_write(ARGS.json, "w") as fh:
+            json.dump(results, fh, indent=1, default=float)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
