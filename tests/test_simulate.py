@@ -329,6 +329,9 @@ def test_gimbal_lock_is_reported_with_time_and_state(scenes):
     gamma[2] = np.pi / 2  # hinge 4 parallel to hinge 2: the Eq. (1) matrix is singular
     with pytest.raises(jaxtree.SimulationError, match="(?s)step size collapsed.*stopped at t = 0.*gimbal lock"):
         simulate(model, 1.0, y0=model.initial._replace(gamma=jnp.asarray(gamma)))
+    # a non-finite state is reported as such, not passed on as NaNs
+    with pytest.raises(jaxtree.SimulationError, match="(?s)stopped at t = .*the state is not finite"):
+        simulate(model, 1.0, y0=model.initial._replace(omega0=jnp.asarray([0.0, np.nan, 0.0])))
 
 
 def test_max_steps_is_reported_eagerly_and_under_jit():
@@ -380,3 +383,21 @@ def test_float32_models_simulate():
     assert sol.gamma.dtype == jnp.float32
     t = np.asarray(sol.ts, dtype=float)
     assert maxdiff(sol.gamma[:, 0], 0.4 * np.cos(np.sqrt(k / I_EFF) * t)) < 1e-4
+
+
+# ----------------------------------------------------------------------------- command line
+def test_command_line_runs_the_sample_problem(tmp_path, monkeypatch, capsys):
+    from jaxtree.__main__ import main
+
+    monkeypatch.setenv("XLA_FLAGS", "")  # restored afterwards; main() may add its compiler flag
+    code = main(["--duration", "1", "--points", "11", "--attitudes", "quaternion", "--no-plot",
+                 "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "100.00%" in out  # diffrax's progress meter, on by default
+    assert "angular momentum" in out and "accepted" in out and "wall time" in out
+    data = np.load(tmp_path / "fig4_histories.npz")
+    assert data["quaternion/gamma"].shape == (11, 10)
+    assert maxdiff(data["quaternion/gamma"][:, 0], np.sin(0.5 * np.linspace(0.0, 1.0, 11))) < 1e-15
+    header = (tmp_path / "fig4_quaternion.csv").read_text().splitlines()[0].split(",")
+    assert header[:2] == ["t", "gamma_1"] and "hold_torque_1" in header

@@ -431,6 +431,7 @@ def _initial_step(problem: Problem, y0, t0, t1):
     nothing more to compile); the step-size controller corrects it within a few steps."""
     _, w, _, gd, _, _, _ = problem.unpack(y0)
     rate = jnp.max(jnp.abs(jnp.concatenate([w, gd, jnp.zeros((1,), y0.dtype)])))
+    rate = jnp.where(jnp.isfinite(rate), rate, 0.0)  # a non-finite state fails on the first steps
     h = jnp.minimum(1e-2 / (1.0 + rate), jnp.abs(t1 - t0))
     return jnp.where(t1 >= t0, h, -h)
 
@@ -511,7 +512,7 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
 
 
 # ----------------------------------------------------------------------------- failures
-_KINDS = ("max_steps", "dt_min", "singular_attitude", "other")
+_KINDS = ("max_steps", "dt_min", "singular_attitude", "other", "nonfinite_start")
 
 
 def _failure_kind(sol: Solution):
@@ -532,6 +533,7 @@ _MESSAGES = {
     "singular_attitude": "the attitude angles approach their singularity (|cos theta_2| fell below the "
                          "tolerance of Eq. 24); use attitude='quaternion' or 'dcm'",
     "other": "the solver failed",
+    "nonfinite_start": "the initial state is not finite",
 }
 
 
@@ -716,6 +718,11 @@ def simulate(
             raise ValueError(f"saveat: expected a 1-D array of times, got shape {saveat.shape}")
     ev, has_guard, user_event = _combine_events(event, att)
     traced = _is_traced((model, y0, t0, t1, params, controller, law, saveat, ev, translation, X0, Xd0))
+    if not traced and throw:
+        start = [np.asarray(x, float) for x in (*y0, *(() if X0 is None else (X0, Xd0)))]
+        if not all(np.all(np.isfinite(x)) for x in start):
+            # (under jit the solver would reject every step until max_steps: NaN step sizes)
+            raise SimulationError(_format_failure("nonfinite_start", t0, y0, np.nan, np.nan, att.name))
     opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced))
     as_array = lambda x: None if x is None else jnp.asarray(x, dtype)
     sol = _solve(problem, y0, as_array(X0), as_array(Xd0), as_array(t0), as_array(t1), as_array(rtol),
