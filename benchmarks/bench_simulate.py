@@ -41,7 +41,8 @@ T_END = 10.0
 N_SAVE = 101
 TARGETS = (1e-6, 1e-9)
 # the same tolerance grid for jaxtree and scipy; the brief's rtol = 1e-6 and 1e-9 are in it
-TOLS = (1e-6, 5e-7, 2e-7, 1e-7, 5e-8, 2e-8, 1e-8, 5e-9, 2e-9, 1e-9, 5e-10, 2e-10, 1e-10, 5e-11, 2e-11, 1e-11)
+TOLS = (1e-6, 5e-7, 3e-7, 2e-7, 1e-7, 5e-8, 2e-8, 1e-8, 5e-9, 2e-9, 1e-9, 5e-10, 3e-10, 2e-10, 1.5e-10, 1e-10,
+        5e-11, 2e-11, 1e-11)
 QUICK_TOLS = (1e-6, 2e-7, 1e-7, 1e-8, 1e-9, 2e-10, 1e-10)
 MUJOCO_STEPS_PER_SAVE = (10, 14, 20, 28, 40, 57, 80, 113, 160, 226, 320, 453, 640)  # dt = 0.1 s / k
 QUICK_STEPS = (10, 20, 40, 80, 160, 320)
