@@ -309,8 +309,9 @@ def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelera
 
 
 def _cholesky_solve(A, b):
+    """Solve ``A x = b`` for the symmetric positive definite matrix of Eq. (1) (Cholesky)."""
     c = jax.scipy.linalg.cho_factor(A, lower=True)
-    return jax.scipy.linalg.cho_solve(c, b)
+    return jax.scipy.linalg.cho_solve(c, b[:, None])[:, 0]
 
 
 def forward_dynamics(model: Model, dcm, omega0, gamma, gamma_dot, t=0.0):
