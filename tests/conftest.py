@@ -1,6 +1,13 @@
 """Shared fixtures. Importing jaxtree turns on float64."""
 
+import os
 import pathlib
+
+# XLA's CPU fusion emitters roughly double compile times for the many small programs of a
+# test run (the ODE solves above all) with no gain in run time at these sizes; set before
+# JAX starts its backend.
+if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
 import jaxtree  # first: it sets the float64 and BLAS-thread defaults before JAX loads
 
