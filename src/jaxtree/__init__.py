@@ -108,3 +108,11 @@ from .simulate import (
     hinge_angle_event as hinge_angle_event,
     state_event as state_event,
 )
+from .hybrid import (
+    HybridModel as HybridModel,
+    HybridSolution as HybridSolution,
+    hybrid_model as hybrid_model,
+    hybrid_rhs as hybrid_rhs,
+    hybrid_equations as hybrid_equations,
+    simulate_hybrid as simulate_hybrid,
+)

@@ -1,0 +1,523 @@
+"""Tests of jaxtree.hybrid: the hybrid-coordinate equations of Likins (1972), Sec. III E, Eqs. 105-123.
+
+Every expected number comes from outside the hybrid code:
+
+- Eq. (30) from :func:`jaxtree.linearized_equations` (jacfwd of Eq. 1, validated against the
+  Lagrange oracle in test_linearize.py), solved here for the accelerations and integrated by
+  scipy's DOP853 in physical coordinates (the hybrid model with all modes is only a change of
+  coordinates of Eq. 30);
+- the full nonlinear Eq. (1) (:func:`jaxtree.forward_dynamics`, validated against the oracle in
+  test_dynamics.py) integrated by scipy's DOP853, with the direction cosines of Eq. (3);
+- eigenvalues of the first-order matrix B of Eq. (71) by scipy's general eigensolver;
+- Appendix C: the printed equations C-70..C-73 written out by hand and integrated by scipy.
+
+Tolerances. The integrations run at rtol = atol = 1e-11 (``TOL``). Two such integrations of the
+same equations in different coordinates agree to their global error: a few hundred accepted steps
+of an 8th-order method, each with a local error below TOL times the state size (states of order
+1 to 30), observed at 1e-11 .. 2e-10 on these runs; ``SAME`` = 2e-8 leaves a margin of 100.
+"""
+
+import sys
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.linalg as sla
+from scipy.integrate import solve_ivp
+
+import jaxtree
+from jaxtree import State
+from jaxtree.kinematics import tilde
+
+sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
+from test_linearize import _appendix_c  # noqa: E402
+
+TOL = 1e-11
+SAME = 2e-8
+FIG4_SMALL = (5, 6, 7, 8, 9, 10)  # all panel hinges: a terminal appendage (Sec. III A, Fig. 4)
+FIG4_SPIN = [0.0, 0.0, 0.3]  # nominal omega0 of the modes: spinning, so the modes are gyroscopic
+
+
+# ----------------------------------------------------------------------------- references
+@eqx.filter_jit
+def eq1_rhs(model, t, x):
+    """Full nonlinear Eq. (1) with Eq. (3): x = [C (9), omega0, gamma (n), gamma_dot (n)]."""
+    n = model.n
+    C, w, g, gd = x[:9].reshape(3, 3), x[9:12], x[12:12 + n], x[12 + n:]
+    wd, gdd = jaxtree.forward_dynamics(model, C, w, g, gd, t)
+    return jnp.concatenate([(-tilde(w) @ C).ravel(), wd, gd, gdd])
+
+
+def eq30_accelerations(model, small, large, t, C, w, gL, gdL, y, yd):
+    """Eq. (30) solved for [omega0_dot, gamma_ddot_L, y''] from jaxtree.linearized_equations: its
+    residual is affine in the accelerations, so the matrix is r(e_i) - r(0)."""
+    n = model.n
+    S = np.asarray(small) - 1
+    L = np.asarray(large, dtype=int) - 1
+    G = np.asarray(model.prescribed, dtype=int) - 1
+    gamma = jnp.zeros(n).at[L].set(gL)
+    gamma_dot = jnp.zeros(n).at[L].set(gdL)
+    gddG = jnp.zeros(len(G))
+    if len(G):
+        g, gd, gddG = model.prescription.derivatives(t)
+        gamma, gamma_dot = gamma.at[G].set(g), gamma_dot.at[G].set(gd)
+    nx = 3 + len(L) + len(S)
+    rows = np.concatenate([np.arange(3), L + 3, S + 3])
+
+    def residual(x):
+        gdd = jnp.zeros(n).at[L].set(x[3:3 + len(L)]).at[G].set(gddG)
+        lin = jaxtree.linearized_equations(model, small, State(C, w, gamma, gamma_dot), omega0_dot=x[:3],
+                                           gamma_ddot=gdd, t=t)
+        r = lin.residual + lin.accel @ x[3 + len(L):] + lin.rate @ yd + lin.angle @ y
+        return r[rows]
+
+    r = jax.vmap(residual)(jnp.concatenate([jnp.zeros((1, nx)), jnp.eye(nx)]))
+    return jnp.linalg.solve((r[1:] - r[0]).T, -r[0])
+
+
+# One compilation per model structure and set A (pass t as an array: equinox makes Python floats static).
+eq30_acc = eqx.filter_jit(eq30_accelerations)
+
+
+def eq30_rhs(model, small, large):
+    """Eq. (30) in physical coordinates for scipy: x = [C (9), omega0, gamma_L, gamma_dot_L, y, y']."""
+    nl, nu = len(large), len(small)
+    o = np.cumsum([0, 9, 3, nl, nl, nu, nu])
+
+    def rhs(t, x):
+        C, w, gL, gdL, y, yd = (x[o[i]:o[i + 1]] for i in range(6))
+        C = C.reshape(3, 3)
+        acc = np.asarray(eq30_acc(model, small, large, jnp.asarray(t), C, w, gL, gdL, y, yd))
+        return np.concatenate([(-np.asarray(tilde(w)) @ C).ravel(), acc[:3], gdL, acc[3:3 + nl], yd, acc[3 + nl:]])
+
+    return rhs
+
+
+def integrate(fun, x0, T, ts):
+    sol = solve_ivp(lambda t, x: np.asarray(fun(t, x)), (0.0, T), np.asarray(x0), t_eval=ts,
+                    method="DOP853", rtol=TOL, atol=TOL)
+    assert sol.success, sol.message
+    return sol.y.T
+
+
+# ----------------------------------------------------------------------------- fixtures
+def fig4_initial(model, amp):
+    """Large motion (omega0, gimbal angles, the rotor at 10 pi rad/s, the prescribed platform) with
+    the panels deflected by `amp` (angles) and 2 amp (rates) in a fixed pattern."""
+    g0, gd0, _ = model.prescription.derivatives(jnp.asarray(0.0))
+    gamma = np.zeros(model.n)
+    gamma_dot = np.zeros(model.n)
+    gamma[[1, 2]] = [0.25, -0.15]
+    gamma_dot[[1, 2, 3]] = [0.1, -0.2, 10 * np.pi]
+    gamma[0], gamma_dot[0] = float(g0[0]), float(gd0[0])
+    S = np.asarray(FIG4_SMALL) - 1
+    gamma[S] = amp * np.array([1.0, -0.6, 0.8, 0.3, -0.5, 0.7])
+    gamma_dot[S] = 2 * amp * np.array([-0.4, 0.9, 0.2, -0.7, 0.5, 0.1])
+    return State(jnp.eye(3), jnp.array([0.05, -0.04, 0.1]), jnp.asarray(gamma), jnp.asarray(gamma_dot))
+
+
+@pytest.fixture(scope="module")
+def fig4():
+    """Fig. 4 with gamma_1 prescribed (Sec. III F), A = the six panel hinges (terminal), gimbal
+    and rotor large: the general (jvp) path with gyroscopic first-order modes (Eq. 118).
+
+    The platform's mass center is moved 0.25 m off its hinge axis (the scene has it on the axis),
+    so that its prescribed acceleration couples to the panel angles at first order (the caret part
+    of a_{.1} in the G terms of Eq. 30c)."""
+    model = jaxtree.load_scene("fig4")
+    model = eqx.tree_at(lambda m: m.hinge_on_body, model, model.hinge_on_body.at[0].set(jnp.array([0.25, 0, -0.3])))
+    hm = jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN)
+    assert hm.form == "first_order" and hm.kind == "gyroscopic" and not hm.precomputed
+    assert hm.large == (2, 3, 4) and hm.n_modes == 6
+    return model, hm
+
+
+@pytest.fixture(scope="module")
+def appendix():
+    """Fig. C-1 with both rod hinges small and omega0 the only large variable: the precomputed
+    (polynomial) path with real modes (Eq. 121), modes on the nominal spin Omega b3."""
+    model, p = _appendix_c()
+    hm = jaxtree.hybrid_model(model, (1, 2), omega0=[0.0, 0.0, 1.0])
+    assert hm.form == "real" and hm.precomputed and hm.n_modes == 2 and hm.large == ()
+    return model, p, hm
+
+
+T_FIG4, TS_FIG4 = 2.0, np.linspace(0.0, 2.0, 21)
+
+
+@pytest.fixture(scope="module")
+def fig4_run(fig4):
+    """The all-mode hybrid run of Fig. 4 at panel amplitude 0.05 (shared by two tests)."""
+    model, hm = fig4
+    state = fig4_initial(model, 0.05)
+    hyb, sol = hybrid_history(hm, state, T_FIG4, TS_FIG4)
+    return state, hyb, sol
+
+
+def full_history(model, state, T, ts):
+    x0 = jnp.concatenate([state.dcm.ravel(), state.omega0, state.gamma, state.gamma_dot])
+    X = integrate(lambda t, x: eq1_rhs(model, jnp.asarray(t), x), x0, T, ts)
+    n = model.n
+    return dict(dcm=X[:, :9].reshape(-1, 3, 3), omega0=X[:, 9:12], gamma=X[:, 12:12 + n])
+
+
+def hybrid_history(hm, state, T, ts):
+    sol = jaxtree.simulate_hybrid(hm, T, y0=state, saveat=ts, rtol=TOL, atol=TOL)
+    return dict(dcm=np.asarray(sol.dcm), omega0=np.asarray(sol.omega0), gamma=np.asarray(sol.gamma)), sol
+
+
+def max_diff(a, b, keys=("dcm", "omega0", "gamma"), cols=None):
+    out = 0.0
+    for k in keys:
+        x, y = np.asarray(a[k]), np.asarray(b[k])
+        if k == "gamma" and cols is not None:
+            x, y = x[:, cols], y[:, cols]
+        out = max(out, float(np.abs(x - y).max()))
+    return out
+
+
+# ----------------------------------------------------------------------------- Eq. (30), right side
+rhs_jit = eqx.filter_jit(jaxtree.hybrid_rhs)
+equations_jit = eqx.filter_jit(jaxtree.hybrid_equations)
+
+
+def modal_jacobian(h, y):
+    """d(right side of Eq. 118)/d(modal state) at fixed large variables. Eq. (30) is linear in the small
+    variables, so the right side is affine in s and differences with unit steps are exact."""
+    off = h.attitude.size + 3 + 2 * len(h.large)
+    r0 = equations_jit(h, 0.0, y)[1]
+    cols = [equations_jit(h, 0.0, y.at[off + j].add(1.0))[1] - r0 for j in range(h.m)]
+    return np.stack([np.asarray(c) for c in cols], 1)
+
+
+def hybrid_physical_accelerations(hm, t, y):
+    """[omega0_dot, gamma_ddot_L, y''] and the rebuilt y' from the hybrid right side."""
+    dy = rhs_jit(t, y, hm)
+    a, nl = hm.attitude.size, len(hm.large)
+    ds = dy[a + 3 + 2 * nl:]
+    if hm.form == "real":
+        k = hm.n_modes
+        ydd, yd = hm.accel @ ds[k:], hm.positions[:, :k] @ ds[:k]  # s = [eta; eta'], ds = [eta'; eta'']
+    else:
+        ydd, yd = hm.rates @ ds, hm.positions @ ds
+    return jnp.concatenate([dy[a:a + 3], dy[a + 3 + nl:a + 3 + 2 * nl], ydd]), yd
+
+
+def random_state(model, rng, scale=0.3):
+    q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    return State(jnp.asarray(q * np.sign(np.linalg.det(q))), jnp.asarray(rng.normal(size=3) * 0.5),
+                 jnp.asarray(rng.normal(size=model.n) * scale), jnp.asarray(rng.normal(size=model.n) * scale))
+
+
+mass_matrix_jvp = eqx.filter_jit(lambda m, g, dg: jax.jvp(lambda q: jaxtree.mass_matrix(m, q), (g,), (dg,)))
+
+
+def check_rhs_against_eq30(hm, rng, trials=2):
+    """At random states the hybrid right side, mapped back to physical accelerations, is the
+    solution of Eq. (30) (all modes retained: the modal matrices are square and invertible).
+    Returns the largest relative difference and, for a model with prescribed hinges, the size of
+    the caret part of the prescribed-acceleration terms relative to the tolerance of the check."""
+    model = hm.model
+    worst, caret = 0.0, np.inf
+    for _ in range(trials):
+        t = jnp.asarray(rng.uniform(0, 3))  # an array: a Python float would be static under filter_jit
+        y = hm.pack(random_state(model, rng))
+        st = hm.state(t, y)
+        got, yd = hybrid_physical_accelerations(hm, t, y)
+        S = np.asarray(hm.small) - 1
+        L = np.asarray(hm.large, dtype=int) - 1
+        want = eq30_acc(model, hm.small, hm.large, t, st.dcm, st.omega0, st.gamma[L], st.gamma_dot[L],
+                        st.gamma[S] - hm.gamma_nominal[S], st.gamma_dot[S])
+        # Round-off of a solve with condition ~1e4 on O(100) entries: ~1e-11 of the largest entry.
+        tol = 1e-10 * float(np.abs(want).max())
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=tol)
+        # the kinematic rows of (30d) (first-order form): Gamma_1 Phi Y' = Gamma_2 Phi Y = y'
+        np.testing.assert_allclose(np.asarray(yd), np.asarray(st.gamma_dot[S]), atol=1e-12)
+        worst = max(worst, float(np.abs(got - want).max() / np.abs(want).max()))
+        if model.prescribed:
+            # Eq. (30c) prints the prescribed terms as -sum_G a_0k gamma_ddot_k; Eq. (30) needs bar + caret.
+            # The caret part, (d a / d y . y) gamma_ddot_G, moves the accelerations by at least
+            # |caret| / |[a]|: compare with the tolerance above.
+            G = np.asarray(model.prescribed) - 1
+            _, _, gdd = model.prescription.derivatives(t)
+            bar = st.gamma.at[S].set(hm.gamma_nominal[S])
+            A, dA = mass_matrix_jvp(model, bar, jnp.zeros(model.n).at[S].set(st.gamma[S] - hm.gamma_nominal[S]))
+            rows = np.concatenate([np.arange(3), L + 3, S + 3])
+            size = float(np.abs(np.asarray(dA[rows][:, G + 3] @ gdd)).max() / np.abs(np.asarray(A)).max())
+            caret = min(caret, size / tol)
+    return worst, caret
+
+
+def test_rhs_reproduces_eq30(fig4, appendix):
+    """All modes retained: the hybrid right side, mapped back to physical accelerations, equals
+    Eq. (30) solved directly, for (a) the general path with gyroscopic first-order modes
+    (Eq. 118), a prescribed hinge (with bar + caret coefficients, errata_hybrid.md #2) and large
+    gimbal/rotor hinges (Fig. 4, A = 5..10); (b) the
+    precomputed polynomial path (Appendix C, omega0 the only large variable) with real modes
+    (Eq. 121) and (c) with the first-order form forced (Eqs. 122-123)."""
+    rng = np.random.default_rng(3)
+    _, hm = fig4
+    errs, caret = {}, {}
+    errs["fig4 A=5..10 first-order"], caret["fig4"] = check_rhs_against_eq30(hm, rng)
+    # a coefficient a_01 without its caret part (the OCR's reading of Eq. 30c) would miss by far more
+    assert caret["fig4"] > 100.0, caret
+    app, _, h = appendix
+    errs["appendix C real (precomputed)"], _ = check_rhs_against_eq30(h, rng)
+    hf = jaxtree.hybrid_model(app, (1, 2), omega0=[0.0, 0.0, 1.0], form="first_order")
+    assert hf.precomputed and hf.form == "first_order"
+    errs["appendix C first-order (precomputed)"], _ = check_rhs_against_eq30(hf, rng)
+    print("max relative difference from Eq. (30):", errs)
+    print("caret part of the prescribed-acceleration terms / tolerance:", caret)
+
+
+def test_nominal_modal_block_and_left_eigenvector_scaling(fig4):
+    """Eqs. (116)-(117): at the nominal motion the projected small-hinge block is U, and the modal
+    rows of the hybrid equations, with the large accelerations held at zero, have exactly the
+    eigenvalues +-i sigma of the retained modes (scipy's eig of B, Eq. 71). The left eigenvectors
+    Phi' of jaxtree.modes (normalized with P = diag(K, I), Eq. 89) do NOT give U with the nominal
+    A_kk = diag(U, I) of (30d) that Eq. (116) names; diag(K, U) Phi' does (errata_hybrid.md #1)."""
+    model, hm = fig4
+    lin = jaxtree.linearize(model, FIG4_SMALL, omega0=FIG4_SPIN)
+    I, J, K = (np.asarray(x) for x in lin)
+    md = jaxtree.modes(lin)
+    nu = len(FIG4_SMALL)
+    B = np.block([[np.zeros((nu, nu)), np.eye(nu)], [-np.linalg.solve(I, K), -np.linalg.solve(I, J)]])
+    sigma = np.sort(np.abs(sla.eigvals(B).imag))[::2]
+    np.testing.assert_allclose(np.asarray(hm.frequencies), sigma, rtol=1e-9)
+    np.testing.assert_allclose(np.asarray(hm.frequencies), np.asarray(md.frequencies)[list(hm.mode_index)],
+                               rtol=1e-14)
+    # Eq. (116) as printed: Phi'^T A_kk Phi with the nominal A_kk = diag(U, a_bar) of (30d)
+    R, Lf = np.asarray(md.right), np.asarray(md.left)
+    Pu = sla.block_diag(np.eye(nu), I)
+    printed = Lf.T @ Pu @ R
+    assert np.abs(printed - np.eye(2 * nu)).max() > 0.4
+    np.testing.assert_allclose(Lf.T @ sla.block_diag(K, I) @ R, np.eye(2 * nu), atol=1e-9)
+    scaled = sla.block_diag(K.T, np.eye(nu)) @ Lf
+    np.testing.assert_allclose(scaled.T @ Pu @ R, np.eye(2 * nu), atol=1e-9)
+    # the hybrid equations at the nominal motion (large variables at their nominal values; the
+    # platform held, as in jaxtree.linearize: prescription amplitude zero)
+    nominal = State(jnp.eye(3), jnp.asarray(FIG4_SPIN), jnp.zeros(model.n), jnp.zeros(model.n))
+    held = eqx.tree_at(lambda m: m.prescription.amplitude, model, jnp.zeros(1))
+    for k in (6, 3):
+        h = eqx.tree_at(lambda h: h.model, hm.retain(k), held)
+        y = h.pack(nominal)
+        mat, _ = equations_jit(h, 0.0, y)
+        jac = modal_jacobian(h, y)
+        nx = 3 + len(h.large)
+        off = h.attitude.size + 3 + 2 * len(h.large)
+        act = np.concatenate([np.arange(k), h.n_modes + np.arange(k)])  # the active modal rows and columns
+        Mmm = np.asarray(mat)[nx:, nx:][np.ix_(act, act)]
+        np.testing.assert_allclose(Mmm, np.eye(2 * k), atol=1e-9)
+        lam = sla.eigvals(np.linalg.solve(Mmm, jac[nx:][np.ix_(act, act)]))
+        np.testing.assert_allclose(np.abs(lam.real).max(), 0.0, atol=1e-8)
+        np.testing.assert_allclose(np.sort(np.abs(lam.imag))[::2], sigma[:k], rtol=1e-9)
+    # modal damping (end of Sec. III E, spinning case): i sigma -> -zeta sigma + i sigma
+    zeta = 0.02
+    hd = jaxtree.hybrid_model(held, FIG4_SMALL, omega0=FIG4_SPIN, damping=zeta)
+    y = hd.pack(nominal)
+    jac = modal_jacobian(hd, y)
+    nx = 6
+    mat = np.asarray(equations_jit(hd, 0.0, y)[0])[nx:, nx:]
+    lam = sla.eigvals(np.linalg.solve(mat, jac[nx:]))
+    lam = lam[np.argsort(np.abs(lam.imag))][::2]
+    np.testing.assert_allclose(lam.real, -zeta * sigma, rtol=1e-7)
+    np.testing.assert_allclose(np.abs(lam.imag), sigma, rtol=1e-9)
+
+
+# ----------------------------------------------------------------------------- Eq. (30), integrated
+def test_all_modes_reproduce_integrated_eq30(fig4, fig4_run):
+    """With all modes retained the hybrid simulation (diffrax, modal coordinates) reproduces the
+    direct integration of Eq. (30) (scipy, physical coordinates) to integration tolerance: b_0
+    attitude and rate, gimbal and rotor angles, panel angles."""
+    model, hm = fig4
+    T, ts = T_FIG4, TS_FIG4
+    state, hyb, sol = fig4_run
+    S = np.asarray(FIG4_SMALL) - 1
+    L = np.asarray(hm.large) - 1
+    x0 = jnp.concatenate([state.dcm.ravel(), state.omega0, state.gamma[L], state.gamma_dot[L], state.gamma[S],
+                          state.gamma_dot[S]])
+    X = integrate(eq30_rhs(model, FIG4_SMALL, hm.large), x0, T, ts)
+    nl = len(L)
+    ref = dict(dcm=X[:, :9].reshape(-1, 3, 3), omega0=X[:, 9:12], gamma=np.zeros((ts.size, model.n)))
+    ref["gamma"][:, L] = X[:, 12:12 + nl]
+    ref["gamma"][:, S] = X[:, 12 + 2 * nl:12 + 2 * nl + len(S)]
+    cols = np.concatenate([L, S])
+    d = max_diff(hyb, ref, cols=cols)
+    print(f"hybrid (all modes) vs integrated Eq. (30): max difference {d:.3g} "
+          f"({int(sol.stats['num_accepted_steps'])} steps)")
+    assert d < SAME
+    # the motion is not trivial: the panels move by their amplitude, the gimbal by much more
+    assert np.abs(ref["gamma"][:, S]).max() > 0.04 and np.ptp(ref["gamma"][:, L[0]]) > 0.05
+
+
+# ----------------------------------------------------------------------------- Eq. (1)
+def quiet_initial(model, amp):
+    """Only the rotor moves (10 pi rad/s about its axis, gimbal at zero: a steady motion of Eq. 1),
+    plus the panel deflection `amp`: every other motion (omega0, gimbal, bus attitude) is the
+    response to the panels, through the rotor's gyroscopic coupling."""
+    gamma, gamma_dot = np.zeros(model.n), np.zeros(model.n)
+    gamma_dot[3] = 10 * np.pi
+    S = np.asarray(FIG4_SMALL) - 1
+    gamma[S] = amp * np.array([1.0, -0.6, 0.8, 0.3, -0.5, 0.7])
+    gamma_dot[S] = 2 * amp * np.array([-0.4, 0.9, 0.2, -0.7, 0.5, 0.1])
+    return State(jnp.eye(3), jnp.zeros(3), jnp.asarray(gamma), jnp.asarray(gamma_dot))
+
+
+def test_small_amplitude_approaches_nonlinear_eq1(fig4):
+    """The hybrid simulation (all modes) tends to the full nonlinear simulation of Eq. (1) as the
+    panel amplitude shrinks.
+
+    (a) Order of the error. Platform prescription set to zero (same compiled model), rotor spinning,
+    everything else excited by the panels only: the terms Eq. (30) drops are quadratic in the small
+    variables, so halving the amplitude divides the error of the large variables (omega0, attitude,
+    gimbal and rotor angles) by 4 (3.2 .. 4.8 allowed for the cubic terms) and that of the panel
+    angles by at least that (their quadratic terms happen to be smaller: observed ratio ~6).
+
+    (b) Large motion (prescribed platform swinging 1 rad, gimbal and bus rotating): the large motion
+    also forces the panels, so the small variables are ``y_f + amp y_p`` with a forced part ``y_f``
+    that does not shrink with amp, and the error ~ (y_f + amp y_p)^2 tends to a floor: it still
+    shrinks (observed ratio 2.6 per halving; more than 1.5 required) and stays a small fraction of
+    the amplitude."""
+    model, hm = fig4
+    T, ts = T_FIG4, TS_FIG4
+    S = np.asarray(FIG4_SMALL) - 1
+    L = np.asarray(hm.large) - 1
+    quiet = eqx.tree_at(lambda m: m.prescription.amplitude, model, jnp.zeros(1))
+    hq = eqx.tree_at(lambda h: h.model, hm, quiet)
+    large, small = [], []
+    for amp in (0.02, 0.01):
+        state = quiet_initial(model, amp)
+        hyb, _ = hybrid_history(hq, state, T, ts)
+        full = full_history(quiet, state, T, ts)
+        large.append(max_diff(hyb, full, keys=("dcm", "omega0", "gamma"), cols=L))
+        small.append(max_diff(hyb, full, keys=("gamma",), cols=S))
+        assert np.abs(full["gamma"][:, L[:2]]).max() > 0.2 * amp  # the gimbal does respond
+    print(f"(a) hybrid vs Eq. (1), amplitude 0.02 / 0.01: large variables {large[0]:.3g} / {large[1]:.3g} "
+          f"(ratio {large[0] / large[1]:.2f}), panels {small[0]:.3g} / {small[1]:.3g} "
+          f"(ratio {small[0] / small[1]:.2f})")
+    assert 3.2 < large[0] / large[1] < 4.8
+    assert small[0] / small[1] > 3.2
+    assert max(large[1], small[1]) < 0.01 * 0.01
+    errs = []
+    for amp in (0.02, 0.01):
+        state = fig4_initial(model, amp)
+        hyb, _ = hybrid_history(hm, state, T, ts)
+        full = full_history(model, state, T, ts)
+        errs.append(max_diff(hyb, full, cols=np.concatenate([L, S])))
+        assert errs[-1] < 0.05 * amp
+    print(f"(b) with the large motion: {errs[0]:.3g} / {errs[1]:.3g} (ratio {errs[0] / errs[1]:.2f})")
+    assert errs[0] / errs[1] > 1.5
+
+
+# ----------------------------------------------------------------------------- truncation
+def test_truncation_error_decreases(fig4, fig4_run):
+    """Truncation (Eq. 118): keeping the k lowest modes of the panels, the error against the
+    all-mode model (= Eq. 30, previous tests) falls as k grows and vanishes for k = 6; the
+    retained frequencies are the k lowest of jaxtree.modes. The retain() mask equals a model
+    built with n_modes=k (smaller arrays)."""
+    model, hm = fig4
+    T, ts = T_FIG4, TS_FIG4
+    state, ref, _ = fig4_run
+    S = np.asarray(FIG4_SMALL) - 1
+    cols = np.concatenate([np.asarray(hm.large) - 1, S])
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))
+    panels, rates = [], []
+    for k in range(1, 6):
+        out, _ = hybrid_history(hm.retain(k), state, T, ts)
+        panels.append(rms(out["gamma"][:, S] - ref["gamma"][:, S]))
+        rates.append(rms(out["omega0"] - ref["omega0"]))
+    panels.append(0.0), rates.append(0.0)  # k = 6: all modes, the reference itself
+    print("frequencies:", np.asarray(hm.frequencies))
+    print("rms error of the panel angles, k = 1..6:", ["%.3g" % e for e in panels])
+    print("rms error of omega0,           k = 1..6:", ["%.3g" % e for e in rates])
+    # (The maximum error is not monotone: k = 3 adds a 4.9 rad/s mode whose truncated partner
+    # errors peak at other times; the rms over the run is.)
+    for errs in (panels, rates):
+        assert all(errs[i + 1] < errs[i] for i in range(5)), errs
+    assert panels[0] > 1e-2 and panels[4] < 0.2 * panels[0] and rates[4] < 0.02 * rates[0]
+    # a model built with fewer modes is the masked one
+    small3 = jaxtree.hybrid_model(model, FIG4_SMALL, 3, omega0=FIG4_SPIN)
+    np.testing.assert_allclose(np.asarray(small3.frequencies), np.asarray(hm.frequencies)[:3], rtol=1e-14)
+    act = np.concatenate([np.arange(3), 6 + np.arange(3)])  # active columns of the masked model
+    for a, b in ((small3.positions, hm.positions[:, act]), (small3.rates, hm.rates[:, act]),
+                 (small3.rows, hm.rows[:, act]), (small3.kin, hm.kin[np.ix_(act, act)]),
+                 (small3.kin_rhs, hm.kin_rhs[np.ix_(act, act)]), (small3.project, hm.project[act])):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-12 * float(np.abs(np.asarray(b)).max()))
+    # a frequency cutoff keeps the modes below it
+    cut = jaxtree.hybrid_model(model, FIG4_SMALL, cutoff=12.0, omega0=FIG4_SPIN)
+    assert cut.n_modes == int(np.sum(np.asarray(hm.frequencies) <= 12.0)) == 4
+
+
+# ----------------------------------------------------------------------------- Appendix C
+def c70_c73(p, w0, eta0, etad0, T, ts):
+    """The printed C-70..C-73 (eta_1 = gamma_1 + gamma_2, C-69b) integrated by scipy."""
+    M, R, J, c, r, k = p["M"], p["R"], p["J"], p["c"], p["r"], p["k"]
+    I1, I2, I3 = p["I1"], p["I2"], p["I3"]
+
+    def rhs(t, x):
+        w1, w2, w3, e, ed = x
+        E = np.array([[I1, 0, 0, c],
+                      [0, I2, -c * e, 0],
+                      [0, -c * e, I3, 0],
+                      [2 * c, 0, 0, J]])
+        F = np.array([(I2 - I3) * w2 * w3 + c * (w2 ** 2 - w3 ** 2) * e,
+                      (I3 - I1) * w3 * w1 - c * w1 * w2 * e,
+                      (I1 - I2) * w1 * w2 + 2 * c * w2 * ed + c * w1 * w3 * e,
+                      -2 * c * w2 * w3 + (J * (w2 ** 2 - w3 ** 2) - M * R * r * (w1 ** 2 + w3 ** 2) - k) * e])
+        a = np.linalg.solve(E, F)
+        return [a[0], a[1], a[2], ed, a[3]]
+
+    sol = solve_ivp(rhs, (0, T), [*w0, eta0, etad0], t_eval=ts, method="DOP853", rtol=TOL, atol=TOL)
+    return sol.y.T
+
+
+def test_appendix_c_eta2_decouples(appendix):
+    """Appendix C (Fig. C-1), omega0 unrestricted, both rod hinges small, spin about b3: the modes
+    are eta_1 (rods in phase, C-69) and eta_2 (antiphase); eta_2 enters only C-74, so truncating to
+    eta_1 leaves the rotation of b_0 unchanged (C-70..C-73). Checked three ways: the b_0 motion of
+    the truncated model equals that of the full-mode model while eta_2 oscillates, both equal the
+    printed C-70..C-73 integrated by scipy, and the retained mode shape is C-69a's [1, 1]."""
+    model, p, hm = appendix
+    phi = np.asarray(hm.positions)[:, :2]
+    assert abs(phi[0, 0] - phi[1, 0]) < 1e-12 and abs(phi[0, 1] + phi[1, 1]) < 1e-12  # C-69a
+    T, ts = 12.0, np.linspace(0.0, 12.0, 61)
+    gamma0, gdot0 = np.array([0.03, -0.01]), np.array([0.02, 0.05])
+    state = State(jnp.eye(3), jnp.array([0.05, -0.03, 1.0]), jnp.asarray(gamma0), jnp.asarray(gdot0))
+    full = jaxtree.simulate_hybrid(hm, T, y0=state, saveat=ts, rtol=TOL, atol=TOL)
+    trunc = jaxtree.simulate_hybrid(hm.retain(1), T, y0=state, saveat=ts, rtol=TOL, atol=TOL)
+    # eta_2 is present in the full model ...
+    diff = np.asarray(full.gamma[:, 0] - full.gamma[:, 1])
+    assert np.abs(diff).max() > 0.03
+    # ... and has no effect on b_0
+    d = max(float(np.abs(full.omega0 - trunc.omega0).max()), float(np.abs(full.dcm - trunc.dcm).max()))
+    print(f"b_0 motion, truncated vs full modes: {d:.3g}")
+    assert d < SAME
+    # the sum gamma_1 + gamma_2 = eta_1 (C-69b) is the same in both
+    s_full = np.asarray(full.gamma.sum(1))
+    s_trunc = np.asarray(trunc.gamma.sum(1))
+    np.testing.assert_allclose(s_trunc, s_full, atol=SAME)
+    # the printed C-70..C-73
+    X = c70_c73(p, [0.05, -0.03, 1.0], gamma0.sum(), gdot0.sum(), T, ts)
+    e = max(float(np.abs(np.asarray(trunc.omega0) - X[:, :3]).max()), float(np.abs(s_trunc - X[:, 3]).max()))
+    print(f"truncated hybrid vs C-70..C-73: {e:.3g}")
+    assert e < SAME
+    assert np.ptp(X[:, 0]) > 1e-3 and np.ptp(X[:, 3]) > 0.01  # omega_1 and eta_1 do move
+
+
+# ----------------------------------------------------------------------------- input checks
+def test_bad_input_messages(fig4):
+    model, _ = fig4
+    with pytest.raises(ValueError, match="only 6 available"):
+        jaxtree.hybrid_model(model, FIG4_SMALL, 7, omega0=FIG4_SPIN)
+    with pytest.raises(ValueError, match="no mode retained"):
+        jaxtree.hybrid_model(model, FIG4_SMALL, cutoff=0.1, omega0=FIG4_SPIN)
+    with pytest.raises(jaxtree.ModalError, match="form='real' needs real modes"):
+        jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN, form="real")
+    with pytest.raises(ValueError, match="precompute=True"):
+        jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN, precompute=True)
+    with pytest.raises(ValueError, match="prescribed"):
+        jaxtree.hybrid_model(model, (1, 5))
+    with pytest.raises(ValueError, match="retain"):
+        jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN).retain(0)
