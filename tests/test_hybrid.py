@@ -254,7 +254,8 @@ def test_rhs_reproduces_eq30(fig4, appendix):
     """All modes retained: the hybrid right side, mapped back to physical accelerations, equals
     Eq. (30) solved directly, for (a) the general path with gyroscopic first-order modes
     (Eq. 118), a prescribed hinge (with bar + caret coefficients, errata_hybrid.md #2) and large
-    gimbal/rotor hinges (Fig. 4, A = 5..10); (b) the
+    gimbal/rotor hinges (Fig. 4, A = 5..10), with the Schur-complement solve of a terminal
+    appendage and with the dense solve of the general case; (b) the
     precomputed polynomial path (Appendix C, omega0 the only large variable) with real modes
     (Eq. 121) and (c) with the first-order form forced (Eqs. 122-123)."""
     rng = np.random.default_rng(3)
@@ -263,6 +264,9 @@ def test_rhs_reproduces_eq30(fig4, appendix):
     errs["fig4 A=5..10 first-order"], caret["fig4"] = check_rhs_against_eq30(hm, rng)
     # a coefficient a_01 without its caret part (the OCR's reading of Eq. 30c) would miss by far more
     assert caret["fig4"] > 100.0, caret
+    # the dense solve of Eq. (118) (used when A is not a terminal appendage) on the same system
+    dense = eqx.tree_at(lambda h: h.modal_inverse, hm, None, is_leaf=lambda x: x is None)
+    errs["fig4 A=5..10 first-order, dense solve"], _ = check_rhs_against_eq30(dense, rng)
     app, _, h = appendix
     errs["appendix C real (precomputed)"], _ = check_rhs_against_eq30(h, rng)
     hf = jaxtree.hybrid_model(app, (1, 2), omega0=[0.0, 0.0, 1.0], form="first_order")
