@@ -138,6 +138,11 @@ def mass_matrix(model: Model, gamma) -> jax.Array:
     return _mass_matrix(model, cfg)
 
 
+def _outer3(a, b):
+    """``a @ b.T`` for (m, 3) and (k, 3) arrays, as three outer products (fused by XLA)."""
+    return a[:, None, 0] * b[None, :, 0] + a[:, None, 1] * b[None, :, 1] + a[:, None, 2] * b[None, :, 2]
+
+
 def _mass_matrix(model, cfg):
     n = model.n
     total_mass, J0, v, p, L = _hinge_momenta(model, cfg)
@@ -146,11 +151,11 @@ def _mass_matrix(model, cfg):
         return J0
     # X[s, k] = S_s . (I^c_k S_k); it is an entry of [a] where epsilon_{sk} = 1 (s inboard of k),
     # its transpose where epsilon_{ks} = 1, and absent for hinges on different branches.
-    X = G @ L.T + v @ p.T
+    X = _outer3(G, L) + _outer3(v, p)
     eps = model.topology.path_elements[:, 1:]
     upper = jnp.asarray(eps, X.dtype)
     strict = jnp.asarray(eps - np.eye(n, dtype=eps.dtype), X.dtype)
-    hh = upper * X + (strict * X).T - p @ p.T / total_mass
+    hh = upper * X + (strict * X).T - _outer3(p, p) / total_mass
     return jnp.block([[J0, L.T], [L, hh]])
 
 
