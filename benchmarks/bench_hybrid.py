@@ -25,48 +25,14 @@ Run: ``python benchmarks/bench_hybrid.py [--scene chain50|panels95] [--t1 T] [--
 from __future__ import annotations
 
 import argparse
-import os
-import platform
-import statistics
 import time
 
-import diffrax
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 import jaxtree
-
-
-def machine():
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    load = ", load average %.2f %.2f %.2f" % os.getloadavg() if hasattr(os, "getloadavg") else ""
-    return (f"{platform.system()} {platform.release()}, {cpu}, {os.cpu_count()} cores{load}; "
-            f"python {platform.python_version()}, jax {jax.__version__}, diffrax {diffrax.__version__}, "
-            f"equinox {eqx.__version__}, numpy {np.__version__}; backend {jax.default_backend()} "
-            f"{jax.devices()[0].device_kind}")
-
-
-def timed(fn, repeats):
-    """(result, first-call time, median of `repeats` later calls)."""
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(fn())
-    first = time.perf_counter() - t0
-    runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = jax.block_until_ready(fn())
-        runs.append(time.perf_counter() - t0)
-    return out, first, statistics.median(runs)
+from _common import machine, timed
 
 
 def errors(gamma, omega0, ref):
@@ -151,7 +117,7 @@ def main():
         print(f"{label:34s} {comp:8.2f}s {1e3 * run:8.1f}ms {steps:7d} {eg:12.3g}  "
               + " ".join(f"{x:9.2g}" for x in ew))
     full_best = min(r[2] for r in rows if r[0].startswith("full"))
-    print(f"\nspeed-up of the hybrid runs over the fastest full run: " +
+    print("\nspeed-up of the hybrid runs over the fastest full run: " +
           ", ".join(f"{r[0].split(',')[0]}: {full_best / r[2]:.1f}x" for r in rows if r[0].startswith("hybrid")))
 
 

@@ -12,44 +12,12 @@ Run: ``python benchmarks/bench_modes.py [--repeats N]``.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
-import statistics
-import time
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
-import numpy as np
 
 import jaxtree
-
-
-def machine():
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return (f"{platform.system()} {platform.release()}, {cpu}, {os.cpu_count()} cores; "
-            f"python {platform.python_version()}, jax {jax.__version__}, equinox {eqx.__version__}, "
-            f"numpy {np.__version__}; backend {jax.default_backend()} {jax.devices()[0].device_kind}")
-
-
-def timed(fn, repeats):
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(fn())
-    first = time.perf_counter() - t0
-    runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        runs.append(time.perf_counter() - t0)
-    return out, first, statistics.median(runs)
+from _common import machine, timed
 
 
 def main():

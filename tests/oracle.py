@@ -22,8 +22,6 @@ mass center. Everything is in {b^0} components; dcm is only used for H.
 Conventions: C^{kN} = cos(g) U - sin(g) tilde(a) + (1 - cos(g)) a a^T with v_(k) = C^{kN} v_(N);
 R_k = C^{0k} maps {b^k} components to {b^0} components: R_k = R_N C^{kN}^T.
 """
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np

@@ -135,7 +135,7 @@ def test_matrix_is_symmetric_positive_definite(scenes, name):
 def test_angular_momentum_rate_equals_external_moment(scenes, name):
     """dH/dt about the mass center = sum of external moments about it (inertial components)."""
     rng = np.random.default_rng(11)
-    model, F, T = with_random_loads(scenes[name], rng, (0, 2, model_n := scenes[name].n))
+    model, F, T = with_random_loads(scenes[name], rng, (0, 2, scenes[name].n))
     state = random_state(model, rng)
     acc = accelerations(model, state, 0.0, None)
     rate = jaxtree.State(jaxtree.dcm_rate(state.dcm, state.omega0), acc.omega0_dot, state.gamma_dot, acc.gamma_ddot)

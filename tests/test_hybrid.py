@@ -310,7 +310,6 @@ def test_nominal_modal_block_and_left_eigenvector_scaling(fig4):
         mat, _ = equations_jit(h, 0.0, y)
         jac = modal_jacobian(h, y)
         nx = 3 + len(h.large)
-        off = h.attitude.size + 3 + 2 * len(h.large)
         act = np.concatenate([np.arange(k), h.n_modes + np.arange(k)])  # the active modal rows and columns
         Mmm = np.asarray(mat)[nx:, nx:][np.ix_(act, act)]
         np.testing.assert_allclose(Mmm, np.eye(2 * k), atol=1e-9)
@@ -425,7 +424,6 @@ def test_truncation_error_decreases(fig4, fig4_run):
     T, ts = T_FIG4, TS_FIG4
     state, ref, _ = fig4_run
     S = np.asarray(FIG4_SMALL) - 1
-    cols = np.concatenate([np.asarray(hm.large) - 1, S])
     rms = lambda x: float(np.sqrt(np.mean(np.square(x))))
     panels, rates = [], []
     for k in range(1, 6):

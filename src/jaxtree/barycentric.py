@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .dynamics import _complete_state, external_loads, hinge_torques
-from .kinematics import body_rotations, relative_rotations, tilde
+from .kinematics import body_rotations, relative_rotations
 from .model import Model, State
 
 __all__ = ["Barycentric", "barycentric", "coupling_inertia", "seed_equations"]
@@ -60,7 +60,6 @@ def _port_index(topology):
 def barycentric(model: Model) -> Barycentric:
     """Defs. 30-36: total and branch masses, L^{kr}, D^k, D^{kj} and Phi^{kk}."""
     dtype = model.mass.dtype
-    n = model.n
     idx, onehot = _port_index(model.topology)
     ports = jnp.concatenate(
         [jnp.zeros((1, 3), dtype), model.hinge_on_body.astype(dtype), model.hinge_on_parent.astype(dtype)], 0

@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .kinematics import ancestor_sum, body_rotations, cross, dot, mm, mv, subtree_sum, tilde
+from .kinematics import ancestor_sum, body_rotations, cross, dot, mm, mv, subtree_sum
 from .model import Model, State
 
 __all__ = [

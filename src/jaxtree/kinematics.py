@@ -13,7 +13,6 @@ bodies, and no work is spent on pairs whose path element is zero.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -36,11 +35,6 @@ __all__ = [
 def mv(A, x):
     """``A @ x`` for stacks of 3x3 matrices and 3-vectors."""
     return jnp.stack([A[..., i, 0] * x[..., 0] + A[..., i, 1] * x[..., 1] + A[..., i, 2] * x[..., 2] for i in range(3)], -1)
-
-
-def mtv(A, x):
-    """``A.T @ x`` for stacks of 3x3 matrices and 3-vectors."""
-    return jnp.stack([A[..., 0, i] * x[..., 0] + A[..., 1, i] * x[..., 1] + A[..., 2, i] * x[..., 2] for i in range(3)], -1)
 
 
 def mm(A, B):
@@ -106,11 +100,9 @@ def body_rotations(topology: Topology, axis, gamma):
     return R
 
 
-def relative_rotations(R, rows=None, cols=None):
+def relative_rotations(R):
     """``C^{rj}`` for all pairs (Eq. 21), from ``R = body_rotations(...)``: ``C^{rj} = C^{r0} C^{0j}``."""
-    Rr = R if rows is None else R[np.asarray(rows)]
-    Rj = R if cols is None else R[np.asarray(cols)]
-    return jnp.einsum("rij,sil->rsjl", Rr, Rj)  # (R_r^T R_s)_{jl} = sum_i R_r[i,j] R_s[i,l]
+    return jnp.einsum("rij,sil->rsjl", R, R)  # (R_r^T R_s)_{jl} = sum_i R_r[i,j] R_s[i,l]
 
 
 def ancestor_sum(topology: Topology, x):

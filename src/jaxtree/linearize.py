@@ -256,7 +256,7 @@ def linearized_equations(model: Model, small, state: State, *, omega0_dot=None, 
 # ----------------------------------------------------------------------------- Eqs. (40)-(44)
 @eqx.filter_jit
 def _held(model, hinges, dcm, omega0, gamma, t):
-    n, nu = model.n, len(hinges)
+    n = model.n
     dtype = gamma.dtype
     lin = _partial(model, hinges, dcm, omega0, gamma, jnp.zeros(n, dtype), jnp.zeros(3, dtype),
                    jnp.zeros(n, dtype), t)

@@ -123,12 +123,6 @@ class Topology:
 
     # -- index tables for vectorized sums (used at trace time) --------------------------------
     @functools.cached_property
-    def ancestor_pairs(self) -> tuple[np.ndarray, np.ndarray]:
-        """Indices ``(s, k)`` of the nonzero path elements ``epsilon_{sk}``, ``s`` = hinge 1..n, sorted by s."""
-        s, k = np.nonzero(self.path_elements)
-        return (s + 1).astype(np.int32), k.astype(np.int32)
-
-    @functools.cached_property
     def descendants(self) -> np.ndarray:
         """``E[s, k] = 1`` iff body k is outboard of hinge s or is s (``epsilon_{sk}``); row 0 is all ones.
 
@@ -158,12 +152,3 @@ class Topology:
             anc = anc[anc]
             reach *= 2
         return tuple(tables)
-
-    def relabelled(self, order):
-        """Topology after renaming: new body ``i`` is old body ``order[i]`` (``order[0] == 0``)."""
-        order = [int(o) for o in order]
-        if sorted(order) != list(range(self.n + 1)) or order[0] != 0:
-            raise ValueError("order must be a permutation of 0..n with order[0] == 0")
-        new_of = {old: new for new, old in enumerate(order)}
-        parents = [new_of[self.parents[old - 1]] for old in order[1:]]
-        return Topology(parents, [self.names[o] for o in order])
