@@ -339,6 +339,42 @@ def test_float32(scenes):
     assert rel(w32, w64) < 2e-3 and rel(g32, g64) < 2e-3
 
 
+def _dot_precisions(closed_jaxpr):
+    """The precision of every dot_general in a jaxpr, nested jaxprs (jit, while, cond) included."""
+    found = []
+
+    def walk(jaxpr):
+        for eqn in jaxpr.eqns:
+            if eqn.primitive.name == "dot_general":
+                found.append(eqn.params["precision"])
+            for value in eqn.params.values():
+                for sub in value if isinstance(value, (tuple, list)) else (value,):
+                    inner = getattr(sub, "jaxpr", None)
+                    if inner is not None:
+                        walk(inner if hasattr(inner, "eqns") else inner.jaxpr)
+
+    walk(closed_jaxpr.jaxpr)
+    return found
+
+
+def test_float32_products_run_at_full_precision(scenes):
+    """Every matrix product that Eq. (1) and a simulation trace asks for full precision: JAX's
+    default would let GPUs run float32 products in TF32 (~1e-3), which the GPU benchmark showed
+    turns float32 accelerations into noise (benchmarks/README.md)."""
+    model = scenes["fig4"].astype(jnp.float32)
+    s = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), model.initial)
+    highest = (jax.lax.Precision.HIGHEST, jax.lax.Precision.HIGHEST)
+    traced = {
+        "forward_dynamics": jax.make_jaxpr(jaxtree.forward_dynamics)(model, s.dcm, s.omega0, s.gamma, s.gamma_dot),
+        "mass_matrix": jax.make_jaxpr(jaxtree.mass_matrix)(model, s.gamma),
+        "simulate": jax.make_jaxpr(lambda m: jaxtree.simulate(m, 1.0, saveat=3, throw=False).gamma)(model),
+    }
+    for name, jaxpr in traced.items():
+        precisions = _dot_precisions(jaxpr)
+        assert precisions, name
+        assert all(p == highest for p in precisions), (name, precisions)
+
+
 def test_loads_are_not_traced_when_absent(scenes):
     """A model without loads compiles to fewer operations than the same model with loads."""
     model = scenes["fig4_free"]

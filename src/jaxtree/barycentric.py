@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .dynamics import _complete_state, external_loads, hinge_torques
-from .kinematics import body_rotations, relative_rotations
+from .kinematics import body_rotations, full_precision, relative_rotations
 from .model import Model, State
 
 __all__ = ["Barycentric", "barycentric", "coupling_inertia", "seed_equations"]
@@ -57,6 +57,7 @@ def _port_index(topology):
     return idx, onehot.astype(np.float64)
 
 
+@full_precision
 def barycentric(model: Model) -> Barycentric:
     """Defs. 30-36: total and branch masses, L^{kr}, D^k, D^{kj} and Phi^{kk}."""
     dtype = model.mass.dtype
@@ -78,6 +79,7 @@ def barycentric(model: Model) -> Barycentric:
     return Barycentric(M, branch, L, D, Dkj, Phi_kk)
 
 
+@full_precision
 def coupling_inertia(model: Model, gamma, bary: Barycentric | None = None):
     """Def. 37: ``Phi[k, j]`` = matrix of the dyadic Phi^{kj} ({b^k} left, {b^j} right), with
     Phi^{kk} of Def. 36 on the diagonal. Shape (n+1, n+1, 3, 3)."""
@@ -97,6 +99,7 @@ def coupling_inertia(model: Model, gamma, bary: Barycentric | None = None):
     return Phi.at[diag, diag].set(bary.Phi_kk)
 
 
+@full_precision
 def seed_equations(model: Model, state: State, t=0.0, tau=None):
     """Eq. (1) from Defs. 38-41 as printed (with the errata applied): ``(A, rhs)``.
 

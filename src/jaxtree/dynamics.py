@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .kinematics import ancestor_sum, body_rotations, cross, dot, mm, mv, subtree_sum
+from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum
 from .model import Model, State
 
 __all__ = [
@@ -77,6 +77,7 @@ def _dtype(model, *xs):
     return jnp.result_type(model.mass, *xs)
 
 
+@full_precision
 def configuration(model: Model, gamma) -> Configuration:
     """Rotations (Eqs. 4-5, 21-22), hinge axes, hinge points and mass centers at angles `gamma`."""
     dtype = _dtype(model, gamma)
@@ -129,6 +130,7 @@ def _hinge_momenta(model, cfg):
     return Mc[0], Jc[0], v, p, L
 
 
+@full_precision
 def mass_matrix(model: Model, gamma) -> jax.Array:
     """The (n+3) x (n+3) coefficient matrix of Eq. (1) (Defs. 38-40) at hinge angles `gamma` (n,).
 
@@ -159,6 +161,7 @@ def _mass_matrix(model, cfg):
     return jnp.block([[J0, L.T], [L, hh]])
 
 
+@full_precision
 def body_angular_velocities(model: Model, cfg: Configuration, omega0, gamma_dot):
     """``omega^k`` of every body in {b^0} components: ``omega0 + sum_r epsilon_{rk} gamma_dot_r g^r``."""
     terms = jnp.concatenate([omega0[None, :], cfg.axis * gamma_dot[:, None]], 0)
@@ -260,6 +263,7 @@ def _complete_state(model, t, state: State):
     return state, gdd.astype(dtype)
 
 
+@full_precision
 def rotational_equations(model: Model, state: State, t=0.0, tau=None):
     """Matrix and right side of Eq. (1) for all n hinges, ``(A (n+3, n+3), rhs (n+3,))``.
 
@@ -288,6 +292,7 @@ class Accelerations(NamedTuple):
     hold_torque: jax.Array  # (len(model.prescribed),)
 
 
+@full_precision
 def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelerations:
     """Solve Eq. (1) by Cholesky factorization, with prescribed hinges as in Sec. II B.
 
@@ -319,6 +324,7 @@ def _cholesky_solve(A, b):
     return jax.scipy.linalg.cho_solve(c, b[:, None])[:, 0]
 
 
+@full_precision
 def forward_dynamics(model: Model, dcm, omega0, gamma, gamma_dot, t=0.0):
     """Accelerations of Eq. (1): ``(omega0_dot (3,), gamma_ddot (n,))``.
 
@@ -341,12 +347,14 @@ def _momenta(model, state):
     return cfg, mass, vel, w, mv(cfg.inertia, w)
 
 
+@full_precision
 def kinetic_energy(model: Model, state: State):
     """Kinetic energy relative to the system mass center (the quadratic form of Eq. 1's matrix)."""
     _, mass, vel, w, Jw = _momenta(model, state)
     return 0.5 * (jnp.sum(mass * jnp.sum(vel * vel, -1)) + jnp.sum(w * Jw))
 
 
+@full_precision
 def angular_momentum(model: Model, state: State):
     """Angular momentum about the system mass center, inertial components ``{i}`` (3,)."""
     cfg, mass, vel, w, Jw = _momenta(model, state)
@@ -354,6 +362,7 @@ def angular_momentum(model: Model, state: State):
     return jnp.asarray(state.dcm, H0.dtype).T @ H0
 
 
+@full_precision
 def mass_center_acceleration(model: Model, state: State, t=0.0):
     """Eq. (2): ``X_ddot = F / M`` in inertial components (zero when the model has no loads)."""
     cfg = configuration(model, state.gamma)

@@ -69,6 +69,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .attitude import AbstractAttitude, get_attitude
+from .kinematics import full_precision
 from .dynamics import rotational_equations
 from .linearize import linearize, resolve_hinges
 from .model import Model, State
@@ -360,6 +361,7 @@ def _poly_rhs(p: _Poly, w, s_in):
     return c + G @ s_in
 
 
+@full_precision
 def hybrid_equations(hybrid: HybridModel, t, y):
     """The linear system of Eq. (118) (first-order form) or Eq. (121) (real form) at ``(t, y)``:
     ``(matrix, rhs)`` for the unknowns ``[omega0_dot, gamma_ddot_L, modal]`` (modal: ``eta_r''``
@@ -410,6 +412,7 @@ def _solve_terminal(hm: HybridModel, t, y):
     return _schur_solve(hm.modal_inverse, Ml[X], Mxh, Mhx, R[X], rh)
 
 
+@full_precision
 def hybrid_rhs(t, y, args: HybridModel):
     """Right side of the hybrid-coordinate equations (diffrax signature ``(t, y, args)``).
 
@@ -529,6 +532,7 @@ def _build_poly(model, gamma_nominal, small, dcm, hm_parts):
                  g0=f(g0), g1=f(g1), g2=f(g2), xh=f(np.zeros((3, u))))
 
 
+@full_precision
 def hybrid_model(
     model: Model,
     small,
@@ -702,6 +706,7 @@ def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, m
     )
 
 
+@full_precision
 def simulate_hybrid(
     hybrid: HybridModel,
     t1,

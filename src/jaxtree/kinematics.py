@@ -13,6 +13,9 @@ bodies, and no work is spent on pairs whose path element is zero.
 
 from __future__ import annotations
 
+import functools
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -26,7 +29,26 @@ __all__ = [
     "ancestor_sum",
     "subtree_sum",
     "dcm_rate",
+    "full_precision",
 ]
+
+
+def full_precision(fn):
+    """Trace `fn` with every matrix product at full precision of its dtype.
+
+    On GPUs JAX's default lets float32 products run in reduced precision (TF32 on NVIDIA
+    Ampere and later: about 1e-3 relative), which is far too coarse for Eq. (1): with the
+    condition numbers of these mass matrices (1e3 to 1e8) it turned float32 accelerations
+    into noise and stalled float32 simulations (benchmarks/README.md, GPU figures). Public
+    entry points that trace products are wrapped in this; float64, and CPUs, are unaffected.
+    """
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with jax.default_matmul_precision("highest"):
+            return fn(*args, **kwargs)
+
+    return wrapper
 
 
 # Small 3-vector / 3x3 algebra on stacks (leading axes are batch axes), written out by

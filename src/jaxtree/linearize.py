@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .dynamics import rotational_equations
-from .kinematics import tilde
+from .kinematics import full_precision, tilde
 from .model import Model, State
 
 __all__ = [
@@ -225,6 +225,7 @@ def _partial(model, hinges, dcm, omega0, gamma, gamma_dot, omega0_dot, gamma_ddo
     return PartialLinearization(value, jac[:, 2 * nu:], jac[:, nu:2 * nu], jac[:, :nu])
 
 
+@full_precision
 def linearized_equations(model: Model, small, state: State, *, omega0_dot=None, gamma_ddot=None,
                          t=0.0) -> PartialLinearization:
     """Eq. (30): Eq. (1) to first order in the hinges of the set A, the rest unrestricted.
@@ -264,6 +265,7 @@ def _held(model, hinges, dcm, omega0, gamma, t):
     return lin.accel[rows], lin.rate[rows], lin.angle[rows], -lin.residual[rows]
 
 
+@full_precision
 def linearize(model: Model, small, *, omega0=None, gamma=None, dcm=None, t=0.0) -> LinearSystem:
     """Eqs. (40)-(44): ``I y'' + J y' + K y = 0`` for the small hinges of the set A.
 
@@ -314,6 +316,7 @@ def _vehicle(model, hinges, dcm, omega0, gamma, t):
     return jac[:, 2 * m:], jac[:, m:2 * m], jac[:, :m], -value
 
 
+@full_precision
 def linearize_vehicle(model: Model, *, omega0=None, gamma=None, dcm=None, t=0.0,
                       small=None) -> LinearSystem:
     """Full-system linearization: the all-small "vehicle normal mode" case of Sec. III B.

@@ -30,6 +30,7 @@ from jax.flatten_util import ravel_pytree
 
 from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
 from .control import AbstractController
+from .kinematics import full_precision
 from .dynamics import (
     angular_momentum,
     kinetic_energy,
@@ -205,6 +206,7 @@ class Problem(eqx.Module):
 
 
 @eqx.filter_jit
+@full_precision
 def _vector_field(t, y, args: Problem):
     # jitted so that diffrax's several traces of the vector field reuse one jaxpr
     return args.vector_field(t, y)
@@ -615,6 +617,7 @@ def _progress_meter(progress):
     raise TypeError(f"progress: expected a bool or a diffrax progress meter, got {progress!r}")
 
 
+@full_precision
 def simulate(
     model: Model,
     t1,
