@@ -344,6 +344,23 @@ def test_max_steps_is_reported_eagerly_and_under_jit():
         jax.block_until_ready(jax.jit(lambda m: simulate(m, 10.0, max_steps=8).gamma)(model))
 
 
+def test_nonfinite_start_under_vmap_fails_at_once_and_alone():
+    """A NaN initial state in a vmapped batch: that member reports nonfinite_start with NaN
+    histories, the batch does not run to max_steps, and the other members match lone runs."""
+    model = coaxial(jaxtree.SpringDamper(3.0), gamma0=0.4)
+    run = lambda g: simulate(model, 3.0, y0=model.initial._replace(gamma=g[None]), throw=False)  # noqa: E731
+    g0 = jnp.asarray([0.1, np.nan, 0.3])
+    sol = jax.jit(jax.vmap(run))(g0)
+    assert list(np.asarray(sol.failure)) == [0, 5, 0]
+    assert np.all(np.isnan(np.asarray(sol.gamma[1]))) and np.all(np.isfinite(np.asarray(sol.gamma[::2])))
+    assert int(np.max(np.asarray(sol.stats["num_steps"]))) < 10_000  # max_steps is 200_000
+    clean = jax.jit(jax.vmap(run))(jnp.asarray([0.1, 0.2, 0.3]))
+    assert maxdiff(sol.gamma[::2], clean.gamma[::2]) == 0.0  # the NaN member disturbs nothing
+    with pytest.raises(Exception, match="initial state is not finite"):
+        jax.block_until_ready(jax.jit(lambda g: simulate(model, 3.0, y0=model.initial._replace(gamma=g[None])).gamma)(
+            jnp.asarray([np.nan])[0]))
+
+
 # ----------------------------------------------------------------------------- transformations
 def test_vmap_over_initial_states_and_parameters_matches_closed_forms():
     """One batch over initial angles and spring stiffnesses: gamma = g0 cos(sqrt(k / I_EFF) t)."""

@@ -455,6 +455,14 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
            event, progress_meter, opts: _Options):
     dtype = jnp.result_type(problem.model.mass)
     y = problem.pack(y0, None, X0, Xd0)
+    # A non-finite start cannot be integrated: NaN error estimates give NaN steps until max_steps
+    # (a vmapped batch would wait for its worst member). Integrate the vehicle at rest in its
+    # place, report "nonfinite_start" and return NaN histories for such a run.
+    start_ok = jnp.all(jnp.isfinite(y))
+    n, z3 = problem.model.n, jnp.zeros(3, dtype)
+    rest = problem.pack(State(jnp.eye(3, dtype=dtype), z3, jnp.zeros(n, dtype), jnp.zeros(n, dtype)))
+    y_start = y
+    y = jnp.where(start_ok, y, rest)
     if controller is None:
         controller = dfx.PIDController(
             rtol=rtol, atol=atol, pcoeff=PCOEFF, icoeff=ICOEFF, dtmin=DTMIN_FRACTION * jnp.abs(t1 - t0),
@@ -478,6 +486,9 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
         ts_f, ys_f = sol.ts, sol.ys
     i = _last_finite(ts_f)
     t_final, y_final = ts_f[i], ys_f[i]
+    t_final = jnp.where(start_ok, t_final, t0)
+    y_final = jnp.where(start_ok, y_final, y_start)
+    ys_h = jnp.where(start_ok, ys_h, jnp.nan)
     hist = _history(problem, ts_h, ys_h)
     final_state = problem.state(t_final, y_final)
     _, _, _, _, _, Xf, Xdf = problem.unpack(y_final)
@@ -495,7 +506,7 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     ok = (sol.result == R.successful) | ((sol.result == R.event_occurred) & ~singular)
     kind = jnp.where(sol.result == R.max_steps_reached, 1,
                      jnp.where(sol.result == R.dt_min_reached, 2, jnp.where(singular, 3, 4)))
-    failure = jnp.where(ok, 0, kind)
+    failure = jnp.where(start_ok, jnp.where(ok, 0, kind), _KINDS.index("nonfinite_start") + 1)
     out = Solution(
         ts=ts_h, gamma=hist["gamma"], gamma_dot=hist["gamma_dot"], omega0=hist["omega0"], dcm=hist["dcm"],
         attitude=hist["attitude"], control_state=hist["control_state"], X=hist["X"], X_dot=hist["X_dot"],
