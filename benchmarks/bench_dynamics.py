@@ -66,6 +66,7 @@ import numpy as np  # noqa: E402
 import jaxtree  # noqa: E402  (turns on float64)
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
+from _peers import MUJOCO_TINY_MASS, mjcf, pinocchio_model  # noqa: E402
 
 SCENES = ("fig4", "chain50", "panels95", "chain200")
 GROWTH = (10, 25, 50, 100, 200)
@@ -76,8 +77,6 @@ ANCHORS = {
     "mujoco": {"fig4": 3.0, "panels95": 15.0, "chain200": 324.0},
 }
 GOALS = {"compile_s": {"fig4": 5.0, "chain200": 20.0}, "vmap_vs_pinocchio": 2.0, "slope": 2.0}
-# MuJoCo rejects bodies without mass; massless bodies (fig4's gimbal frames) get this much.
-MUJOCO_TINY_MASS, MUJOCO_TINY_INERTIA = 1e-9, 1e-12
 
 
 def say(*args):
@@ -451,20 +450,6 @@ def loglog_slope(n, y):
 
 
 # ----------------------------------------------------------------------------- peers: Pinocchio and MuJoCo
-def _tree_offsets(model):
-    """Per hinge k: the axis, the offset of the hinge point from the parent's frame origin, and the
-    mass center in the body's own frame. Frames: body 0's at its mass center, body k's at hinge k,
-    all parallel to the body axes (so parallel to each other at gamma = 0)."""
-    hop = np.asarray(model.hinge_on_parent, float)
-    hob = np.asarray(model.hinge_on_body, float)
-    parents = model.topology.parents
-    origin = np.vstack([np.zeros(3), hob])  # frame origin from the mass center, per body (hinge point)
-    # from the parent frame's origin: (parent mass center -> hinge) - (parent mass center -> parent origin)
-    offsets = [hop[k - 1] - origin[parents[k - 1]] for k in range(1, model.n + 1)]
-    com = np.vstack([np.zeros(3), -hob])  # mass center in the body's frame
-    return np.asarray(model.axis, float), np.asarray(offsets), com
-
-
 class PinocchioTree:
     """The scene as a Pinocchio model: a free flyer for body 0, unaligned revolute joints for the hinges."""
 
@@ -472,22 +457,8 @@ class PinocchioTree:
         import pinocchio as pin
 
         self.pin = pin
-        axis, offsets, com = _tree_offsets(model)
-        mass = np.asarray(model.mass, float)
-        inertia = np.asarray(model.inertia, float)
-        pm = pin.Model()
-        pm.gravity = pin.Motion.Zero()
-        jid = [pm.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "root")]
-        pm.appendBodyToJoint(jid[0], pin.Inertia(mass[0], com[0], inertia[0]), pin.SE3.Identity())
-        for k in range(1, model.n + 1):
-            parent = jid[model.topology.parents[k - 1]]
-            placement = pin.SE3(np.eye(3), offsets[k - 1])
-            j = pm.addJoint(parent, pin.JointModelRevoluteUnaligned(axis[k - 1]), placement, f"hinge_{k}")
-            pm.appendBodyToJoint(j, pin.Inertia(mass[k], com[k], inertia[k]), pin.SE3.Identity())
-            jid.append(j)
-        self.model, self.data, self.jid, self.com = pm, pm.createData(), jid, com
-        self.iq = np.array([pm.joints[j].idx_q for j in jid[1:]])
-        self.iv = np.array([pm.joints[j].idx_v for j in jid[1:]])
+        pm, jid, self.iq, self.iv, self.com = pinocchio_model(model)
+        self.model, self.data, self.jid = pm, pm.createData(), jid
 
     def set_state(self, omega0, gamma, gamma_dot, tau):
         pm = self.model
@@ -527,32 +498,7 @@ class MujocoTree:
         import mujoco
 
         self.mj = mujoco
-        axis, offsets, com = _tree_offsets(model)
-        mass = np.asarray(model.mass, float)
-        inertia = np.asarray(model.inertia, float)
-        children = model.topology.children
-        self.tiny = []
-        f = lambda v: " ".join(f"{x:.17g}" for x in v)
-
-        def inertial(k):
-            m, J = mass[k], inertia[k]
-            if m == 0.0:
-                self.tiny.append(k)
-                m, J = MUJOCO_TINY_MASS, MUJOCO_TINY_INERTIA * np.eye(3)
-            full = [J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2]]
-            return f'<inertial pos="{f(com[k])}" mass="{m:.17g}" fullinertia="{f(full)}"/>'
-
-        def body(k):
-            if k == 0:
-                head = '<body name="b0" pos="0 0 0"><freejoint name="root"/>'
-            else:
-                head = (f'<body name="b{k}" pos="{f(offsets[k - 1])}">'
-                        f'<joint name="h{k}" type="hinge" pos="0 0 0" axis="{f(axis[k - 1])}"/>')
-            return head + inertial(k) + "".join(body(c) for c in children[k]) + "</body>"
-
-        sys.setrecursionlimit(max(sys.getrecursionlimit(), 10 * model.n + 1000))
-        self.xml = ('<mujoco model="jaxtree"><option gravity="0 0 0" timestep="0.001"/>'
-                    f"<worldbody>{body(0)}</worldbody></mujoco>")
+        self.xml, self.tiny = mjcf(model, timestep=0.001)
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
         jnt = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, f"h{k}") for k in range(1, model.n + 1)]

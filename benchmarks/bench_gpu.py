@@ -34,7 +34,7 @@ import numpy as np
 import jaxtree
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _common import machine  # noqa: E402
+from _common import machine, timed  # noqa: E402
 
 SCENES = ("fig4", "chain50", "panels95", "chain200")
 BATCHES = (1024, 8192, 65536)
@@ -55,16 +55,6 @@ def _args():
 
 def say(*a):
     print(*a, flush=True)
-
-
-def _time(fn, repeats):
-    jax.block_until_ready(fn())
-    runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        runs.append(time.perf_counter() - t0)
-    return float(np.median(runs))
 
 
 def _states(model, batch, seed=0):
@@ -99,7 +89,7 @@ def bench_forward(scenes, batches, max_gib, repeats):
                 t0 = time.perf_counter()
                 compiled = jax.jit(vf).lower(model, *args).compile()
                 compile_s = time.perf_counter() - t0
-                run = _time(lambda: compiled(model, *args), repeats)
+                _, _, run = timed(lambda: compiled(model, *args), repeats)
                 out[dtype] = np.concatenate([np.asarray(a, np.float64) for a in compiled(model, *args)], 1)
                 row = dict(scene=name, n=m64.n, dtype=dtype, batch=batch, compile_s=compile_s, batch_s=run,
                            ns_per_state=run / batch * 1e9, states_per_s=batch / run)
@@ -150,7 +140,7 @@ def bench_simulate(batches, repeats):
             compiled = f.lower(*args).compile()
             compile_s = time.perf_counter() - t0
             say(f"  ({dtype}, batch {batch}: compiled in {compile_s:.1f} s)")
-            t = _time(lambda: compiled(*args), repeats)
+            _, _, t = timed(lambda: compiled(*args), repeats)
             w, g, steps, result = compiled(*args)
             ok = int(np.sum(np.asarray(result) == 0))
             finals[dtype] = np.concatenate([np.asarray(w, np.float64), np.asarray(g, np.float64)], 1)

@@ -46,7 +46,6 @@ TOLS = (1e-6, 5e-7, 3e-7, 2e-7, 1e-7, 5e-8, 2e-8, 1e-8, 5e-9, 2e-9, 1e-9, 5e-10,
 QUICK_TOLS = (1e-6, 2e-7, 1e-7, 1e-8, 1e-9, 2e-10, 1e-10)
 MUJOCO_STEPS_PER_SAVE = (10, 14, 20, 28, 40, 57, 80, 113, 160, 226, 320, 453, 640)  # dt = 0.1 s / k
 QUICK_STEPS = (10, 20, 40, 80, 160, 320)
-MUJOCO_TINY_MASS, MUJOCO_TINY_INERTIA = 1e-9, 1e-12
 REFERENCE_TOL = 1e-13
 
 
@@ -66,6 +65,7 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxtree  # noqa: E402
+from _peers import MUJOCO_TINY_INERTIA, MUJOCO_TINY_MASS, mjcf, pinocchio_model  # noqa: E402
 
 
 def say(*a):
@@ -143,36 +143,13 @@ def jaxtree_runs(model, ref, tols, repeats, first):
 
 
 # ----------------------------------------------------------------------------- peers
-def _offsets(model):
-    """Frames: body 0's at its mass center, body k's at hinge point k, all parallel at gamma = 0.
-    Per hinge: offset of the hinge point from the parent frame's origin; per body: mass center."""
-    hop = np.asarray(model.hinge_on_parent, float)
-    hob = np.asarray(model.hinge_on_body, float)
-    parents = model.topology.parents
-    origin = np.vstack([np.zeros(3), hob])
-    offsets = np.asarray([hop[k - 1] - origin[parents[k - 1]] for k in range(1, model.n + 1)])
-    return np.asarray(model.axis, float), offsets, np.vstack([np.zeros(3), -hob])
-
-
 def pinocchio_runs(model, ref, tols, repeats):
     import pinocchio as pin
     from scipy.integrate import solve_ivp
 
     t0 = time.perf_counter()
-    axis, offsets, com = _offsets(model)
-    mass, inertia = np.asarray(model.mass, float), np.asarray(model.inertia, float)
-    pm = pin.Model()
-    pm.gravity = pin.Motion.Zero()
-    jid = [pm.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "root")]
-    pm.appendBodyToJoint(jid[0], pin.Inertia(mass[0], com[0], inertia[0]), pin.SE3.Identity())
-    for k in range(1, model.n + 1):
-        j = pm.addJoint(jid[model.topology.parents[k - 1]], pin.JointModelRevoluteUnaligned(axis[k - 1]),
-                        pin.SE3(np.eye(3), offsets[k - 1]), f"h{k}")
-        pm.appendBodyToJoint(j, pin.Inertia(mass[k], com[k], inertia[k]), pin.SE3.Identity())
-        jid.append(j)
+    pm, _, iq, iv, _ = pinocchio_model(model)
     data = pm.createData()
-    iq = np.array([pm.joints[j].idx_q for j in jid[1:]])
-    iv = np.array([pm.joints[j].idx_v for j in jid[1:]])
     stiffness = np.asarray(model.stiffness, float)
     n = model.n
     build = time.perf_counter() - t0
@@ -217,37 +194,13 @@ def mujoco_runs(model, ref, steps_per_save, repeats):
     import mujoco
 
     t0 = time.perf_counter()
-    axis, offsets, com = _offsets(model)
-    mass, inertia = np.asarray(model.mass, float), np.asarray(model.inertia, float)
-    children = model.topology.children
-    stiffness = np.asarray(model.stiffness, float)
-    tiny = []
-    f = lambda v: " ".join(f"{x:.17g}" for x in v)
-
-    def inertial(k):
-        m, J = mass[k], inertia[k]
-        if m == 0.0:
-            if k not in tiny:
-                tiny.append(k)
-            m, J = MUJOCO_TINY_MASS, MUJOCO_TINY_INERTIA * np.eye(3)
-        return (f'<inertial pos="{f(com[k])}" mass="{m:.17g}" '
-                f'fullinertia="{f([J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2]])}"/>')
-
-    def body(k):
-        if k == 0:
-            head = '<body name="b0"><freejoint name="root"/>'
-        else:
-            head = (f'<body name="b{k}" pos="{f(offsets[k - 1])}"><joint name="h{k}" type="hinge" pos="0 0 0" '
-                    f'axis="{f(axis[k - 1])}" stiffness="{stiffness[k - 1]:.17g}" springref="0" damping="0"/>')
-        return head + inertial(k) + "".join(body(c) for c in children[k]) + "</body>"
 
     def build(dt):
-        xml = (f'<mujoco><option gravity="0 0 0" integrator="RK4" timestep="{dt:.17g}"/>'
-               f"<worldbody>{body(0)}</worldbody></mujoco>")
+        xml, tiny = mjcf(model, timestep=dt, integrator="RK4", springs=True)
         m = mujoco.MjModel.from_xml_string(xml)
-        return m, mujoco.MjData(m)
+        return m, mujoco.MjData(m), tiny
 
-    m, d = build(0.01)
+    m, d, tiny = build(0.01)
     jnt = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"h{k}") for k in range(1, model.n + 1)]
     iq, iv = m.jnt_qposadr[jnt], m.jnt_dofadr[jnt]
     build_s = time.perf_counter() - t0
@@ -269,7 +222,7 @@ def mujoco_runs(model, ref, steps_per_save, repeats):
     rows = []
     for k in steps_per_save:
         dt = (T_END / (N_SAVE - 1)) / k
-        m, d = build(dt)
+        m, d, _ = build(dt)
         W, G = run(m, d, k)
         wall = best_time(lambda: run(m, d, k), repeats)
         rows.append({"setting": f"RK4 dt={dt:.3g}", "dt": dt, "wall_s": wall, "error": error(W, G, ref),

@@ -206,9 +206,9 @@ class Problem(eqx.Module):
 
 
 @eqx.filter_jit
-@full_precision
 def _vector_field(t, y, args: Problem):
-    # jitted so that diffrax's several traces of the vector field reuse one jaxpr
+    # jitted so that diffrax's several traces of the vector field reuse one jaxpr; traced inside
+    # `simulate`, so at its full matrix-product precision
     return args.vector_field(t, y)
 
 
