@@ -396,11 +396,29 @@ def test_gradient_through_simulate_matches_the_closed_form():
 def test_float32_models_simulate():
     k = 3.0
     model = coaxial(jaxtree.SpringDamper(k), gamma0=0.4).astype(jnp.float32)
-    sol = simulate(model, 3.0, rtol=1e-6, atol=1e-6)
+    sol = simulate(model, 3.0, rtol=1e-5, atol=1e-5)
     assert sol.gamma.dtype == jnp.float32
     t = np.asarray(sol.ts, dtype=float)
     assert maxdiff(sol.gamma[:, 0], 0.4 * np.cos(np.sqrt(k / I_EFF) * t)) < 1e-4
 
+
+
+def test_float32_runs_take_float32_default_tolerances(scenes):
+    """A float32 model gets rtol = atol = 1e-4 by default. With float64's 1e-9, Dopri8's error
+    estimate is all roundoff: fig4_free ran into max_steps (200k steps, 27 s) before the
+    default depended on the dtype; now such an rtol also warns."""
+    assert jaxtree.default_tolerance(jnp.float64) == 1e-9
+    assert jaxtree.default_tolerance(jnp.float32) == 1e-4
+    m64 = scenes["fig4_free"]
+    m32 = m64.astype(jnp.float32)
+    ref = simulate(m64, 10.0)
+    sol = simulate(m32, 10.0, max_steps=2000)
+    assert sol.gamma.dtype == jnp.float32 and int(sol.stats["num_steps"]) < 1000
+    # error of a float32 run at rtol 1e-4 over 10 s (6e-4 measured), against float64 at 1e-9
+    assert maxdiff(sol.gamma, ref.gamma) < 2e-3 and maxdiff(sol.omega0, ref.omega0) < 2e-3
+    with pytest.warns(UserWarning, match="roundoff"):
+        tight = simulate(m32, 10.0, rtol=1e-9, atol=1e-9, max_steps=2000, throw=False)
+    assert not tight.ok  # the steps pile up: max_steps
 
 # ----------------------------------------------------------------------------- command line
 def test_command_line_runs_the_sample_problem(tmp_path, monkeypatch, capsys):

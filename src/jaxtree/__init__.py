@@ -107,6 +107,7 @@ from .simulate import (
     check_solution as check_solution,
     hinge_angle_event as hinge_angle_event,
     state_event as state_event,
+    default_tolerance as default_tolerance,
 )
 from .hybrid import (
     HybridModel as HybridModel,

@@ -716,8 +716,8 @@ def simulate_hybrid(
     saveat=101,
     solver: dfx.AbstractSolver | None = None,
     stepsize_controller: dfx.AbstractStepSizeController | None = None,
-    rtol: float = 1e-9,
-    atol: float = 1e-9,
+    rtol: float | None = None,
+    atol: float | None = None,
     dt0=None,
     max_steps: int = 200_000,
     throw: bool = True,
@@ -728,13 +728,18 @@ def simulate_hybrid(
       the retained modes by :meth:`HybridModel.pack`, or a flat hybrid state;
     - `saveat`: a number of evenly spaced save times (default 101) or an array of times;
     - `solver`: default :class:`diffrax.Dopri8`; `stepsize_controller`: default a PID controller
-      with `rtol`, `atol` (as :func:`jaxtree.simulate`); `dt0`: default ``1e-3 |t1 - t0|``.
+      with `rtol`, `atol` (as :func:`jaxtree.simulate`: default :func:`jaxtree.default_tolerance`
+      of the model's dtype); `dt0`: default ``1e-3 |t1 - t0|``.
 
     Raises :class:`jaxtree.SimulationError` when the run fails and `throw` is set.
     """
-    from .simulate import SimulationError
+    from .simulate import SimulationError, _warn_below_roundoff, default_tolerance
 
     dtype = jnp.result_type(hybrid.model.mass)
+    rtol = default_tolerance(dtype) if rtol is None else rtol
+    atol = default_tolerance(dtype) if atol is None else atol
+    if stepsize_controller is None:
+        _warn_below_roundoff(rtol, dtype, stacklevel=3)  # the caller of full_precision's wrapper
     y0 = hybrid.model.initial if y0 is None else y0
     y = hybrid.pack(y0) if isinstance(y0, State) else jnp.asarray(y0, dtype)
     if y.shape != (hybrid.size,):
