@@ -59,6 +59,7 @@ from .dynamics import (
     kinetic_energy as kinetic_energy,
     angular_momentum as angular_momentum,
     mass_center_acceleration as mass_center_acceleration,
+    DynamicsError as DynamicsError,
 )
 
 __version__ = "0.1.0"

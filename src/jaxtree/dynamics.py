@@ -54,7 +54,17 @@ __all__ = [
     "angular_momentum",
     "body_angular_velocities",
     "mass_center_acceleration",
+    "DynamicsError",
 ]
+
+
+class DynamicsError(ArithmeticError):
+    """Eq. (1) gave non-finite accelerations in an eager (untraced) call of
+    :func:`forward_dynamics` or :func:`solve_accelerations`. The message gives the time, the
+    state and a diagnosis: a non-finite input, or a singular matrix with its near-null
+    direction (e.g. gimbal lock: two hinge axes aligned through a massless gimbal frame).
+    Under ``jax.jit`` or ``jax.vmap`` the accelerations are NaN instead (``jaxtree.simulate``
+    reports such runs with the same diagnosis)."""
 
 
 class Configuration(NamedTuple):
@@ -301,6 +311,12 @@ def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelera
     column leave the matrix and ``a_{.j} gamma_ddot_j`` moves to the right side.
     The torque needed to hold the prescription is returned as `hold_torque`.
     """
+    acc = _solve_accelerations(model, state, t, tau)
+    _check_finite("solve_accelerations", model, state, t, tau, acc)
+    return acc
+
+
+def _solve_accelerations(model, state, t, tau):
     state, gdd_p = _complete_state(model, t, state)
     A, rhs = rotational_equations(model, state, t, tau)
     u, p, inverse = _split(model)
@@ -316,6 +332,51 @@ def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelera
     x = jnp.concatenate([xu[:3], gdd])
     hold = A[p] @ x - rhs[p]
     return Accelerations(x[:3], gdd, hold)
+
+
+def _check_finite(name, model, state, t, tau, acc):
+    """Raise :class:`DynamicsError` when an eager call gives non-finite accelerations."""
+    leaves = jax.tree_util.tree_leaves((model, state, t, tau, acc))
+    if any(isinstance(x, jax.core.Tracer) for x in leaves):
+        return
+    if all(bool(np.all(np.isfinite(np.asarray(x)))) for x in (acc.omega0_dot, acc.gamma_ddot)):
+        return
+    raise DynamicsError(_diagnose(name, model, state, t, tau))
+
+
+def _diagnose(name, model, state, t, tau):
+    lines = [f"jaxtree.{name}: the accelerations of Eq. (1) are not finite", f"  t = {float(t):.9g}"]
+    for field in State._fields:
+        lines.append(f"  {field} = {np.asarray(getattr(state, field)).tolist()}")
+    bad = [f for f in State._fields if not np.all(np.isfinite(np.asarray(getattr(state, f))))]
+    if tau is not None and not np.all(np.isfinite(np.asarray(tau))):
+        bad.append("tau")
+    bad += [f"model.{f}" for f in ("mass", "inertia", "axis", "hinge_on_parent", "hinge_on_body", "stiffness",
+                                   "damping") if not np.all(np.isfinite(np.asarray(getattr(model, f))))]
+    if bad:
+        lines.append(f"  diagnosis: not finite: {', '.join(bad)}")
+        return "\n".join(lines)
+    full, gdd_p = _complete_state(model, t, state)
+    A, rhs = rotational_equations(model, full, t, tau)
+    u = np.concatenate([np.arange(3), np.asarray(model.unknown_hinges, dtype=np.int64) + 2])
+    A = np.asarray(A, dtype=float)[np.ix_(u, u)]
+    if not np.all(np.isfinite(A)):
+        lines.append("  diagnosis: the Eq. (1) matrix is not finite")
+        return "\n".join(lines)
+    w, V = np.linalg.eigh(A)
+    cond = abs(w[-1]) / abs(w[0]) if w[0] != 0 else np.inf
+    if w[0] <= 0 or cond > 1e12:
+        v = V[:, 0]
+        big = np.flatnonzero(np.abs(v) >= 0.25 * np.abs(v).max())
+        label = lambda i: "omega0" + "xyz"[i] if i < 3 else f"hinge {u[i] - 2} ({model.names[u[i] - 2]})"
+        parts = ", ".join(f"{label(i)} {v[i]:+.3f}" for i in big)
+        lines.append(f"  diagnosis: the Eq. (1) matrix is singular or nearly so (smallest eigenvalue {w[0]:.3g}, "
+                     f"condition number {cond:.3g}); its near-null direction: {parts}. Hinges in that direction "
+                     f"move the vehicle in the same way (for a gimbal: gimbal lock, two axes aligned).")
+    elif not np.all(np.isfinite(np.asarray(rhs))) or (gdd_p is not None and not np.all(np.isfinite(np.asarray(gdd_p)))):
+        lines.append("  diagnosis: the right side of Eq. (1) is not finite (a joint law, external load or "
+                     "prescription gave a non-finite value)")
+    return "\n".join(lines)
 
 
 def _cholesky_solve(A, b):
@@ -334,7 +395,9 @@ def forward_dynamics(model: Model, dcm, omega0, gamma, gamma_dot, t=0.0):
     traced when it is None), prescribed hinges from `model.prescription`.
     Jittable and vmappable.
     """
-    acc = solve_accelerations(model, State(dcm, omega0, gamma, gamma_dot), t)
+    state = State(dcm, omega0, gamma, gamma_dot)
+    acc = _solve_accelerations(model, state, t, None)
+    _check_finite("forward_dynamics", model, state, t, None, acc)
     return acc.omega0_dot, acc.gamma_ddot
 
 
