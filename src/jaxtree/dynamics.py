@@ -358,25 +358,39 @@ def _diagnose(name, model, state, t, tau):
         return "\n".join(lines)
     full, gdd_p = _complete_state(model, t, state)
     A, rhs = rotational_equations(model, full, t, tau)
-    u = np.concatenate([np.arange(3), np.asarray(model.unknown_hinges, dtype=np.int64) + 2])
-    A = np.asarray(A, dtype=float)[np.ix_(u, u)]
+    A = np.asarray(A, dtype=float)[np.ix_(_unknown_rows(model), _unknown_rows(model))]
     if not np.all(np.isfinite(A)):
         lines.append("  diagnosis: the Eq. (1) matrix is not finite")
         return "\n".join(lines)
     w, V = np.linalg.eigh(A)
     cond = abs(w[-1]) / abs(w[0]) if w[0] != 0 else np.inf
     if w[0] <= 0 or cond > 1e12:
-        v = V[:, 0]
-        big = np.flatnonzero(np.abs(v) >= 0.25 * np.abs(v).max())
-        label = lambda i: "omega0" + "xyz"[i] if i < 3 else f"hinge {u[i] - 2} ({model.names[u[i] - 2]})"
-        parts = ", ".join(f"{label(i)} {v[i]:+.3f}" for i in big)
         lines.append(f"  diagnosis: the Eq. (1) matrix is singular or nearly so (smallest eigenvalue {w[0]:.3g}, "
-                     f"condition number {cond:.3g}); its near-null direction: {parts}. Hinges in that direction "
-                     f"move the vehicle in the same way (for a gimbal: gimbal lock, two axes aligned).")
+                     f"condition number {cond:.3g}); {null_direction_text(V[:, 0], unknown_labels(model))}")
     elif not np.all(np.isfinite(np.asarray(rhs))) or (gdd_p is not None and not np.all(np.isfinite(np.asarray(gdd_p)))):
         lines.append("  diagnosis: the right side of Eq. (1) is not finite (a joint law, external load or "
                      "prescription gave a non-finite value)")
     return "\n".join(lines)
+
+
+def _unknown_rows(model):
+    """Rows of Eq. (1) that are unknowns: omega0 and the hinges that are not prescribed or inert."""
+    return np.concatenate([np.arange(3), np.asarray(model.unknown_hinges, dtype=np.int64) + 2])
+
+
+def unknown_labels(model) -> tuple[str, ...]:
+    """Labels of the unknown rows of Eq. (1), for messages: ``omega0x``..., ``hinge k (name)``."""
+    return tuple("omega0" + "xyz"[i] if i < 3 else f"hinge {i - 2} ({model.names[i - 2]})"
+                 for i in _unknown_rows(model))
+
+
+def null_direction_text(v, labels) -> str:
+    """Describe the near-null direction `v` of a singular Eq. (1) matrix by its large entries."""
+    v = np.asarray(v, dtype=float)
+    big = np.flatnonzero(np.abs(v) >= 0.25 * np.abs(v).max())
+    parts = ", ".join(f"{labels[i]} {v[i]:+.3f}" for i in big)
+    return (f"its near-null direction: {parts}. Rates in that direction move the vehicle alike (for a "
+            f"gimbal: gimbal lock, two axes aligned).")
 
 
 def _cholesky_solve(A, b):

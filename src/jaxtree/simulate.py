@@ -18,6 +18,7 @@ progress meters are diffrax objects, passed to :func:`diffrax.diffeqsolve` uncha
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from typing import Any, Callable, NamedTuple
@@ -34,11 +35,14 @@ from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_
 from .control import AbstractController
 from .kinematics import full_precision
 from .dynamics import (
+    _unknown_rows,
     angular_momentum,
     kinetic_energy,
     mass_center_acceleration,
+    null_direction_text,
     rotational_equations,
     solve_accelerations,
+    unknown_labels,
 )
 from .model import Model, State
 
@@ -440,11 +444,13 @@ def _diagnostics(model: Model, law, controller, params, ts, states: State, zs):
 
 
 def _condition(model: Model, state: State, t):
-    """Condition number of the Eq. (1) matrix with the prescribed rows and columns removed."""
+    """Condition number of the Eq. (1) matrix with the prescribed rows and columns removed, and
+    its eigenvector of the eigenvalue nearest zero (the near-null direction when singular)."""
     A, _ = rotational_equations(model, state, t)
-    u = np.concatenate([np.arange(3), np.asarray(model.unknown_hinges, dtype=np.int64) + 2])
-    ev = jnp.abs(jnp.linalg.eigvalsh(A[np.ix_(u, u)]))
-    return jnp.max(ev) / jnp.min(ev)
+    u = _unknown_rows(model)
+    ev, V = jnp.linalg.eigh(A[np.ix_(u, u)])
+    i = jnp.argmin(jnp.abs(ev))
+    return jnp.max(jnp.abs(ev)) / jnp.abs(ev[i]), V[:, i]
 
 
 _condition_jit = eqx.filter_jit(_condition)
@@ -554,9 +560,11 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     if opts.report_in_callback:
         # Under a caller's jit/vmap the values are not known until run time: report failures
         # from a host callback, which raises with the time and state of every failed member.
+        condition, direction = _condition(problem.model, final_state, t_final)
         jax.debug.callback(
-            _raise_from_callback, failure, t_final, final_state, _condition(problem.model, final_state, t_final),
-            out.margin, problem.attitude.name,
+            functools.partial(_raise_from_callback, attitude_name=problem.attitude.name,
+                              labels=unknown_labels(problem.model)),
+            failure, t_final, final_state, condition, out.margin, direction=direction,
         )
     return out
 
@@ -587,7 +595,8 @@ _MESSAGES = {
 }
 
 
-def _format_failure(kind, t, state: State, condition, margin, attitude_name, result_message=""):
+def _format_failure(kind, t, state: State, condition, margin, attitude_name, result_message="", direction=None,
+                    labels=None):
     np.set_printoptions(precision=6, suppress=False, linewidth=120)
     lines = [f"jaxtree.simulate: {_MESSAGES[kind]}."]
     if result_message:
@@ -604,14 +613,15 @@ def _format_failure(kind, t, state: State, condition, margin, attitude_name, res
     if np.isnan(c):
         pass
     elif not np.isfinite(c) or c > 1e12:
-        lines.append(f"  diagnosis: the Eq. (1) matrix is singular or nearly so (condition number {c:.3g}); "
-                     "for a gimbal this is gimbal lock")
+        where = (null_direction_text(direction, labels) if direction is not None and labels is not None
+                 and np.all(np.isfinite(np.asarray(direction))) else "for a gimbal this is gimbal lock")
+        lines.append(f"  diagnosis: the Eq. (1) matrix is singular or nearly so (condition number {c:.3g}); {where}")
     if attitude_name == "euler123" and np.isfinite(float(margin)):
         lines.append(f"  attitude ({attitude_name}) singularity margin |cos theta_2| - tol = {float(margin):.3g}")
     return "\n".join(lines)
 
 
-def _raise_from_callback(code, t, state, condition, margin, attitude_name):
+def _raise_from_callback(code, t, state, condition, margin, attitude_name, direction=None, labels=None):
     code = np.asarray(code)
     flat = code.reshape(-1)
     bad = np.flatnonzero(flat)
@@ -624,7 +634,8 @@ def _raise_from_callback(code, t, state, condition, margin, attitude_name):
         st = State(*(pick(x) for x in state))
         prefix = f"[batch index {tuple(int(i) for i in idx)}] " if code.ndim else ""
         msgs.append(prefix + _format_failure(_KINDS[int(flat[b]) - 1], pick(t), st, pick(condition), pick(margin),
-                                             str(attitude_name)))
+                                             str(attitude_name), direction=None if direction is None else pick(direction),
+                                             labels=labels))
     if bad.size > 3:
         msgs.append(f"... and {bad.size - 3} more failed batch members")
     raise SimulationError("\n".join(msgs))
@@ -640,8 +651,12 @@ def check_solution(sol: Solution) -> None:
         return
     # The condition number is a diagnosis, computed only for a failed run (for a batch of
     # solutions the model may be batched too, and it is left out).
-    condition = _condition_jit(sol.problem.model, sol.final, sol.t_final) if code.ndim == 0 else np.full(code.shape, np.nan)
-    _raise_from_callback(code, sol.t_final, sol.final, condition, sol.margin, sol.problem.attitude.name)
+    if code.ndim == 0:
+        condition, direction = _condition_jit(sol.problem.model, sol.final, sol.t_final)
+    else:
+        condition, direction = np.full(code.shape, np.nan), None
+    _raise_from_callback(code, sol.t_final, sol.final, condition, sol.margin, sol.problem.attitude.name,
+                         direction=direction, labels=unknown_labels(sol.problem.model))
 
 
 # ----------------------------------------------------------------------------- simulate
