@@ -90,6 +90,13 @@ def _dtype(model, *xs):
 @full_precision
 def configuration(model: Model, gamma) -> Configuration:
     """Rotations (Eqs. 4-5, 21-22), hinge axes, hinge points and mass centers at angles `gamma`."""
+    return _configuration(model, gamma)[0]
+
+
+def _configuration(model, gamma, omega0=None, gamma_dot=None):
+    """:func:`configuration`, and with `omega0` and `gamma_dot` also the body angular velocities
+    (:func:`body_angular_velocities`), whose path-element sum shares one pass with the mass
+    centers' (else None)."""
     dtype = _dtype(model, gamma)
     gamma = jnp.asarray(gamma, dtype)
     topo = model.topology
@@ -100,14 +107,20 @@ def configuration(model: Model, gamma) -> Configuration:
     to_hinge = mv(Rp, model.hinge_on_parent.astype(dtype))
     from_hinge = -mv(R[1:], model.hinge_on_body.astype(dtype))
     zero = jnp.zeros((1, 3), dtype)
-    rho = ancestor_sum(topo, jnp.concatenate([zero, to_hinge + from_hinge], 0))
+    steps = jnp.concatenate([zero, to_hinge + from_hinge], 0)
+    if omega0 is None:
+        rho, omega = ancestor_sum(topo, steps), None
+    else:
+        rates = jnp.concatenate([omega0[None, :], axis * gamma_dot[:, None]], 0)
+        both = ancestor_sum(topo, jnp.concatenate([steps, rates], 1))
+        rho, omega = both[:, :3], both[:, 3:]
     mass = model.mass.astype(dtype)
     rho = rho - jnp.sum(mass[:, None] * rho, 0) / jnp.sum(mass)
     hinge = rho[par] + to_hinge
     idx = np.asarray(model.massive)
     Ri = R[idx]
     inertia = mm(mm(Ri, model.inertia[idx].astype(dtype)), jnp.swapaxes(Ri, -1, -2))
-    return Configuration(R, axis, to_hinge, from_hinge, rho, hinge, inertia)
+    return Configuration(R, axis, to_hinge, from_hinge, rho, hinge, inertia), omega
 
 
 def _massive(model, x):
@@ -115,29 +128,33 @@ def _massive(model, x):
     return x if len(model.massive) == model.n + 1 else x[np.asarray(model.massive)]
 
 
-def _composite(model, cfg):
+def _composite(model, cfg, extra=None):
     """Mass, first moment and inertia about the system mass center of the bodies outboard of
-    each hinge (row 0: all bodies): the path-element sums ``sum_r epsilon_{kr}`` of Defs. 38-40."""
+    each hinge (row 0: all bodies): the path-element sums ``sum_r epsilon_{kr}`` of Defs. 38-40.
+
+    `extra` (massive bodies x c) is summed over the same outboard sets in the same product
+    (the right side's wrenches), and returned as the fourth result (None without it)."""
     mass = _massive(model, model.mass.astype(cfg.rho.dtype))
     rho = _massive(model, cfg.rho)
     eye = jnp.eye(3, dtype=rho.dtype)
     J = cfg.inertia + mass[:, None, None] * (
         dot(rho, rho)[:, None, None] * eye - rho[:, :, None] * rho[:, None, :]
     )
-    packed = jnp.concatenate([mass[:, None], mass[:, None] * rho, J.reshape(-1, 9)], 1)
-    sub = subtree_sum(model.topology, packed, model.massive)
-    return sub[:, 0], sub[:, 1:4], sub[:, 4:].reshape(-1, 3, 3)
+    columns = [mass[:, None], mass[:, None] * rho, J.reshape(-1, 9)] + ([] if extra is None else [extra])
+    sub = subtree_sum(model.topology, jnp.concatenate(columns, 1), model.massive)
+    return sub[:, 0], sub[:, 1:4], sub[:, 4:13].reshape(-1, 3, 3), None if extra is None else sub[:, 13:]
 
 
-def _hinge_momenta(model, cfg):
+def _hinge_momenta(model, cfg, extra=None):
     """Momentum ``p_k`` and angular momentum ``L_k`` (about the system mass center) of the bodies
-    outboard of hinge k for a unit rate of hinge k alone, and the hinge point velocity ``v_k``."""
-    Mc, cc, Jc = _composite(model, cfg)
+    outboard of hinge k for a unit rate of hinge k alone, and the hinge point velocity ``v_k``
+    (and the outboard sums of `extra`, see :func:`_composite`)."""
+    Mc, cc, Jc, extra = _composite(model, cfg, extra)
     G = cfg.axis
     v = cross(cfg.hinge, G)  # velocity of the point at the system mass center, fixed to b_k
     p = Mc[1:, None] * v + cross(G, cc[1:])
     L = cross(cc[1:], v) + mv(Jc[1:], G)
-    return Mc[0], Jc[0], v, p, L
+    return Mc[0], Jc[0], v, p, L, extra
 
 
 @full_precision
@@ -155,12 +172,13 @@ def _outer3(a, b):
     return a[:, None, 0] * b[None, :, 0] + a[:, None, 1] * b[None, :, 1] + a[:, None, 2] * b[None, :, 2]
 
 
-def _mass_matrix(model, cfg):
+def _mass_matrix(model, cfg, extra=None):
+    """The matrix of Eq. (1); with `extra`, also its outboard sums: ``(matrix, sums)``."""
     n = model.n
-    total_mass, J0, v, p, L = _hinge_momenta(model, cfg)
+    total_mass, J0, v, p, L, sums = _hinge_momenta(model, cfg, extra)
     G = cfg.axis
     if n == 0:
-        return J0
+        return J0 if extra is None else (J0, sums)
     # X[s, k] = S_s . (I^c_k S_k); it is an entry of [a] where epsilon_{sk} = 1 (s inboard of k),
     # its transpose where epsilon_{ks} = 1, and absent for hinges on different branches.
     X = _outer3(G, L) + _outer3(v, p)
@@ -168,7 +186,8 @@ def _mass_matrix(model, cfg):
     upper = jnp.asarray(eps, X.dtype)
     strict = jnp.asarray(eps - np.eye(n, dtype=eps.dtype), X.dtype)
     hh = upper * X + (strict * X).T - _outer3(p, p) / total_mass
-    return jnp.block([[J0, L.T], [L, hh]])
+    A = jnp.block([[J0, L.T], [L, hh]])
+    return A if extra is None else (A, sums)
 
 
 @full_precision
@@ -195,10 +214,10 @@ def hinge_torques(model: Model, gamma, gamma_dot):
     if len(model.sprung) == model.n:
         return (-model.stiffness * gamma - model.damping * gamma_dot).astype(dtype)
     i = np.asarray(model.sprung) - 1
-    law = -model.stiffness[i] * gamma[i] - model.damping[i] * gamma_dot[i]
-    select = np.zeros((model.n, len(i)))
-    select[i, np.arange(len(i))] = 1.0
-    return jnp.asarray(select, dtype) @ law.astype(dtype)
+    law = (-model.stiffness[i] * gamma[i] - model.damping[i] * gamma_dot[i]).astype(dtype)
+    where = np.full(model.n, len(i))  # hinges without a law read the appended zero
+    where[i] = np.arange(len(i))
+    return jnp.concatenate([law, jnp.zeros((1,), dtype)])[where]
 
 
 def external_loads(model: Model, t, state: State, cfg: Configuration):
@@ -212,13 +231,14 @@ def external_loads(model: Model, t, state: State, cfg: Configuration):
     return bodies, mv(R, F.astype(dtype)), mv(R, T.astype(dtype))
 
 
-def _rhs(model, cfg, omega0, gamma_dot, tau, loads):
-    """Right side of Eq. (1) (Def. 41 projected as in Eq. 1, plus tau)."""
+def _wrenches(model, cfg, omega, gamma_dot, loads):
+    """Def. 41 per massive body: the moment about the system mass center and the force of the
+    velocity-product (gyroscopic, centripetal) inertia loads, with the mass-center share of the
+    external force (massive bodies x 6). Their outboard sums make the right side of Eq. (1)."""
     topo = model.topology
     par = _parents(model)
     dtype = cfg.rho.dtype
     G = cfg.axis
-    omega = body_angular_velocities(model, cfg, omega0, gamma_dot)
     zero = jnp.zeros((1, 3), dtype)
     # velocity-product parts of the angular accelerations: sum_r epsilon_{rk} gamma_dot_r (omega^r x g^r)
     alpha = ancestor_sum(topo, jnp.concatenate([zero, cross(omega[par], G) * gamma_dot[:, None]], 0))
@@ -237,15 +257,20 @@ def _rhs(model, cfg, omega0, gamma_dot, tau, loads):
     force = -mass[:, None] * acc
     torque = -(mv(cfg.inertia, al) + cross(w, mv(cfg.inertia, w)))
     if loads is not None:
-        bodies, F, T = loads
+        F = loads[1]
         force = force - mass[:, None] * (jnp.sum(F, 0) / total)  # the mass-center share of F (Eq. 2)
-    wrench = jnp.concatenate([torque + cross(rho, force), force], 1)
-    sub = subtree_sum(topo, wrench, model.massive)
+    return jnp.concatenate([torque + cross(rho, force), force], 1)
+
+
+def _rhs_from_sums(model, cfg, sub, tau, loads):
+    """Right side of Eq. (1) (Def. 41 projected as in Eq. 1, plus tau) from the outboard sums
+    `sub` ((n+1) x 6) of :func:`_wrenches`; the applied loads' moments and forces are added here."""
     if loads is not None:
+        bodies, F, T = loads
         applied = jnp.concatenate([T + cross(cfg.rho[bodies], F), F], 1)
-        sub = sub + subtree_sum(topo, applied, tuple(int(b) for b in bodies))
+        sub = sub + subtree_sum(model.topology, applied, tuple(int(b) for b in bodies))
     rhs0 = sub[0, :3]
-    hinge = dot(G, sub[1:, :3] - cross(cfg.hinge, sub[1:, 3:])) + tau
+    hinge = dot(cfg.axis, sub[1:, :3] - cross(cfg.hinge, sub[1:, 3:])) + tau
     return jnp.concatenate([rhs0, hinge])
 
 
@@ -285,13 +310,14 @@ def rotational_equations(model: Model, state: State, t=0.0, tau=None):
     gamma_dot = jnp.asarray(state.gamma_dot, dtype)
     omega0 = jnp.asarray(state.omega0, dtype)
     state = State(jnp.asarray(state.dcm, dtype), omega0, gamma, gamma_dot)
-    cfg = configuration(model, gamma)
+    cfg, omega = _configuration(model, gamma, omega0, gamma_dot)
     torque = hinge_torques(model, gamma, gamma_dot)
     if tau is not None:
         torque = torque + tau
-    A = _mass_matrix(model, cfg)
-    rhs = _rhs(model, cfg, omega0, gamma_dot, torque, external_loads(model, t, state, cfg))
-    return A, rhs
+    loads = external_loads(model, t, state, cfg)
+    # one outboard-set product for the matrix's composite bodies and the right side's wrenches
+    A, sums = _mass_matrix(model, cfg, _wrenches(model, cfg, omega, gamma_dot, loads))
+    return A, _rhs_from_sums(model, cfg, sums, torque, loads)
 
 
 class Accelerations(NamedTuple):
