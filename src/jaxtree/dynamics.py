@@ -392,7 +392,7 @@ def _diagnose(name, model, state, t, tau):
     cond = abs(w[-1]) / abs(w[0]) if w[0] != 0 else np.inf
     if w[0] <= 0 or cond > 1e12:
         lines.append(f"  diagnosis: the Eq. (1) matrix is singular or nearly so (smallest eigenvalue {w[0]:.3g}, "
-                     f"condition number {cond:.3g}); {null_direction_text(V[:, 0], unknown_labels(model))}")
+                     f"condition number {cond:.3g}); {_null_direction_text(V[:, 0], _unknown_labels(model))}")
     elif not np.all(np.isfinite(np.asarray(rhs))) or (gdd_p is not None and not np.all(np.isfinite(np.asarray(gdd_p)))):
         lines.append("  diagnosis: the right side of Eq. (1) is not finite (a joint law, external load or "
                      "prescription gave a non-finite value)")
@@ -404,13 +404,13 @@ def _unknown_rows(model):
     return np.concatenate([np.arange(3), np.asarray(model.unknown_hinges, dtype=np.int64) + 2])
 
 
-def unknown_labels(model) -> tuple[str, ...]:
+def _unknown_labels(model) -> tuple[str, ...]:
     """Labels of the unknown rows of Eq. (1), for messages: ``omega0x``..., ``hinge k (name)``."""
     return tuple("omega0" + "xyz"[i] if i < 3 else f"hinge {i - 2} ({model.names[i - 2]})"
                  for i in _unknown_rows(model))
 
 
-def null_direction_text(v, labels) -> str:
+def _null_direction_text(v, labels) -> str:
     """Describe the near-null direction `v` of a singular Eq. (1) matrix by its large entries."""
     v = np.asarray(v, dtype=float)
     big = np.flatnonzero(np.abs(v) >= 0.25 * np.abs(v).max())

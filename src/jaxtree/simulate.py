@@ -35,14 +35,14 @@ from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_
 from .control import AbstractController
 from .kinematics import full_precision
 from .dynamics import (
+    _null_direction_text,
+    _unknown_labels,
     _unknown_rows,
     angular_momentum,
     kinetic_energy,
     mass_center_acceleration,
-    null_direction_text,
     rotational_equations,
     solve_accelerations,
-    unknown_labels,
 )
 from .model import Model, State
 
@@ -563,7 +563,7 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
         condition, direction = _condition(problem.model, final_state, t_final)
         jax.debug.callback(
             functools.partial(_raise_from_callback, attitude_name=problem.attitude.name,
-                              labels=unknown_labels(problem.model)),
+                              labels=_unknown_labels(problem.model)),
             failure, t_final, final_state, condition, out.margin, direction=direction,
         )
     return out
@@ -613,7 +613,7 @@ def _format_failure(kind, t, state: State, condition, margin, attitude_name, res
     if np.isnan(c):
         pass
     elif not np.isfinite(c) or c > 1e12:
-        where = (null_direction_text(direction, labels) if direction is not None and labels is not None
+        where = (_null_direction_text(direction, labels) if direction is not None and labels is not None
                  and np.all(np.isfinite(np.asarray(direction))) else "for a gimbal this is gimbal lock")
         lines.append(f"  diagnosis: the Eq. (1) matrix is singular or nearly so (condition number {c:.3g}); {where}")
     if attitude_name == "euler123" and np.isfinite(float(margin)):
@@ -656,7 +656,7 @@ def check_solution(sol: Solution) -> None:
     else:
         condition, direction = np.full(code.shape, np.nan), None
     _raise_from_callback(code, sol.t_final, sol.final, condition, sol.margin, sol.problem.attitude.name,
-                         direction=direction, labels=unknown_labels(sol.problem.model))
+                         direction=direction, labels=_unknown_labels(sol.problem.model))
 
 
 # ----------------------------------------------------------------------------- simulate
