@@ -102,6 +102,18 @@ def test_eq1_equals_lagrange_oracle(scenes, name):
     check_against_oracle(model, random_state(model, rng), rng, loads=True)
 
 
+@pytest.mark.parametrize("name", ["fig4", "panels95"])
+def test_eq1_with_separate_outboard_products_equals_the_oracle(scenes, name, monkeypatch):
+    """The formulation traced on GPUs (two outboard-set products instead of one, see
+    jaxtree.dynamics.merge_outboard_sums) against the oracle too, with loads and a prescription."""
+    import jaxtree.dynamics as dynamics
+
+    monkeypatch.setattr(dynamics, "merge_outboard_sums", lambda: False)
+    rng = np.random.default_rng(7)
+    model = scenes[name]
+    check_against_oracle(model, random_state(model, rng), rng, loads=True)
+
+
 @pytest.mark.parametrize("name", ["appendix_c", "fig4", "wings", "chain50"])
 def test_eq1_equals_printed_defs_38_to_41(scenes, name):
     """The fast assembly equals Defs. 38-41 evaluated term by term (barycentric form), with loads.
