@@ -37,3 +37,15 @@ def timed(fn, repeats):
         out = jax.block_until_ready(fn())
         runs.append(time.perf_counter() - t0)
     return out, first, statistics.median(runs)
+
+
+def write_json(path, results) -> None:
+    """Write `results` as JSON to `path` atomically (jaxtree.output.atomic_write); numpy
+    scalars are written as floats."""
+    import json
+
+    from jaxtree.output import atomic_write
+
+    with atomic_write(path, "w") as fh:
+        json.dump(results, fh, indent=1, default=float)
+        fh.write("\n")

@@ -38,14 +38,12 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import math
 import os
 import pathlib
 import platform
 import subprocess
 import sys
-import tempfile
 import time
 
 
@@ -67,6 +65,7 @@ import jaxtree  # noqa: E402  (turns on float64)
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 from _peers import MUJOCO_TINY_MASS, mjcf, pinocchio_model  # noqa: E402
+from _common import write_json  # noqa: E402
 
 SCENES = ("fig4", "chain50", "panels95", "chain200")
 GROWTH = (10, 25, 50, 100, 200)
@@ -669,21 +668,6 @@ def summary(results):
         check(f"{kind} accelerations agree with jaxtree ({len(peer)} trees, with and without loads)",
               all(rel[k] <= tol[k] for k in rel),
               f"worst {worst}: max |diff| / largest acceleration = {rel[worst]:.1e} (tolerance {tol[worst]:.0e})")
-
-
-def write_json(path, results):
-    path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(results, fh, indent=1, default=float)
-            fh.write("\n")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
 
 
 def main(argv=None):

@@ -23,7 +23,6 @@ Run:  python benchmarks/bench_gpu.py [--quick] [--json results/bench_gpu.json]
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -35,7 +34,7 @@ import numpy as np
 import jaxtree
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _common import machine, timed  # noqa: E402
+from _common import machine, timed, write_json  # noqa: E402
 
 SCENES = ("fig4", "chain50", "panels95", "chain200")
 BATCHES = (1024, 8192, 65536)
@@ -167,12 +166,8 @@ def main():
     fwd = bench_forward(args.scenes, batches, args.max_gib, repeats) if batches != [0] else []
     sim = bench_simulate(sim_batches, 1) if sim_batches != [0] else []
     if args.json:
-        report = dict(machine=machine(), backend=jax.default_backend(), forward_dynamics=fwd, simulate=sim)
-        tmp = args.json + ".tmp"
-        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
-        with open(tmp, "w") as f:
-            json.dump(report, f, indent=1)
-        os.replace(tmp, args.json)
+        write_json(args.json, dict(machine=machine(), backend=jax.default_backend(), forward_dynamics=fwd,
+                                   simulate=sim))
         say(f"wrote {args.json}")
 
 

@@ -31,7 +31,6 @@ Run:  python benchmarks/bench_simulate.py [--quick] [--default-xla] [--json resu
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -66,6 +65,7 @@ import numpy as np  # noqa: E402
 
 import jaxtree  # noqa: E402
 from _peers import MUJOCO_TINY_INERTIA, MUJOCO_TINY_MASS, mjcf, pinocchio_model  # noqa: E402
+from _common import write_json  # noqa: E402
 
 
 def say(*a):
@@ -336,10 +336,7 @@ def main():
         for row in results.get(block, {}).get("rows", []):
             row.pop("fn", None)
     if ARGS.json:
-        from jaxtree.output import atomic_write
-
-        with atomic_write(ARGS.json, "w") as fh:
-            json.dump(results, fh, indent=1, default=float)
+        write_json(ARGS.json, results)
     return 0
 
 

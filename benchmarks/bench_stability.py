@@ -31,7 +31,6 @@ Run:  python benchmarks/bench_stability.py [--quick] [--json results/bench_stabi
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -43,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxtree
-from _common import machine
+from _common import machine, timed, write_json
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
 from oracle import oracle_eom  # noqa: E402  (the independent derivation of the test suite)
@@ -51,19 +50,6 @@ from oracle import oracle_eom  # noqa: E402  (the independent derivation of the 
 
 def say(*a):
     print(*a, flush=True)
-
-
-def run_time(fn, repeats):
-    """(result, first call, best of `repeats` later calls) in seconds."""
-    t = time.perf_counter()
-    out = jax.block_until_ready(fn())
-    first = time.perf_counter() - t
-    best = np.inf
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn())
-        best = min(best, time.perf_counter() - t)
-    return out, first, best
 
 
 def tree_arrays(model):
@@ -126,7 +112,7 @@ def stiff_hinge(args, out):
         for name, solver in (("Dopri8", dfx.Dopri8()), ("Kvaerno5", dfx.Kvaerno5())):
             fn = lambda: jaxtree.simulate(model, 1.0, saveat=11, solver=solver, rtol=1e-6, atol=1e-6,
                                           max_steps=1_000_000, throw=False)
-            sol, first, best = run_time(fn, args.repeats)
+            sol, first, best = timed(fn, args.repeats)
             err = float(np.abs(np.asarray(sol.gamma) - np.asarray(ref.gamma)).max()) if sol.ok else float("nan")
             row = dict(s=s, f_max_hz=f_max, solver=name, ok=bool(sol.ok), steps=int(sol.stats["num_accepted_steps"]),
                        rejected=int(sol.stats["num_rejected_steps"]), first_call_s=first, run_s=best, error=err)
@@ -195,7 +181,7 @@ def fast_spin(args, out):
         y0 = base.initial._replace(gamma_dot=base.initial.gamma_dot * f)
         rate = float(np.abs(np.asarray(y0.gamma_dot)).max())
         fn = lambda: jaxtree.simulate(base, 10.0, y0=y0, rtol=1e-10, atol=1e-10, max_steps=1_000_000)
-        sol, first, best = run_time(fn, args.repeats)
+        sol, first, best = timed(fn, args.repeats)
         dE, dH = drift(base, sol)
         rows.append(dict(factor=f, rate=rate, steps=int(sol.stats["num_accepted_steps"]), run_s=best,
                          energy_drift=dE, momentum_drift=dH))
@@ -213,7 +199,7 @@ def many_bodies(args, out):
     say(f"   random states (angles and rates of scale 0.05): cond(A) {w['cond']:.2e}, |A-Ao|/|A| {w['matrix']:.2e}, "
         f"backward {w['backward']:.2e}, |x-xo|/|xo| {w['forward']:.2e} ({time.perf_counter() - t:.0f} s with the oracle)")
     fn = lambda: jaxtree.simulate(model, 1.0, rtol=1e-10, atol=1e-10, max_steps=1_000_000)
-    sol, first, best = run_time(fn, 1)
+    sol, first, best = timed(fn, 1)
     dE, dH = drift(model, sol)
     say(f"   1 s at rtol = atol = 1e-10: {int(sol.stats['num_accepted_steps'])} steps, compile+run {first:.1f} s, "
         f"run {best:.2f} s; energy drift {dE:.2e}, angular momentum drift {dH:.2e} (H(0) = 0: relative to "
@@ -236,10 +222,7 @@ def main():
         study(args, out)
     say(f"\ntotal {time.perf_counter() - t:.0f} s")
     if args.json:
-        from jaxtree.output import atomic_write
-
-        with atomic_write(args.json, "w") as fh:
-            json.dump(out, fh, indent=1, default=float)
+        write_json(args.json, out)
     return 0
 
 

@@ -407,7 +407,6 @@ def test_float32_models_simulate():
     assert maxdiff(sol.gamma[:, 0], 0.4 * np.cos(np.sqrt(k / I_EFF) * t)) < 1e-4
 
 
-
 def test_float32_runs_take_float32_default_tolerances(scenes):
     """A float32 model gets rtol = atol = 1e-4 by default. With float64's 1e-9, Dopri8's error
     estimate is all roundoff: fig4_free ran into max_steps (200k steps, 27 s) before the
@@ -442,6 +441,7 @@ def test_implicit_solver_passes_through_on_a_stiff_hinge(scenes):
     assert maxdiff(implicit.gamma, ref.gamma) < 1e-5 and maxdiff(explicit.gamma, ref.gamma) < 1e-5
     steps = lambda sol: int(sol.stats["num_steps"])
     assert steps(implicit) * 5 < steps(explicit)
+
 
 # ----------------------------------------------------------------------------- command line
 def test_command_line_runs_the_sample_problem(tmp_path, monkeypatch, capsys):

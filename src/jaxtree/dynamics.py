@@ -398,19 +398,32 @@ def _diagnose(name, model, state, t, tau):
         return "\n".join(lines)
     full, gdd_p = _complete_state(model, t, state)
     A, rhs = rotational_equations(model, full, t, tau)
-    A = np.asarray(A, dtype=float)[np.ix_(_unknown_rows(model), _unknown_rows(model))]
-    if not np.all(np.isfinite(A)):
+    if not np.all(np.isfinite(np.asarray(A))):
         lines.append("  diagnosis: the Eq. (1) matrix is not finite")
         return "\n".join(lines)
-    w, V = np.linalg.eigh(A)
-    cond = abs(w[-1]) / abs(w[0]) if w[0] != 0 else np.inf
-    if w[0] <= 0 or cond > 1e12:
-        lines.append(f"  diagnosis: the Eq. (1) matrix is singular or nearly so (smallest eigenvalue {w[0]:.3g}, "
-                     f"condition number {cond:.3g}); {_null_direction_text(V[:, 0], _unknown_labels(model))}")
+    cond, direction = _matrix_condition(model, A)
+    cond = float(cond)
+    if not np.isfinite(cond) or cond > SINGULAR_CONDITION:
+        lines.append(f"  diagnosis: the Eq. (1) matrix is singular or nearly so (condition number {cond:.3g}); "
+                     f"{_null_direction_text(direction, _unknown_labels(model))}")
     elif not np.all(np.isfinite(np.asarray(rhs))) or (gdd_p is not None and not np.all(np.isfinite(np.asarray(gdd_p)))):
         lines.append("  diagnosis: the right side of Eq. (1) is not finite (a joint law, external load or "
                      "prescription gave a non-finite value)")
     return "\n".join(lines)
+
+
+# A condition number of Eq. (1)'s matrix above this is reported as singular (float64 keeps
+# about four digits of the accelerations there).
+SINGULAR_CONDITION = 1e12
+
+
+def _matrix_condition(model, A):
+    """Condition number of the Eq. (1) matrix `A` with the prescribed rows and columns removed,
+    and its eigenvector of the eigenvalue nearest zero (the near-null direction when singular)."""
+    u = _unknown_rows(model)
+    ev, V = jnp.linalg.eigh(A[np.ix_(u, u)])
+    i = jnp.argmin(jnp.abs(ev))
+    return jnp.max(jnp.abs(ev)) / jnp.abs(ev[i]), V[:, i]
 
 
 def _unknown_rows(model):
@@ -456,8 +469,9 @@ def forward_dynamics(model: Model, dcm, omega0, gamma, gamma_dot, t=0.0):
 
 
 def _momenta(model, state):
-    cfg = configuration(model, state.gamma)
-    omega = body_angular_velocities(model, cfg, jnp.asarray(state.omega0, cfg.R.dtype), state.gamma_dot)
+    dtype = _dtype(model, state.gamma)
+    cfg, omega = _configuration(model, state.gamma, jnp.asarray(state.omega0, dtype),
+                                jnp.asarray(state.gamma_dot, dtype))
     vel = _massive(model, _velocities(model, cfg, omega))
     w = _massive(model, omega)
     mass = _massive(model, model.mass.astype(vel.dtype))

@@ -35,9 +35,10 @@ from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_
 from .control import AbstractController
 from .kinematics import full_precision
 from .dynamics import (
+    SINGULAR_CONDITION,
+    _matrix_condition,
     _null_direction_text,
     _unknown_labels,
-    _unknown_rows,
     angular_momentum,
     kinetic_energy,
     mass_center_acceleration,
@@ -444,13 +445,9 @@ def _diagnostics(model: Model, law, controller, params, ts, states: State, zs):
 
 
 def _condition(model: Model, state: State, t):
-    """Condition number of the Eq. (1) matrix with the prescribed rows and columns removed, and
-    its eigenvector of the eigenvalue nearest zero (the near-null direction when singular)."""
-    A, _ = rotational_equations(model, state, t)
-    u = _unknown_rows(model)
-    ev, V = jnp.linalg.eigh(A[np.ix_(u, u)])
-    i = jnp.argmin(jnp.abs(ev))
-    return jnp.max(jnp.abs(ev)) / jnp.abs(ev[i]), V[:, i]
+    """Condition number and near-null direction of the Eq. (1) matrix at a state
+    (:func:`jaxtree.dynamics._matrix_condition`)."""
+    return _matrix_condition(model, rotational_equations(model, state, t)[0])
 
 
 _condition_jit = eqx.filter_jit(_condition)
@@ -612,7 +609,7 @@ def _format_failure(kind, t, state: State, condition, margin, attitude_name, res
     c = float(condition)
     if np.isnan(c):
         pass
-    elif not np.isfinite(c) or c > 1e12:
+    elif not np.isfinite(c) or c > SINGULAR_CONDITION:
         where = (_null_direction_text(direction, labels) if direction is not None and labels is not None
                  and np.all(np.isfinite(np.asarray(direction))) else "for a gimbal this is gimbal lock")
         lines.append(f"  diagnosis: the Eq. (1) matrix is singular or nearly so (condition number {c:.3g}); {where}")
