@@ -143,3 +143,46 @@ def test_spring_on_massless_branch_is_rejected():
     ]
     with pytest.raises(SceneError, match="body 1 .*massless"):
         jaxtree.build_model(bodies)
+
+
+def _batch(model, runs, **leaves):
+    """A batch of `runs` copies of `model` with the named leaves replaced (numpy, batched)."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    names = tuple(leaves)
+    tiled = {k: np.tile(np.asarray(getattr(model, k)), (runs,) + (1,) * getattr(model, k).ndim) for k in names}
+    for k, fn in leaves.items():
+        fn(tiled[k])
+    return eqx.tree_at(lambda m: tuple(getattr(m, k) for k in names), model, tuple(jnp.asarray(tiled[k]) for k in names))
+
+
+def test_validate_model_checks_a_batch_of_dispersed_models_and_names_the_run():
+    model = jaxtree.load_scene("fig4")
+    good = _batch(model, 6, mass=lambda m: m.__setitem__((slice(None), 0), m[:, 0] * np.linspace(0.9, 1.1, 6)))
+    assert jaxtree.validate_model(good) is good
+    assert jaxtree.validate_model(model) is model
+
+    def flat_bus(J):  # run 4: principal moments 800, 900, 2000 (no mass distribution has them)
+        J[4, 0] = np.diag([800.0, 900.0, 2000.0])
+
+    with pytest.raises(SceneError, match=r"run \(4,\): body 0 \('bus'\): field 'inertia' violates the triangle"):
+        jaxtree.validate_model(_batch(model, 6, inertia=flat_bus))
+    with pytest.raises(SceneError, match=r"run \(2,\): body 3 \('gimbal_inner'\): fields 'mass' / 'inertia' must stay zero"):
+        jaxtree.validate_model(_batch(model, 6, mass=lambda m: m.__setitem__((2, 3), 1.0)))
+    with pytest.raises(SceneError, match=r"run \(1,\): body 5 \('panel_root'\): field 'axis' must be a unit vector"):
+        jaxtree.validate_model(_batch(model, 3, axis=lambda a: a.__setitem__((1, 4), a[1, 4] * 1.01)))
+    with pytest.raises(SceneError, match=r"body 7 \('panel_3'\): field 'joint.stiffness' must be finite"):
+        jaxtree.validate_model(_batch(model, 2, stiffness=lambda k: k.__setitem__((0, 6), np.nan)))
+    import equinox as eqx
+
+    with pytest.raises(SceneError, match=r"^body 0 \('bus'\): field 'mass' must be >= 0"):
+        jaxtree.validate_model(eqx.tree_at(lambda m: m.mass, model, model.mass.at[0].set(-1.0)))
+
+
+def test_validate_model_refuses_traced_leaves():
+    import jax
+
+    model = jaxtree.load_scene("chain10")
+    with pytest.raises(TypeError, match="concrete arrays"):
+        jax.jit(lambda m: jaxtree.validate_model(m).mass)(model)

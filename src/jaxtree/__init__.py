@@ -34,6 +34,7 @@ from .scene import (
     Prescribed as Prescribed,
     SceneError as SceneError,
     build_model as build_model,
+    validate_model as validate_model,
     load_scene as load_scene,
     scene_from_dict as scene_from_dict,
     scene_to_dict as scene_to_dict,

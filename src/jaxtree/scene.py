@@ -30,6 +30,7 @@ __all__ = [
     "Prescribed",
     "SceneError",
     "build_model",
+    "validate_model",
     "load_scene",
     "scene_from_dict",
     "scene_to_dict",
@@ -369,6 +370,88 @@ def build_model(
         massive=massive,
         name=name,
     )
+
+
+def validate_model(model: Model) -> Model:
+    """Check the array leaves of a model -- or of a batch of models -- before anything is traced.
+
+    :func:`build_model` validates its input, but a Monte Carlo campaign or a parameter study
+    changes masses, inertias, axes and stiffnesses afterwards (``eqx.tree_at``, or leaves with a
+    leading batch axis for ``jax.vmap``). This applies the same checks to the leaves as they are
+    now, over any leading batch axes, and the checks that the model's static structure still
+    describes them: a body built massless (not in ``model.massive``) must keep zero mass and
+    inertia (else its mass would be silently left out of Eq. 1), and hinge axes must stay unit
+    vectors (Eq. 4 assumes it; :func:`build_model` normalizes them).
+
+    Raises :class:`SceneError` naming the run (the batch index, for a batch), the body and the
+    field, e.g. ``run (17,): body 0 ('bus'): field 'inertia' violates the triangle inequality``;
+    returns `model` unchanged.
+    """
+    import jax  # (scene building itself needs no tracing machinery)
+
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(model)):
+        raise TypeError("validate_model needs concrete arrays: call it on the model (or batch of models) "
+                        "before jax.jit / jax.vmap, not inside")
+    n, names = model.n, model.names
+    tails = {"mass": (n + 1,), "inertia": (n + 1, 3, 3), "axis": (n, 3), "hinge_on_parent": (n, 3),
+             "hinge_on_body": (n, 3), "stiffness": (n,), "damping": (n,)}
+    shapes = {k: np.shape(getattr(model, k)) for k in tails}
+    for k, tail in tails.items():
+        if shapes[k][len(shapes[k]) - len(tail):] != tail:
+            raise SceneError(f"model: field {k!r} must end in shape {tail}, got {shapes[k]}")
+    try:
+        batch = np.broadcast_shapes(*(shapes[k][:len(shapes[k]) - len(t)] for k, t in tails.items()))
+    except ValueError:
+        raise SceneError(f"model: the batch axes of the leaves do not match: {shapes}") from None
+    leaf = lambda x, tail: np.broadcast_to(np.asarray(x, dtype=float), batch + tail)
+    mass = leaf(model.mass, (n + 1,))
+    J = leaf(model.inertia, (n + 1, 3, 3))
+    axis = leaf(model.axis, (n, 3))
+
+    def fail(bad, message, body_offset=0):
+        """Raise for the first True of `bad` (batch + (bodies,)) with message(run, body)."""
+        hit = np.argwhere(bad)
+        if len(hit):
+            run, k = tuple(int(i) for i in hit[0][:-1]), int(hit[0][-1]) + body_offset
+            prefix = f"run {run}: " if batch else ""
+            raise SceneError(prefix + f"{_where(k, names[k])}: " + message(run, k))
+
+    fail(~np.isfinite(mass), lambda r, k: f"field 'mass' must be finite, got {mass[r][k]}")
+    fail(mass < 0, lambda r, k: f"field 'mass' must be >= 0, got {mass[r][k]}")
+    fail(~np.isfinite(J).all((-1, -2)), lambda r, k: "field 'inertia' must be finite")
+    scale = np.maximum(np.abs(J).max((-1, -2)), 1e-300)
+    tol = 1e-9 * scale
+    fail(np.abs(J - np.swapaxes(J, -1, -2)).max((-1, -2)) > tol,
+         lambda r, k: f"field 'inertia' is not symmetric: {J[r][k].tolist()}")
+    massless = np.ones(n + 1, dtype=bool)
+    massless[list(model.massive)] = False
+    fail(massless & ((mass != 0) | (np.abs(J).max((-1, -2)) > 0)),
+         lambda r, k: f"fields 'mass' / 'inertia' must stay zero: the model was built with this body massless "
+                      f"(mass {mass[r][k]}); rebuild it with build_model to give the body mass")
+    fail((mass == 0) & (np.abs(J).max((-1, -2)) > 0),
+         lambda r, k: f"a massless body must have zero 'inertia', got {J[r][k].tolist()}")
+    ev = np.linalg.eigvalsh(0.5 * (J + np.swapaxes(J, -1, -2)))
+    fail(ev[..., 0] < -tol, lambda r, k: f"field 'inertia' is not positive semidefinite (eigenvalues {ev[r][k].tolist()})")
+    fail(ev[..., 0] + ev[..., 1] < ev[..., 2] - tol,
+         lambda r, k: f"field 'inertia' violates the triangle inequality of principal moments ({ev[r][k].tolist()}); "
+                      "no mass distribution has it")
+    total = mass.sum(-1)
+    if np.any(total <= 0):
+        run = tuple(int(i) for i in np.argwhere(total <= 0)[0])
+        raise SceneError((f"run {run}: " if batch else "") + "bodies: the total mass must be positive")
+    if n == 0:
+        return model
+    fail(~np.isfinite(axis).all(-1), lambda r, k: f"field 'axis' must be finite, got {axis[r][k - 1].tolist()}", 1)
+    fail(np.abs(np.linalg.norm(axis, axis=-1) - 1) > 1e-9,
+         lambda r, k: f"field 'axis' must be a unit vector (Eq. 4), got {axis[r][k - 1].tolist()} of norm "
+                      f"{np.linalg.norm(axis[r][k - 1]):.12g}", 1)
+    for field in ("hinge_on_parent", "hinge_on_body"):
+        v = leaf(getattr(model, field), (n, 3))
+        fail(~np.isfinite(v).all(-1), lambda r, k, v=v, f=field: f"field {f!r} must be finite, got {v[r][k - 1].tolist()}", 1)
+    for field in ("stiffness", "damping"):
+        v = leaf(getattr(model, field), (n,))
+        fail(~np.isfinite(v), lambda r, k, v=v, f=field: f"field 'joint.{f}' must be finite, got {v[r][k - 1]}", 1)
+    return model
 
 
 _BODY_KEYS = {"name", "mass", "inertia", "parent", "axis", "hinge_on_parent", "hinge_on_body", "joint"}
