@@ -172,6 +172,19 @@ def _outer3(a, b):
     return a[:, None, 0] * b[None, :, 0] + a[:, None, 1] * b[None, :, 1] + a[:, None, 2] * b[None, :, 2]
 
 
+def _masks(model):
+    """Static 0/1 masks of Eq. (1)'s matrix in the extended form of :func:`_mass_matrix`."""
+    n = model.n
+    eps = model.topology.path_elements[:, 1:].astype(np.int8)
+    upper = np.zeros((n + 3, n + 3), np.int8)
+    upper[:3, :] = 1
+    upper[3:, 3:] = eps
+    strict = np.zeros_like(upper)
+    strict[:3, 3:] = 1
+    strict[3:, 3:] = eps - np.eye(n, dtype=np.int8)
+    return upper, strict
+
+
 def _mass_matrix(model, cfg, extra=None):
     """The matrix of Eq. (1); with `extra`, also its outboard sums: ``(matrix, sums)``."""
     n = model.n
@@ -180,13 +193,18 @@ def _mass_matrix(model, cfg, extra=None):
     if n == 0:
         return J0 if extra is None else (J0, sums)
     # X[s, k] = S_s . (I^c_k S_k); it is an entry of [a] where epsilon_{sk} = 1 (s inboard of k),
-    # its transpose where epsilon_{ks} = 1, and absent for hinges on different branches.
-    X = _outer3(G, L) + _outer3(v, p)
-    eps = model.topology.path_elements[:, 1:]
-    upper = jnp.asarray(eps, X.dtype)
-    strict = jnp.asarray(eps - np.eye(n, dtype=eps.dtype), X.dtype)
-    hh = upper * X + (strict * X).T - _outer3(p, p) / total_mass
-    A = jnp.block([[J0, L.T], [L, hh]])
+    # its transpose where epsilon_{ks} = 1, and absent for hinges on different branches. The rows
+    # of omega0 join as three hinges inboard of all others (axes e_1..e_3 through the system mass
+    # center: no momentum, L = J0 e_i), so the whole matrix is one masked outer-product form.
+    dtype = G.dtype
+    zero = jnp.zeros((3, 3), dtype)
+    Ge = jnp.concatenate([jnp.eye(3, dtype=dtype), G], 0)
+    Le = jnp.concatenate([J0, L], 0)
+    ve = jnp.concatenate([zero, v], 0)
+    pe = jnp.concatenate([zero, p], 0)
+    X = _outer3(Ge, Le) + _outer3(ve, pe)
+    upper, strict = _masks(model)
+    A = jnp.asarray(upper, dtype) * X + (jnp.asarray(strict, dtype) * X).T - _outer3(pe, pe) / total_mass
     return A if extra is None else (A, sums)
 
 
