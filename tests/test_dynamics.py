@@ -438,3 +438,14 @@ def test_loads_are_not_traced_when_absent(scenes):
 
     assert flops(model) < flops(loaded)
     assert n_eqns(model) < n_eqns(loaded)
+
+
+def test_single_rigid_body_is_eulers_equations():
+    """n = 0 (a tree of one body): Eq. (1) is Euler's equation I w' = -w x I w."""
+    J = np.array([[3.0, 0.1, 0.0], [0.1, 4.0, 0.2], [0.0, 0.2, 5.0]])
+    model = jaxtree.build_model([jaxtree.Body("rock", 2.0, J)], {"omega0": [0.3, -0.2, 0.5]})
+    w = np.array([0.3, -0.2, 0.5])
+    wd, gdd = jaxtree.forward_dynamics(model, np.eye(3), w, np.zeros(0), np.zeros(0))
+    np.testing.assert_allclose(np.asarray(wd), -np.linalg.solve(J, np.cross(w, J @ w)), rtol=1e-13, atol=1e-15)
+    assert gdd.shape == (0,)
+    np.testing.assert_allclose(np.asarray(jaxtree.mass_matrix(model, np.zeros(0))), J, rtol=1e-15)

@@ -24,7 +24,9 @@ where ``S_s = (g_s, h_s x g_s)`` is the motion of hinge s, ``I^c_k`` the inertia
 of all bodies outboard of hinge k about the system mass center (a path-element
 sum, ``sum_r epsilon_{kr}``) and ``p_k`` the momentum of those bodies. Entries
 of hinges not on one path keep only the ``-p_s . p_k / M`` part, which is the
-``-M D^{jk} . D^{kj}`` coupling of Def. 37. The right side is the virtual power of
+``-M D^{jk} . D^{kj}`` coupling of Def. 37. The rows of ``omega0`` take the same form as three
+"hinges" inboard of all others, about e_1..e_3 through the system mass center (``S = (e_i, 0)``,
+``p = 0``, ``I^c`` of all bodies), so the whole matrix is one masked outer product. The right side is the virtual power of
 the external loads and hinge torques minus that of the velocity-product
 (gyroscopic, centripetal) accelerations of Def. 41, accumulated over the same
 outboard sets.

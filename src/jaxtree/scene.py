@@ -356,9 +356,9 @@ def build_model(
     return Model(
         mass=jnp.asarray(masses),
         inertia=jnp.asarray(np.stack(inertias)),
-        axis=jnp.asarray(np.stack(axes).reshape(n, 3)),
-        hinge_on_parent=jnp.asarray(np.stack(on_parent).reshape(n, 3)),
-        hinge_on_body=jnp.asarray(np.stack(on_body).reshape(n, 3)),
+        axis=jnp.asarray(np.reshape(np.asarray(axes, dtype=float), (n, 3))),
+        hinge_on_parent=jnp.asarray(np.reshape(np.asarray(on_parent, dtype=float), (n, 3))),
+        hinge_on_body=jnp.asarray(np.reshape(np.asarray(on_body, dtype=float), (n, 3))),
         stiffness=jnp.asarray(stiffness),
         damping=jnp.asarray(damping),
         initial=state,
