@@ -162,6 +162,7 @@ def test_validate_model_checks_a_batch_of_dispersed_models_and_names_the_run():
     good = _batch(model, 6, mass=lambda m: m.__setitem__((slice(None), 0), m[:, 0] * np.linspace(0.9, 1.1, 6)))
     assert jaxtree.validate_model(good) is good
     assert jaxtree.validate_model(model) is model
+    assert jaxtree.validate_model(model.astype(np.float32)) is not None  # float32 rounding is no error
 
     def flat_bus(J):  # run 4: principal moments 800, 900, 2000 (no mass distribution has them)
         J[4, 0] = np.diag([800.0, 900.0, 2000.0])

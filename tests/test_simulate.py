@@ -8,6 +8,7 @@ expm and DOP853 with tests/oracle.py, and the prescription's own inverse functio
 """
 
 import dataclasses
+import re
 import sys
 
 import diffrax as dfx
@@ -364,6 +365,26 @@ def test_nonfinite_start_under_vmap_fails_at_once_and_alone():
     with pytest.raises(Exception, match="initial state is not finite"):
         jax.block_until_ready(jax.jit(lambda g: simulate(model, 3.0, y0=model.initial._replace(gamma=g[None])).gamma)(
             jnp.asarray([np.nan])[0]))
+
+
+def test_failures_of_a_vmapped_batch_are_reported_by_one_host_callback():
+    """Under vmap the failure report is one host callback for the whole batch (jax.debug.callback
+    alone is unrolled into one per member: compile and run times grow with the batch), and it
+    names the failed members by their batch index."""
+    model = coaxial(jaxtree.SpringDamper(3.0), gamma0=0.4)
+
+    def run(g, max_steps):
+        return simulate(model, 10.0, y0=model.initial._replace(gamma=g[None]), max_steps=max_steps).gamma
+
+    def callbacks(batch):  # host callbacks in the lowered program (diffrax has a few of its own)
+        hlo = jax.jit(jax.vmap(lambda g: run(g, 10_000))).lower(batch).as_text()
+        return len(re.findall(r"custom_call @xla(_ffi)?_python_\w*callback", hlo))
+
+    batch = jnp.linspace(0.1, 0.4, 64)
+    assert callbacks(batch) == callbacks(batch[:2])
+    with pytest.raises(Exception, match=r"(?s)\[batch index \(0,\)\].*maximum number of solver steps.*"
+                                        r"and 61 more failed batch members"):
+        jax.block_until_ready(jax.jit(jax.vmap(lambda g: run(g, 8)))(batch))
 
 
 # ----------------------------------------------------------------------------- transformations

@@ -419,8 +419,10 @@ def validate_model(model: Model) -> Model:
     fail(~np.isfinite(mass), lambda r, k: f"field 'mass' must be finite, got {mass[r][k]}")
     fail(mass < 0, lambda r, k: f"field 'mass' must be >= 0, got {mass[r][k]}")
     fail(~np.isfinite(J).all((-1, -2)), lambda r, k: "field 'inertia' must be finite")
+    # relative tolerance of the checks: 1e-9 as in build_model, or the rounding of a float32 model
+    rel = max(1e-9, 100 * float(np.finfo(np.asarray(model.mass).dtype).eps))
     scale = np.maximum(np.abs(J).max((-1, -2)), 1e-300)
-    tol = 1e-9 * scale
+    tol = rel * scale
     fail(np.abs(J - np.swapaxes(J, -1, -2)).max((-1, -2)) > tol,
          lambda r, k: f"field 'inertia' is not symmetric: {J[r][k].tolist()}")
     massless = np.ones(n + 1, dtype=bool)
@@ -442,7 +444,7 @@ def validate_model(model: Model) -> Model:
     if n == 0:
         return model
     fail(~np.isfinite(axis).all(-1), lambda r, k: f"field 'axis' must be finite, got {axis[r][k - 1].tolist()}", 1)
-    fail(np.abs(np.linalg.norm(axis, axis=-1) - 1) > 1e-9,
+    fail(np.abs(np.linalg.norm(axis, axis=-1) - 1) > rel,
          lambda r, k: f"field 'axis' must be a unit vector (Eq. 4), got {axis[r][k - 1].tolist()} of norm "
                       f"{np.linalg.norm(axis[r][k - 1]):.12g}", 1)
     for field in ("hinge_on_parent", "hinge_on_body"):

@@ -558,12 +558,37 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
         # Under a caller's jit/vmap the values are not known until run time: report failures
         # from a host callback, which raises with the time and state of every failed member.
         condition, direction = _condition(problem.model, final_state, t_final)
-        jax.debug.callback(
-            functools.partial(_raise_from_callback, attitude_name=problem.attitude.name,
-                              labels=_unknown_labels(problem.model)),
-            failure, t_final, final_state, condition, out.margin, direction=direction,
-        )
+        attitude_name, labels = problem.attitude.name, _unknown_labels(problem.model)
+
+        def host(code, t, state, condition, margin, direction):
+            _raise_from_callback(code, t, state, condition, margin, attitude_name, direction, labels)
+
+        _report(host, jax.lax.stop_gradient((failure, t_final, final_state, condition, out.margin, direction)))
     return out
+
+
+def _report(host, args):
+    """Call ``host(*args)`` on the host at run time: one call for a whole ``jax.vmap`` batch.
+
+    ``jax.debug.callback`` alone is unrolled by vmap into one callback per batch member (a
+    campaign of 4096 runs: 4096 host calls, and compile and run times that grow with the
+    batch); this custom batching rule hands the batch to a single callback instead (`host`
+    takes arrays with leading batch axes, as a batch of solutions has). `args` carry no
+    gradient (`stop_gradient`): reporting does not enter derivatives."""
+
+    @jax.custom_batching.custom_vmap
+    def report(args):
+        jax.debug.callback(host, *args)
+        return jnp.zeros((), jnp.int32)
+
+    @report.def_vmap
+    def _batched(axis_size, in_batched, args):
+        args = jax.tree_util.tree_map(
+            lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x)), args, in_batched[0])
+        report(args)
+        return jnp.zeros((axis_size,), jnp.int32), True
+
+    report(args)
 
 
 # ----------------------------------------------------------------------------- failures
