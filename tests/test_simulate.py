@@ -454,7 +454,10 @@ def test_implicit_solver_passes_through_on_a_stiff_hinge(scenes):
     k = np.asarray(base.stiffness).copy()
     c = np.asarray(base.damping).copy()
     k[-1] *= 1e4
-    c[-1] = 2 * 0.7 * np.sqrt(k[-1] * 0.16833)  # damping ratio 0.7 (the tip segment: 0.168 kg m^2 about its hinge)
+    tip = base.n  # the tip segment's inertia about its own hinge (parallel-axis theorem)
+    g, r = np.asarray(base.axis[tip - 1]), np.asarray(base.hinge_on_body[tip - 1])
+    J = np.asarray(base.inertia[tip]) + float(base.mass[tip]) * (r @ r * np.eye(3) - np.outer(r, r))
+    c[-1] = 2 * 0.7 * np.sqrt(k[-1] * (g @ J @ g))  # damping ratio 0.7 for the tip alone
     model = eqx.tree_at(lambda m: (m.stiffness, m.damping), base, (jnp.asarray(k), jnp.asarray(c)))
     ref = simulate(model, 1.0, saveat=11, rtol=1e-10, atol=1e-10)
     explicit = simulate(model, 1.0, saveat=11, rtol=1e-6, atol=1e-6)
