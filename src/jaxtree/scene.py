@@ -16,6 +16,7 @@ import tempfile
 from typing import Any, Callable, Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -387,8 +388,6 @@ def validate_model(model: Model) -> Model:
     field, e.g. ``run (17,): body 0 ('bus'): field 'inertia' violates the triangle inequality``;
     returns `model` unchanged.
     """
-    import jax  # (scene building itself needs no tracing machinery)
-
     if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(model)):
         raise TypeError("validate_model needs concrete arrays: call it on the model (or batch of models) "
                         "before jax.jit / jax.vmap, not inside")

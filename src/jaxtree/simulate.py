@@ -18,7 +18,6 @@ progress meters are diffrax objects, passed to :func:`diffrax.diffeqsolve` uncha
 
 from __future__ import annotations
 
-import functools
 import math
 import warnings
 from typing import Any, Callable, NamedTuple
