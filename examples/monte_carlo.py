@@ -50,9 +50,10 @@ def dispersions(model, runs: int, seed: int):
 
 
 def _bus_inertia(J, factors):
-    """Scale the principal values of the bus inertia J by `factors`, keeping its principal axes."""
+    """Scale the principal values of the bus inertia J by `factors` (runs x 3), keeping its
+    principal axes: (runs, 3, 3)."""
     w, V = np.linalg.eigh(J)
-    return (V * (w * factors)) @ V.T
+    return (V * (w * factors)[:, None, :]) @ V.T
 
 
 def dispersed_models(model, d):
@@ -62,7 +63,7 @@ def dispersed_models(model, d):
     mass = np.tile(np.asarray(model.mass), (runs, 1))
     mass[:, 0] *= d["mass"]
     inertia = np.tile(np.asarray(model.inertia), (runs, 1, 1, 1))
-    inertia[:, 0] = [_bus_inertia(inertia[0, 0], f) for f in d["inertia"]]
+    inertia[:, 0] = _bus_inertia(inertia[0, 0], d["inertia"])
     stiffness = np.tile(np.asarray(model.stiffness), (runs, 1))
     stiffness[:, panels] *= d["stiffness"]
     dispersed = lambda m: (m.mass, m.inertia, m.stiffness)

@@ -24,12 +24,12 @@ where ``S_s = (g_s, h_s x g_s)`` is the motion of hinge s, ``I^c_k`` the inertia
 of all bodies outboard of hinge k about the system mass center (a path-element
 sum, ``sum_r epsilon_{kr}``) and ``p_k`` the momentum of those bodies. Entries
 of hinges not on one path keep only the ``-p_s . p_k / M`` part, which is the
-``-M D^{jk} . D^{kj}`` coupling of Def. 37. The rows of ``omega0`` take the same form as three
-"hinges" inboard of all others, about e_1..e_3 through the system mass center (``S = (e_i, 0)``,
-``p = 0``, ``I^c`` of all bodies), so the whole matrix is one masked outer product. The right side is the virtual power of
-the external loads and hinge torques minus that of the velocity-product
-(gyroscopic, centripetal) accelerations of Def. 41, accumulated over the same
-outboard sets.
+``-M D^{jk} . D^{kj}`` coupling of Def. 37. The rows of ``omega0`` take the same form as
+three "hinges" inboard of all others, about e_1..e_3 through the system mass center
+(``S = (e_i, 0)``, ``p = 0``, ``I^c`` of all bodies), so the whole matrix is one masked
+outer product. The right side is the virtual power of the external loads and hinge torques
+minus that of the velocity-product (gyroscopic, centripetal) accelerations of Def. 41,
+accumulated over the same outboard sets.
 """
 
 from __future__ import annotations
@@ -189,11 +189,8 @@ def _masks(model):
 
 def _mass_matrix(model, cfg, extra=None):
     """The matrix of Eq. (1); with `extra`, also its outboard sums: ``(matrix, sums)``."""
-    n = model.n
     total_mass, J0, v, p, L, sums = _hinge_momenta(model, cfg, extra)
     G = cfg.axis
-    if n == 0:
-        return J0 if extra is None else (J0, sums)
     # X[s, k] = S_s . (I^c_k S_k); it is an entry of [a] where epsilon_{sk} = 1 (s inboard of k),
     # its transpose where epsilon_{ks} = 1, and absent for hinges on different branches. The rows
     # of omega0 join as three hinges inboard of all others (axes e_1..e_3 through the system mass
