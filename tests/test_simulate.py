@@ -404,6 +404,25 @@ def test_vmap_over_initial_states_and_parameters_matches_closed_forms():
     assert maxdiff(out, expected) < CLOSED
 
 
+def test_tolerances_and_step_controllers_may_be_traced():
+    """A work-precision sweep vmapped over rtol/atol, and a diffrax controller built from a traced
+    tolerance under jit: each run meets the closed form to about its tolerance (the failure check
+    must go to the host callback when only these arguments are traced)."""
+    k, g0 = 3.0, 0.4
+    model = coaxial(jaxtree.SpringDamper(k), gamma0=g0)
+    expected = g0 * np.cos(np.sqrt(k / I_EFF) * 3.0)
+    tols = jnp.asarray([1e-6, 1e-9, 1e-11])
+    final = jax.jit(jax.vmap(lambda tol: simulate(model, 3.0, saveat=2, rtol=tol, atol=tol).gamma[-1, 0]))(tols)
+    err = np.abs(np.asarray(final) - expected)
+    assert np.all(err < 100 * np.asarray(tols)) and err[2] < err[0]
+
+    def with_controller(tol):
+        controller = dfx.PIDController(rtol=tol, atol=tol, pcoeff=0.3, icoeff=0.3)
+        return simulate(model, 3.0, saveat=2, stepsize_controller=controller, dt0=0.01).gamma[-1, 0]
+
+    assert abs(float(jax.jit(with_controller)(jnp.asarray(1e-10))) - expected) < CLOSED
+
+
 def test_gradient_through_simulate_matches_the_closed_form():
     """d gamma(T) / dk of gamma = g0 cos(sqrt(k / I_EFF) T)."""
     g0, T, k = 0.4, 2.0, 3.0

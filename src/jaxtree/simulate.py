@@ -813,7 +813,8 @@ def simulate(
         if saveat.ndim != 1:
             raise ValueError(f"saveat: expected a 1-D array of times, got shape {saveat.shape}")
     ev, has_guard, user_event = _combine_events(event, att)
-    traced = _is_traced((model, y0, t0, t1, params, controller, law, saveat, ev, translation, X0, Xd0))
+    traced = _is_traced((model, y0, t0, t1, params, controller, law, saveat, ev, translation, X0, Xd0, rtol, atol,
+                         dt0, solver, stepsize_controller, adjoint))
     if not traced and throw:
         start = [np.asarray(x, float) for x in (*y0, *(() if X0 is None else (X0, Xd0)))]
         if not all(np.all(np.isfinite(x)) for x in start):
