@@ -523,3 +523,27 @@ def test_bad_input_messages(fig4):
         jaxtree.hybrid_model(model, (1, 5))
     with pytest.raises(ValueError, match="retain"):
         jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN).retain(0)
+
+
+def test_failures_are_reported_with_time_and_state_and_tolerances_may_be_traced(appendix):
+    """A run that exhausts max_steps raises SimulationError naming where it stopped (time,
+    physical state, modal coordinates): at once when called eagerly, from a host callback under
+    jit. A vmapped tolerance sweep (traced rtol/atol) runs, and its errors against a TOL run fall
+    with the tolerance."""
+    _, _, hm = appendix
+    state = State(jnp.eye(3), jnp.array([0.05, -0.03, 1.0]), jnp.array([0.03, -0.01]), jnp.array([0.02, 0.05]))
+    pattern = r"(?s)simulate_hybrid: the maximum number of solver steps.*stopped at t = .*modal coordinates"
+    with pytest.raises(jaxtree.SimulationError, match=pattern):
+        jaxtree.simulate_hybrid(hm, 12.0, y0=state, max_steps=5)
+    sol = jaxtree.simulate_hybrid(hm, 12.0, y0=state, max_steps=5, throw=False)
+    assert not sol.ok and 0.0 < float(sol.t_final) < 12.0
+    assert np.all(np.isfinite(np.asarray(sol.final.gamma))) and sol.final_modal.shape == sol.modal.shape[1:]
+    with pytest.raises(Exception, match="maximum number of solver steps"):
+        jax.block_until_ready(jax.jit(lambda s: jaxtree.simulate_hybrid(hm, 12.0, y0=s, max_steps=5).gamma)(state))
+
+    ref = jaxtree.simulate_hybrid(hm, 12.0, y0=state, saveat=2, rtol=TOL, atol=TOL)
+    assert float(ref.t_final) == 12.0
+    tols = jnp.asarray([1e-5, 1e-8])
+    ends = jax.vmap(lambda tol: jaxtree.simulate_hybrid(hm, 12.0, y0=state, saveat=2, rtol=tol, atol=tol).gamma[-1])(tols)
+    err = np.abs(np.asarray(ends) - np.asarray(ref.gamma[-1])).max(1)
+    assert np.all(err < 1e3 * np.asarray(tols)) and err[1] < err[0]

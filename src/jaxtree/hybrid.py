@@ -669,7 +669,9 @@ class HybridSolution(eqx.Module):
     `ts` (T,); `omega0` (T, 3); `dcm` (T, 3, 3); `gamma`, `gamma_dot` (T, n): all hinges, the
     small ones rebuilt from the modal coordinates (Eqs. 111-112), prescribed ones from the
     prescription; `modal` (T, m): the modal coordinates; `ys` (T, size): the flat states;
-    `t_final`, `result` (:class:`diffrax.RESULTS`), `stats` (diffrax's step counts), `hybrid`.
+    `t_final` (where the run stopped: `t1` unless it failed), `result` (:class:`diffrax.RESULTS`),
+    `stats` (diffrax's step counts), `hybrid`, and at `t_final` the physical
+    :class:`~jaxtree.State` `final` and the modal coordinates `final_modal`.
     """
 
     ts: jax.Array
@@ -683,27 +685,82 @@ class HybridSolution(eqx.Module):
     result: Any
     stats: dict
     hybrid: HybridModel
+    final: State | None = None
+    final_modal: jax.Array | None = None
 
     @property
     def ok(self) -> bool:
         return bool(np.all(np.asarray(self.result == dfx.RESULTS.successful)))
 
 
+def _failure_code(result):
+    """0 for success, else the index + 1 of the failure in ``simulate._KINDS``."""
+    R = dfx.RESULTS
+    return jnp.where(result == R.successful, 0,
+                     jnp.where(result == R.max_steps_reached, 1, jnp.where(result == R.dt_min_reached, 2, 4)))
+
+
+def _hybrid_failure_message(code, t, state, modal):
+    """The report of failed hybrid runs (batch index, time, physical state, modal coordinates),
+    or None when every run succeeded."""
+    from .simulate import _KINDS, _MESSAGES
+
+    code = np.asarray(code)
+    flat = code.reshape(-1)
+    bad = np.flatnonzero(flat)
+    if bad.size == 0:
+        return None
+    np.set_printoptions(precision=6, suppress=False, linewidth=120)
+    lines = []
+    for b in bad[:3]:
+        idx = np.unravel_index(b, code.shape) if code.ndim else ()
+        pick = lambda x: np.asarray(x)[idx]  # noqa: E731
+        prefix = f"[batch index {tuple(int(i) for i in idx)}] " if code.ndim else ""
+        lines += [f"{prefix}jaxtree.simulate_hybrid: {_MESSAGES[_KINDS[int(flat[b]) - 1]]}.",
+                  f"  stopped at t = {float(pick(t)):.9g}",
+                  f"  omega0 = {pick(state.omega0)}", f"  gamma = {pick(state.gamma)}",
+                  f"  gamma_dot = {pick(state.gamma_dot)}", f"  C = {pick(state.dcm).tolist()}",
+                  f"  modal coordinates = {pick(modal)}"]
+        if not all(np.all(np.isfinite(pick(x))) for x in state):
+            lines.append("  diagnosis: the state is not finite")
+    if bad.size > 3:
+        lines.append(f"... and {bad.size - 3} more failed batch members")
+    return "\n".join(lines)
+
+
 @eqx.filter_jit
-def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, max_steps):
+def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, max_steps, report):
     if controller is None:
         controller = dfx.PIDController(rtol=rtol, atol=atol, pcoeff=0.3, icoeff=0.3,
                                        dtmin=1e-12 * jnp.abs(t1 - t0), force_dtmin=False)
+    saveat = dfx.SaveAt(subs=(dfx.SubSaveAt(ts=ts), dfx.SubSaveAt(t1=True)))
     sol = dfx.diffeqsolve(
-        dfx.ODETerm(hybrid_rhs), solver, t0, t1, dt0, y0, args=hybrid, saveat=dfx.SaveAt(ts=ts),
+        dfx.ODETerm(hybrid_rhs), solver, t0, t1, dt0, y0, args=hybrid, saveat=saveat,
         stepsize_controller=controller, max_steps=max_steps, throw=False,
     )
-    states = jax.vmap(hybrid.state)(sol.ts, sol.ys)
-    return HybridSolution(
-        ts=sol.ts, omega0=states.omega0, dcm=states.dcm, gamma=states.gamma, gamma_dot=states.gamma_dot,
-        modal=jax.vmap(hybrid.modal)(sol.ys), ys=sol.ys, t_final=sol.ts[-1], result=sol.result,
-        stats=dict(sol.stats), hybrid=hybrid,
+    from .simulate import _last_finite
+
+    (ts_h, ts_f), (ys_h, ys_f) = sol.ts, sol.ys
+    i = _last_finite(ts_f)
+    t_final, y_final = ts_f[i], ys_f[i]
+    states = jax.vmap(hybrid.state)(ts_h, ys_h)
+    final = hybrid.state(t_final, y_final)
+    out = HybridSolution(
+        ts=ts_h, omega0=states.omega0, dcm=states.dcm, gamma=states.gamma, gamma_dot=states.gamma_dot,
+        modal=jax.vmap(hybrid.modal)(ys_h), ys=ys_h, t_final=t_final, result=sol.result,
+        stats=dict(sol.stats), hybrid=hybrid, final=final, final_modal=hybrid.modal(y_final),
     )
+    if report:
+        # Under a caller's jit/vmap: report failures from one host callback (for a whole batch).
+        from .simulate import SimulationError, _report
+
+        def host(code, t, state, modal):
+            message = _hybrid_failure_message(code, t, state, modal)
+            if message is not None:
+                raise SimulationError(message)
+
+        _report(host, jax.lax.stop_gradient((_failure_code(sol.result), t_final, final, out.final_modal)))
+    return out
 
 
 @full_precision
@@ -731,7 +788,10 @@ def simulate_hybrid(
       with `rtol`, `atol` (as :func:`jaxtree.simulate`: default :func:`jaxtree.default_tolerance`
       of the model's dtype); `dt0`: default ``1e-3 |t1 - t0|``.
 
-    Raises :class:`jaxtree.SimulationError` when the run fails and `throw` is set.
+    Raises :class:`jaxtree.SimulationError` when the run fails and `throw` is set, naming the
+    time, the physical state and the modal coordinates where it stopped: at once when called
+    eagerly, from a host callback at run time under ``jax.jit`` or ``jax.vmap`` (one for a whole
+    batch). Tolerances, controllers and solvers may be traced (a vmapped tolerance sweep).
     """
     from .simulate import SimulationError, _warn_below_roundoff, default_tolerance
 
@@ -751,10 +811,12 @@ def simulate_hybrid(
     t0a, t1a = jnp.asarray(t0, dtype), jnp.asarray(t1, dtype)
     dt0 = 1e-3 * (t1a - t0a) if dt0 is None else jnp.asarray(dt0, dtype)
     solver = dfx.Dopri8() if solver is None else solver
+    traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(
+        (hybrid, y, t0a, t1a, ts, rtol, atol, dt0, solver, stepsize_controller)))
     sol = _solve_hybrid(hybrid, y, t0a, t1a, ts, jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), dt0,
-                        solver, stepsize_controller, int(max_steps))
-    traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves((hybrid, y, t0a, t1a)))
-    if throw and not traced and not sol.ok:
-        raise SimulationError(f"simulate_hybrid: the solver failed ({sol.result}) after {int(sol.stats['num_steps'])} "
-                              f"steps")
+                        solver, stepsize_controller, int(max_steps), bool(throw and traced))
+    if throw and not traced:
+        message = _hybrid_failure_message(_failure_code(sol.result), sol.t_final, sol.final, sol.final_modal)
+        if message is not None:
+            raise SimulationError(message)
     return sol
