@@ -694,10 +694,13 @@ class HybridSolution(eqx.Module):
 
 
 def _failure_code(result):
-    """0 for success, else the index + 1 of the failure in ``simulate._KINDS``."""
-    R = dfx.RESULTS
+    """0 for success, else the index + 1 of the failure in ``simulate._KINDS`` (as ``Solution.failure``)."""
+    from .simulate import _KINDS
+
+    R, code = dfx.RESULTS, lambda kind: _KINDS.index(kind) + 1
     return jnp.where(result == R.successful, 0,
-                     jnp.where(result == R.max_steps_reached, 1, jnp.where(result == R.dt_min_reached, 2, 4)))
+                     jnp.where(result == R.max_steps_reached, code("max_steps"),
+                               jnp.where(result == R.dt_min_reached, code("dt_min"), code("other"))))
 
 
 def _hybrid_failure_message(code, t, state, modal):
