@@ -510,16 +510,22 @@ def _momenta(model, state):
 @full_precision
 def kinetic_energy(model: Model, state: State):
     """Kinetic energy relative to the system mass center (the quadratic form of Eq. 1's matrix)."""
-    _, mass, vel, w, Jw = _momenta(model, state)
-    return 0.5 * (jnp.sum(mass * jnp.sum(vel * vel, -1)) + jnp.sum(w * Jw))
+    return _energy_and_momentum(model, state)[0]
 
 
 @full_precision
 def angular_momentum(model: Model, state: State):
     """Angular momentum about the system mass center, inertial components ``{i}`` (3,)."""
+    return _energy_and_momentum(model, state)[1]
+
+
+def _energy_and_momentum(model, state):
+    """:func:`kinetic_energy` and :func:`angular_momentum` from one evaluation of the velocities
+    (``simulate``'s diagnostics need both: half the tracing)."""
     cfg, mass, vel, w, Jw = _momenta(model, state)
+    energy = 0.5 * (jnp.sum(mass * jnp.sum(vel * vel, -1)) + jnp.sum(w * Jw))
     H0 = jnp.sum(cross(_massive(model, cfg.rho), mass[:, None] * vel) + Jw, 0)
-    return jnp.asarray(state.dcm, H0.dtype).T @ H0
+    return energy, jnp.asarray(state.dcm, H0.dtype).T @ H0
 
 
 @full_precision

@@ -35,11 +35,10 @@ from .control import AbstractController
 from .kinematics import full_precision
 from .dynamics import (
     SINGULAR_CONDITION,
+    _energy_and_momentum,
     _matrix_condition,
     _null_direction_text,
     _unknown_labels,
-    angular_momentum,
-    kinetic_energy,
     mass_center_acceleration,
     rotational_equations,
     solve_accelerations,
@@ -430,8 +429,8 @@ def _diagnostics(model: Model, law, controller, params, ts, states: State, zs):
     problem = Problem(model, Quaternion(), law, controller, params, False, 0)
 
     def row(t, state, z):
-        energy = kinetic_energy(model, state) + 0.5 * jnp.sum(model.stiffness * state.gamma**2)
-        H = angular_momentum(model, state)
+        kinetic, H = _energy_and_momentum(model, state)
+        energy = kinetic + 0.5 * jnp.sum(model.stiffness * state.gamma**2)
         if model.prescription is None:
             hold = jnp.zeros((0,), state.gamma.dtype)
         else:
