@@ -535,6 +535,8 @@ def test_failures_are_reported_with_time_and_state_and_tolerances_may_be_traced(
     pattern = r"(?s)simulate_hybrid: the maximum number of solver steps.*stopped at t = .*modal coordinates"
     with pytest.raises(jaxtree.SimulationError, match=pattern):
         jaxtree.simulate_hybrid(hm, 12.0, y0=state, max_steps=5)
+    with pytest.raises(ValueError, match=r"simulate_hybrid: saveat\[1\] = 13 lies outside"):
+        jaxtree.simulate_hybrid(hm, 12.0, y0=state, saveat=[0.0, 13.0])
     sol = jaxtree.simulate_hybrid(hm, 12.0, y0=state, max_steps=5, throw=False)
     assert not sol.ok and 0.0 < float(sol.t_final) < 12.0
     assert np.all(np.isfinite(np.asarray(sol.final.gamma))) and sol.final_modal.shape == sol.modal.shape[1:]

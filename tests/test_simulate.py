@@ -404,6 +404,25 @@ def test_vmap_over_initial_states_and_parameters_matches_closed_forms():
     assert maxdiff(out, expected) < CLOSED
 
 
+def test_bad_times_are_named_before_tracing():
+    """Non-finite start or end times and save times out of order or outside the run raise a
+    ValueError naming the argument (diffrax's own checks fire inside the compiled solve)."""
+    model = coaxial(jaxtree.SpringDamper(3.0), gamma0=0.4)
+    cases = [
+        (dict(t1=float("nan")), "t1 is not finite"),
+        (dict(t1=1.0, t0=float("-inf")), "t0 is not finite"),
+        (dict(t1=3.0, saveat=[0.0, 2.0, 1.0]), r"saveat\[1\] = 2 is followed by 1"),
+        (dict(t1=-1.0, saveat=[0.0, -1.0, -0.5]), r"\(decreasing\); saveat\[1\] = -1"),
+        (dict(t1=3.0, saveat=[0.0, 5.0]), r"saveat\[1\] = 5 lies outside the integration from t0 = 0 to t1 = 3"),
+    ]
+    for kwargs, message in cases:
+        t1 = kwargs.pop("t1")
+        with pytest.raises(ValueError, match=message):
+            simulate(model, t1, **kwargs)
+    sol = simulate(model, -1.0, saveat=[0.0, -0.5, -1.0], rtol=1e-8, atol=1e-8)  # backward, in order
+    assert list(np.asarray(sol.ts)) == [0.0, -0.5, -1.0]
+
+
 def test_tolerances_and_step_controllers_may_be_traced():
     """A work-precision sweep vmapped over rtol/atol, and a diffrax controller built from a traced
     tolerance under jit: each run meets the closed form to about its tolerance (the failure check

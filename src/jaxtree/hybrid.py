@@ -796,7 +796,7 @@ def simulate_hybrid(
     eagerly, from a host callback at run time under ``jax.jit`` or ``jax.vmap`` (one for a whole
     batch). Tolerances, controllers and solvers may be traced (a vmapped tolerance sweep).
     """
-    from .simulate import SimulationError, _warn_below_roundoff, default_tolerance
+    from .simulate import SimulationError, _check_times, _warn_below_roundoff, default_tolerance
 
     dtype = jnp.result_type(hybrid.model.mass)
     rtol = default_tolerance(dtype) if rtol is None else rtol
@@ -811,6 +811,7 @@ def simulate_hybrid(
         ts = jnp.linspace(jnp.asarray(t0, dtype), jnp.asarray(t1, dtype), int(saveat))
     else:
         ts = jnp.asarray(saveat, dtype)
+    _check_times("simulate_hybrid", t0, t1, ts)
     t0a, t1a = jnp.asarray(t0, dtype), jnp.asarray(t1, dtype)
     dt0 = 1e-3 * (t1a - t0a) if dt0 is None else jnp.asarray(dt0, dtype)
     solver = dfx.Dopri8() if solver is None else solver
