@@ -423,6 +423,30 @@ def test_bad_times_are_named_before_tracing():
     assert list(np.asarray(sol.ts)) == [0.0, -0.5, -1.0]
 
 
+def test_bad_initial_states_and_tolerances_are_named_before_tracing():
+    """Wrong field shapes (JAX would clamp the indices and run), a dcm that is not a rotation,
+    negative or all-zero tolerances and max_steps < 1 raise a ValueError naming the field."""
+    model = coaxial(jaxtree.SpringDamper(3.0), gamma0=0.4)
+    s = model.initial
+    c, d = np.cos(0.3), np.sin(0.3)
+    cases = [
+        (dict(y0=s._replace(gamma=jnp.zeros(2))), r"y0.gamma has shape \(2,\); the model .* with 1 hinges needs \(1,\)"),
+        (dict(y0=s._replace(omega0=jnp.zeros(2))), r"y0.omega0 has shape \(2,\)"),
+        (dict(y0=s._replace(dcm=jnp.eye(2))), r"y0.dcm has shape \(2, 2\)"),
+        (dict(y0=s._replace(dcm=1.01 * jnp.eye(3))), r"y0.dcm is not a rotation matrix \(max \|C C\^T - I\| = 0.0201"),
+        (dict(y0=s._replace(dcm=jnp.diag(jnp.array([1.0, 1.0, -1.0])))), r"not a rotation matrix .* det C = -1"),
+        (dict(rtol=-1e-6), "rtol must be finite and non-negative"),
+        (dict(rtol=0.0, atol=0.0), "rtol and atol are both zero"),
+        (dict(max_steps=0), "max_steps must be at least 1"),
+    ]
+    for kwargs, message in cases:
+        with pytest.raises(ValueError, match=message):
+            simulate(model, 1.0, **kwargs)
+    rotated = jnp.array([[c, d, 0.0], [-d, c, 0.0], [0.0, 0.0, 1.0]])
+    sol = simulate(model, 1.0, y0=s._replace(dcm=rotated), saveat=2)
+    assert maxdiff(sol.dcm[0], rotated) < 1e-15
+
+
 def test_tolerances_and_step_controllers_may_be_traced():
     """A work-precision sweep vmapped over rtol/atol, and a diffrax controller built from a traced
     tolerance under jit: each run meets the closed form to about its tolerance (the failure check

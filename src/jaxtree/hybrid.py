@@ -796,14 +796,18 @@ def simulate_hybrid(
     eagerly, from a host callback at run time under ``jax.jit`` or ``jax.vmap`` (one for a whole
     batch). Tolerances, controllers and solvers may be traced (a vmapped tolerance sweep).
     """
-    from .simulate import SimulationError, _check_times, _warn_below_roundoff, default_tolerance
+    from .simulate import (SimulationError, _check_state, _check_times, _check_tolerances, _warn_below_roundoff,
+                           default_tolerance)
 
     dtype = jnp.result_type(hybrid.model.mass)
     rtol = default_tolerance(dtype) if rtol is None else rtol
     atol = default_tolerance(dtype) if atol is None else atol
+    _check_tolerances("simulate_hybrid", rtol, atol, max_steps)
     if stepsize_controller is None:
         _warn_below_roundoff(rtol, dtype, stacklevel=3)  # the caller of full_precision's wrapper
     y0 = hybrid.model.initial if y0 is None else y0
+    if isinstance(y0, State):
+        _check_state("simulate_hybrid", hybrid.model, y0)
     y = hybrid.pack(y0) if isinstance(y0, State) else jnp.asarray(y0, dtype)
     if y.shape != (hybrid.size,):
         raise ValueError(f"simulate_hybrid: flat state of size {hybrid.size} expected, got {y.shape}")

@@ -110,6 +110,45 @@ def _check_times(name, t0, t1, ts=None):
         raise ValueError(f"{name}: saveat[{i}] = {ts[i]:g} lies outside the integration from t0 = {a:g} to t1 = {b:g}")
 
 
+def _check_state(name, model: Model, state: State):
+    """A concrete initial :class:`~jaxtree.State`, checked before tracing: field shapes for the
+    model's n hinges (JAX would clamp out-of-range indices silently), and ``dcm`` a rotation
+    matrix (orthonormal, determinant +1). Traced fields are left alone."""
+    n = model.n
+    for field, shape in (("dcm", (3, 3)), ("omega0", (3,)), ("gamma", (n,)), ("gamma_dot", (n,))):
+        got = jnp.shape(getattr(state, field))
+        if got != shape:
+            raise ValueError(f"{name}: y0.{field} has shape {got}; the model '{model.name}' with {n} hinges "
+                             f"needs {shape}")
+    C = state.dcm
+    if isinstance(C, jax.core.Tracer):
+        return
+    C = np.asarray(C, float)
+    if not np.all(np.isfinite(C)):
+        return  # reported as a non-finite start
+    dtype = jnp.result_type(model.mass)
+    tol = max(1e-6, 1e3 * float(jnp.finfo(dtype).eps))
+    err = float(np.abs(C @ C.T - np.eye(3)).max())
+    if err > tol or np.linalg.det(C) < 0:
+        raise ValueError(f"{name}: y0.dcm is not a rotation matrix (max |C C^T - I| = {err:.3g}, "
+                         f"det C = {np.linalg.det(C):.6g}); give the direction cosines of Def. 9, {{b0}} = C {{i}}")
+
+
+def _check_tolerances(name, rtol, atol, max_steps):
+    """Concrete tolerances non-negative and not both zero, and at least one step allowed."""
+    if int(max_steps) < 1:
+        raise ValueError(f"{name}: max_steps must be at least 1, got {max_steps}")
+    values = {"rtol": rtol, "atol": atol}
+    if any(isinstance(x, jax.core.Tracer) for x in values.values()):
+        return
+    for label, x in values.items():
+        v = np.asarray(x, float)
+        if not np.all(np.isfinite(v)) or np.any(v < 0):
+            raise ValueError(f"{name}: {label} must be finite and non-negative, got {v.tolist()}")
+    if np.all(np.asarray(rtol, float) == 0) and np.all(np.asarray(atol, float) == 0):
+        raise ValueError(f"{name}: rtol and atol are both zero: no step would ever be accepted")
+
+
 def _warn_below_roundoff(rtol, dtype, stacklevel):
     """Warn when a concrete `rtol` is too small for `dtype`: below ~50 unit roundoffs the steps
     pile up (fig4_free in float32 over 10 s: 762 steps at 1e-5, 2759 at 3e-6, 7834 at 1e-6 with
@@ -761,7 +800,8 @@ def simulate(
       joint laws, prescription and external loads (``model.loads``) are used.
     - `t1`, `t0`: end and start times (``t1 < t0`` integrates backward).
     - `y0`: initial :class:`~jaxtree.State` (default ``model.initial``); entries of prescribed
-      hinges are ignored (they follow the prescription).
+      hinges are ignored (they follow the prescription). Field shapes and a proper rotation
+      ``dcm`` are checked before tracing.
     - `saveat`: a :class:`diffrax.SaveAt` (used as is; the final state is its last saved row),
       a number of evenly spaced save times (default 101), or an array of times (from `t0`
       toward `t1`, within the run; checked before tracing, as are finite `t0` and `t1`). Values
@@ -812,6 +852,7 @@ def simulate(
         rtol = default_tolerance(dtype)
     if atol is None:
         atol = default_tolerance(dtype)
+    _check_tolerances("simulate", rtol, atol, max_steps)
     if stepsize_controller is None:
         _warn_below_roundoff(rtol, dtype, stacklevel=3)  # the caller of full_precision's wrapper
     X0 = Xd0 = None
@@ -825,6 +866,7 @@ def simulate(
     y0 = model.initial if y0 is None else y0
     if not isinstance(y0, State):
         raise TypeError(f"y0: expected a jaxtree.State, got {type(y0).__name__}")
+    _check_state("simulate", model, y0)
     if solver is None:
         solver = dfx.Dopri8()
     if adjoint is None:
