@@ -449,3 +449,24 @@ def test_single_rigid_body_is_eulers_equations():
     np.testing.assert_allclose(np.asarray(wd), -np.linalg.solve(J, np.cross(w, J @ w)), rtol=1e-13, atol=1e-15)
     assert gdd.shape == (0,)
     np.testing.assert_allclose(np.asarray(jaxtree.mass_matrix(model, np.zeros(0))), J, rtol=1e-15)
+
+
+def test_wrong_state_shapes_are_named():
+    """A state vector of the wrong length fails with the function, the field and the shape the
+    model needs (not a broadcasting error deep inside, nor a clamped gather that runs), also under
+    jit; vmapped batches are checked per member."""
+    model = jaxtree.load_scene("chain10")
+    s = model.initial
+    need = r"the model 'chain10' with 10 hinges needs"
+    with pytest.raises(ValueError, match=rf"mass_matrix: gamma has shape \(9,\); {need} \(10,\)"):
+        jaxtree.mass_matrix(model, s.gamma[:-1])
+    with pytest.raises(ValueError, match=rf"forward_dynamics: gamma_dot has shape \(12,\); {need} \(10,\)"):
+        jaxtree.forward_dynamics(model, s.dcm, s.omega0, s.gamma, jnp.zeros(12))
+    with pytest.raises(ValueError, match=rf"forward_dynamics: omega0 has shape \(4,\); {need} \(3,\)"):
+        jax.jit(jaxtree.forward_dynamics)(model, s.dcm, jnp.zeros(4), s.gamma, s.gamma_dot)
+    with pytest.raises(ValueError, match=r"solve_accelerations: tau has shape \(3,\)"):
+        jaxtree.solve_accelerations(model, s, tau=jnp.zeros(3))
+    with pytest.raises(ValueError, match=r"kinetic_energy: dcm has shape \(2, 2\)"):
+        jaxtree.kinetic_energy(model, s._replace(dcm=jnp.eye(2)))
+    batch = jax.vmap(lambda g: jaxtree.forward_dynamics(model, s.dcm, s.omega0, g, s.gamma_dot)[1])(jnp.zeros((4, 10)))
+    assert batch.shape == (4, 10)

@@ -81,6 +81,24 @@ class Configuration(NamedTuple):
     inertia: jax.Array  # (len(model.massive), 3, 3) R_k I^k R_k^T of the massive bodies
 
 
+def _check_shapes(name, model, state=None, prefix="", **fields):
+    """Shapes of the state fields (and hinge-vector arguments) for the model's n hinges, checked
+    when tracing: a short or long vector would otherwise fail deep inside with a broadcasting
+    message, or be clamped by JAX's indexing and run. Under ``jax.vmap`` the shapes are those of
+    one member."""
+    n = model.n
+    expected = {"dcm": (3, 3), "omega0": (3,), "gamma": (n,), "gamma_dot": (n,), "tau": (n,)}
+    if state is not None:
+        fields = {**{f: getattr(state, f) for f in State._fields}, **fields}
+    for field, x in fields.items():
+        if x is None:
+            continue
+        got = jnp.shape(x)
+        if got != expected[field]:
+            raise ValueError(f"{name}: {prefix}{field} has shape {got}; the model '{model.name}' with {n} hinges needs "
+                             f"{expected[field]}")
+
+
 def _parents(model):
     return np.asarray(model.topology.parents, dtype=np.int32)
 
@@ -92,6 +110,7 @@ def _dtype(model, *xs):
 @full_precision
 def configuration(model: Model, gamma) -> Configuration:
     """Rotations (Eqs. 4-5, 21-22), hinge axes, hinge points and mass centers at angles `gamma`."""
+    _check_shapes("configuration", model, gamma=gamma)
     return _configuration(model, gamma)[0]
 
 
@@ -165,6 +184,7 @@ def mass_matrix(model: Model, gamma) -> jax.Array:
 
     Rows and columns: ``omega0`` (3, in {b^0}), then ``gamma_1 .. gamma_n``.
     """
+    _check_shapes("mass_matrix", model, gamma=gamma)
     cfg = configuration(model, gamma)
     return _mass_matrix(model, cfg)
 
@@ -225,6 +245,7 @@ def _velocities(model, cfg, omega):
 
 def hinge_torques(model: Model, gamma, gamma_dot):
     """Joint-law torques tau_k (Def. 21): springs and dampers on `model.sprung`, zero elsewhere."""
+    _check_shapes("hinge_torques", model, gamma=gamma, gamma_dot=gamma_dot)
     dtype = _dtype(model, gamma, gamma_dot)
     if not model.sprung:
         return jnp.zeros((model.n,), dtype)
@@ -322,6 +343,7 @@ def rotational_equations(model: Model, state: State, t=0.0, tau=None):
     `tau` (n,) adds hinge torques to the joint laws of the model. Prescribed hinges
     are not treated specially here (see :func:`solve_accelerations`).
     """
+    _check_shapes("rotational_equations", model, state, tau=tau)
     dtype = _dtype(model, state.gamma, state.gamma_dot, state.omega0)
     gamma = jnp.asarray(state.gamma, dtype)
     gamma_dot = jnp.asarray(state.gamma_dot, dtype)
@@ -368,6 +390,7 @@ def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelera
     column leave the matrix and ``a_{.j} gamma_ddot_j`` moves to the right side.
     The torque needed to hold the prescription is returned as `hold_torque`.
     """
+    _check_shapes("solve_accelerations", model, state, tau=tau)
     acc = _solve_accelerations(model, state, t, tau)
     _check_finite("solve_accelerations", model, state, t, tau, acc)
     return acc
@@ -491,6 +514,7 @@ def forward_dynamics(model: Model, dcm, omega0, gamma, gamma_dot, t=0.0):
     traced when it is None), prescribed hinges from `model.prescription`.
     Jittable and vmappable.
     """
+    _check_shapes("forward_dynamics", model, dcm=dcm, omega0=omega0, gamma=gamma, gamma_dot=gamma_dot)
     state = State(dcm, omega0, gamma, gamma_dot)
     acc = _solve_accelerations(model, state, t, None)
     _check_finite("forward_dynamics", model, state, t, None, acc)
@@ -510,12 +534,14 @@ def _momenta(model, state):
 @full_precision
 def kinetic_energy(model: Model, state: State):
     """Kinetic energy relative to the system mass center (the quadratic form of Eq. 1's matrix)."""
+    _check_shapes("kinetic_energy", model, state)
     return _energy_and_momentum(model, state)[0]
 
 
 @full_precision
 def angular_momentum(model: Model, state: State):
     """Angular momentum about the system mass center, inertial components ``{i}`` (3,)."""
+    _check_shapes("angular_momentum", model, state)
     return _energy_and_momentum(model, state)[1]
 
 
@@ -531,6 +557,7 @@ def _energy_and_momentum(model, state):
 @full_precision
 def mass_center_acceleration(model: Model, state: State, t=0.0):
     """Eq. (2): ``X_ddot = F / M`` in inertial components (zero when the model has no loads)."""
+    _check_shapes("mass_center_acceleration", model, state)
     cfg = configuration(model, state.gamma)
     dtype = cfg.R.dtype
     loads = external_loads(model, t, state, cfg)

@@ -35,6 +35,7 @@ from .control import AbstractController
 from .kinematics import full_precision
 from .dynamics import (
     SINGULAR_CONDITION,
+    _check_shapes,
     _energy_and_momentum,
     _matrix_condition,
     _null_direction_text,
@@ -114,12 +115,7 @@ def _check_state(name, model: Model, state: State):
     """A concrete initial :class:`~jaxtree.State`, checked before tracing: field shapes for the
     model's n hinges (JAX would clamp out-of-range indices silently), and ``dcm`` a rotation
     matrix (orthonormal, determinant +1). Traced fields are left alone."""
-    n = model.n
-    for field, shape in (("dcm", (3, 3)), ("omega0", (3,)), ("gamma", (n,)), ("gamma_dot", (n,))):
-        got = jnp.shape(getattr(state, field))
-        if got != shape:
-            raise ValueError(f"{name}: y0.{field} has shape {got}; the model '{model.name}' with {n} hinges "
-                             f"needs {shape}")
+    _check_shapes(name, model, state, prefix="y0.")
     C = state.dcm
     if isinstance(C, jax.core.Tracer):
         return
