@@ -694,41 +694,29 @@ class HybridSolution(eqx.Module):
 
 
 def _failure_code(result):
-    """0 for success, else the index + 1 of the failure in ``simulate._KINDS`` (as ``Solution.failure``)."""
-    from .simulate import _KINDS
+    """0 for success, else the ``Solution.failure`` code of :func:`jaxtree.simulate`."""
+    from .simulate import _result_code
 
-    R, code = dfx.RESULTS, lambda kind: _KINDS.index(kind) + 1
-    return jnp.where(result == R.successful, 0,
-                     jnp.where(result == R.max_steps_reached, code("max_steps"),
-                               jnp.where(result == R.dt_min_reached, code("dt_min"), code("other"))))
+    return jnp.where(result == dfx.RESULTS.successful, 0, _result_code(result))
 
 
 def _hybrid_failure_message(code, t, state, modal):
     """The report of failed hybrid runs (batch index, time, physical state, modal coordinates),
     or None when every run succeeded."""
-    from .simulate import _KINDS, _MESSAGES
+    from .simulate import _MESSAGES, _failure_report
 
-    code = np.asarray(code)
-    flat = code.reshape(-1)
-    bad = np.flatnonzero(flat)
-    if bad.size == 0:
-        return None
     np.set_printoptions(precision=6, suppress=False, linewidth=120)
-    lines = []
-    for b in bad[:3]:
-        idx = np.unravel_index(b, code.shape) if code.ndim else ()
-        pick = lambda x: np.asarray(x)[idx]  # noqa: E731
-        prefix = f"[batch index {tuple(int(i) for i in idx)}] " if code.ndim else ""
-        lines += [f"{prefix}jaxtree.simulate_hybrid: {_MESSAGES[_KINDS[int(flat[b]) - 1]]}.",
-                  f"  stopped at t = {float(pick(t)):.9g}",
-                  f"  omega0 = {pick(state.omega0)}", f"  gamma = {pick(state.gamma)}",
-                  f"  gamma_dot = {pick(state.gamma_dot)}", f"  C = {pick(state.dcm).tolist()}",
-                  f"  modal coordinates = {pick(modal)}"]
+
+    def describe(kind, pick):
+        lines = [f"jaxtree.simulate_hybrid: {_MESSAGES[kind]}.", f"  stopped at t = {float(pick(t)):.9g}",
+                 f"  omega0 = {pick(state.omega0)}", f"  gamma = {pick(state.gamma)}",
+                 f"  gamma_dot = {pick(state.gamma_dot)}", f"  C = {pick(state.dcm).tolist()}",
+                 f"  modal coordinates = {pick(modal)}"]
         if not all(np.all(np.isfinite(pick(x))) for x in state):
             lines.append("  diagnosis: the state is not finite")
-    if bad.size > 3:
-        lines.append(f"... and {bad.size - 3} more failed batch members")
-    return "\n".join(lines)
+        return "\n".join(lines)
+
+    return _failure_report(code, describe)
 
 
 @eqx.filter_jit
@@ -796,8 +784,8 @@ def simulate_hybrid(
     eagerly, from a host callback at run time under ``jax.jit`` or ``jax.vmap`` (one for a whole
     batch). Tolerances, controllers and solvers may be traced (a vmapped tolerance sweep).
     """
-    from .simulate import (SimulationError, _check_state, _check_times, _check_tolerances, _warn_below_roundoff,
-                           default_tolerance)
+    from .simulate import (SimulationError, _check_state, _check_times, _check_tolerances, _is_traced,
+                           _warn_below_roundoff, default_tolerance)
 
     dtype = jnp.result_type(hybrid.model.mass)
     rtol = default_tolerance(dtype) if rtol is None else rtol
@@ -819,8 +807,7 @@ def simulate_hybrid(
     t0a, t1a = jnp.asarray(t0, dtype), jnp.asarray(t1, dtype)
     dt0 = 1e-3 * (t1a - t0a) if dt0 is None else jnp.asarray(dt0, dtype)
     solver = dfx.Dopri8() if solver is None else solver
-    traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(
-        (hybrid, y, t0a, t1a, ts, rtol, atol, dt0, solver, stepsize_controller)))
+    traced = _is_traced((hybrid, y, t0a, t1a, ts, rtol, atol, dt0, solver, stepsize_controller))
     sol = _solve_hybrid(hybrid, y, t0a, t1a, ts, jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), dt0,
                         solver, stepsize_controller, int(max_steps), bool(throw and traced))
     if throw and not traced:

@@ -90,7 +90,7 @@ def _check_times(name, t0, t1, ts=None):
     ordered along the integration and within it (diffrax's own checks fire inside the compiled
     solve, under a long traceback). Traced values are left to run time."""
     values = [("t0", t0), ("t1", t1)] + ([] if ts is None else [("saveat", ts)])
-    if any(isinstance(x, jax.core.Tracer) for _, x in values):
+    if _is_traced([x for _, x in values]):
         return
     a, b = (float(np.asarray(x)) for x in (t0, t1))
     for label, x in values:
@@ -124,10 +124,10 @@ def _check_state(name, model: Model, state: State):
         return  # reported as a non-finite start
     dtype = jnp.result_type(model.mass)
     tol = max(1e-6, 1e3 * float(jnp.finfo(dtype).eps))
-    err = float(np.abs(C @ C.T - np.eye(3)).max())
-    if err > tol or np.linalg.det(C) < 0:
+    err, det = float(np.abs(C @ C.T - np.eye(3)).max()), float(np.linalg.det(C))
+    if err > tol or det < 0:
         raise ValueError(f"{name}: y0.dcm is not a rotation matrix (max |C C^T - I| = {err:.3g}, "
-                         f"det C = {np.linalg.det(C):.6g}); give the direction cosines of Def. 9, {{b0}} = C {{i}}")
+                         f"det C = {det:.6g}); give the direction cosines of Def. 9, {{b0}} = C {{i}}")
 
 
 def _check_tolerances(name, rtol, atol, max_steps):
@@ -135,7 +135,7 @@ def _check_tolerances(name, rtol, atol, max_steps):
     if int(max_steps) < 1:
         raise ValueError(f"{name}: max_steps must be at least 1, got {max_steps}")
     values = {"rtol": rtol, "atol": atol}
-    if any(isinstance(x, jax.core.Tracer) for x in values.values()):
+    if _is_traced(list(values.values())):
         return
     for label, x in values.items():
         v = np.asarray(x, float)
@@ -602,9 +602,8 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     stats["rhs_evaluations"] = _rhs_evaluations(solver, sol.stats, dt0 is not None)
     R = dfx.RESULTS
     ok = (sol.result == R.successful) | ((sol.result == R.event_occurred) & ~singular)
-    kind = jnp.where(sol.result == R.max_steps_reached, 1,
-                     jnp.where(sol.result == R.dt_min_reached, 2, jnp.where(singular, 3, 4)))
-    failure = jnp.where(start_ok, jnp.where(ok, 0, kind), _KINDS.index("nonfinite_start") + 1)
+    failure = jnp.where(start_ok, jnp.where(ok, 0, _result_code(sol.result, singular)),
+                        _KINDS.index("nonfinite_start") + 1)
     out = Solution(
         ts=ts_h, gamma=hist["gamma"], gamma_dot=hist["gamma_dot"], omega0=hist["omega0"], dcm=hist["dcm"],
         attitude=hist["attitude"], control_state=hist["control_state"], X=hist["X"], X_dot=hist["X_dot"],
@@ -702,24 +701,46 @@ def _format_failure(kind, t, state: State, condition, margin, attitude_name, res
     return "\n".join(lines)
 
 
-def _raise_from_callback(code, t, state, condition, margin, attitude_name, direction=None, labels=None):
+def _failure_report(code, describe):
+    """The message for the failed members of a (batch of) run(s), or None if none failed.
+
+    `code` holds ``_KINDS`` indices + 1 (0: success), with the batch's leading axes; for the
+    first three failed members ``describe(kind, pick)`` gives the lines of one report, where
+    ``pick(x)`` takes that member's entry of an array with the same leading axes."""
     code = np.asarray(code)
     flat = code.reshape(-1)
     bad = np.flatnonzero(flat)
     if bad.size == 0:
-        return
+        return None
     msgs = []
     for b in bad[:3]:
         idx = np.unravel_index(b, code.shape) if code.ndim else ()
-        pick = lambda x: np.asarray(x)[idx] if code.ndim else np.asarray(x)
-        st = State(*(pick(x) for x in state))
+        pick = lambda x, idx=idx: np.asarray(x)[idx]  # noqa: E731
         prefix = f"[batch index {tuple(int(i) for i in idx)}] " if code.ndim else ""
-        msgs.append(prefix + _format_failure(_KINDS[int(flat[b]) - 1], pick(t), st, pick(condition), pick(margin),
-                                             str(attitude_name), direction=None if direction is None else pick(direction),
-                                             labels=labels))
+        msgs.append(prefix + describe(_KINDS[int(flat[b]) - 1], pick))
     if bad.size > 3:
         msgs.append(f"... and {bad.size - 3} more failed batch members")
-    raise SimulationError("\n".join(msgs))
+    return "\n".join(msgs)
+
+
+def _raise_from_callback(code, t, state, condition, margin, attitude_name, direction=None, labels=None):
+    def describe(kind, pick):
+        return _format_failure(kind, pick(t), State(*(pick(x) for x in state)), pick(condition), pick(margin),
+                               str(attitude_name), direction=None if direction is None else pick(direction),
+                               labels=labels)
+
+    message = _failure_report(code, describe)
+    if message is not None:
+        raise SimulationError(message)
+
+
+def _result_code(result, singular=False):
+    """``_KINDS`` index + 1 of a failed diffrax result (whatever it is; success is masked by the
+    caller): step limit, step-size collapse, a singular Eq. (1) matrix (`singular`), or other."""
+    R, code = dfx.RESULTS, lambda kind: _KINDS.index(kind) + 1
+    return jnp.where(result == R.max_steps_reached, code("max_steps"),
+                     jnp.where(result == R.dt_min_reached, code("dt_min"),
+                               jnp.where(singular, code("singular_attitude"), code("other"))))
 
 
 def check_solution(sol: Solution) -> None:
