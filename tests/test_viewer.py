@@ -173,6 +173,11 @@ def test_mode_page_oscillates_the_shape_about_the_nominal_angles(tmp_path):
     want_pos, want_rot = two_body_closed_form(40.0, 3.0, axis, p, q, np.broadcast_to(np.eye(3), (T, 3, 3)), angle)
     np.testing.assert_allclose(pos, want_pos, atol=1e-6)
     np.testing.assert_allclose(rot, want_rot, atol=1e-6)
+    # A complex (gyroscopic) shape plays Im(shape e^{i w t}): i s gives s cos(w t).
+    _, pos_c, _ = embedded(viewer.mode_html(model, np.array([-1.5j]), 2.0, gamma=gamma0, amplitude=A))
+    cos_pos, _ = two_body_closed_form(40.0, 3.0, axis, p, q, np.broadcast_to(np.eye(3), (T, 3, 3)),
+                                      gamma0[0] + A * -1.5 * np.cos(2 * np.pi * np.arange(T) / T))
+    np.testing.assert_allclose(pos_c, cos_pos, atol=1e-6)
     # The default amplitude moves a mass center by 15 % of the radius (here, a long arm, before
     # the angle reaches 0.35 rad): the arm's largest excursion from the nominal pose.
     long_arm, *_ = two_body(q=(-2.0, 0.2, 0.05))
