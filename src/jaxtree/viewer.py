@@ -195,7 +195,7 @@ def _scene_geometry(model, positions):
     # about g), so the axis is the same constant vector in b_k's frame as in its parent's.
     hinges = []
     for k in range(1, n + 1):
-        length = float(np.clip(0.6 * half[k].max(), 0.04 * extent, 0.25 * extent))
+        length = float(np.clip(0.6 * half[k].max(), 0.005 * extent, 0.25 * extent))
         hinges.append({"body": k, "parent": int(model.topology.parents[k - 1]), "point": on_body[k - 1].tolist(),
                        "axis": g[k - 1].tolist(), "half_length": length})
     # The view: the middle of the box that holds every body in every frame, and the radius of
