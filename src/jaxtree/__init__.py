@@ -119,3 +119,4 @@ from .hybrid import (
     hybrid_equations as hybrid_equations,
     simulate_hybrid as simulate_hybrid,
 )
+from . import viewer as viewer
