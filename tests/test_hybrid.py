@@ -128,8 +128,8 @@ def fig4():
     of a_{.1} in the G terms of Eq. 30c)."""
     model = jaxtree.load_scene("fig4")
     model = eqx.tree_at(lambda m: m.hinge_on_body, model, model.hinge_on_body.at[0].set(jnp.array([0.25, 0, -0.3])))
-    hm = jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN)
-    assert hm.form == "first_order" and hm.kind == "gyroscopic" and not hm.precomputed
+    hm = jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN, basis="set")
+    assert hm.form == "first_order" and hm.kind == "gyroscopic" and hm.precomputed
     assert hm.large == (2, 3, 4) and hm.n_modes == 6
     return model, hm
 
@@ -139,7 +139,7 @@ def appendix():
     """Fig. C-1 with both rod hinges small and omega0 the only large variable: the precomputed
     (polynomial) path with real modes (Eq. 121), modes on the nominal spin Omega b3."""
     model, p = _appendix_c()
-    hm = jaxtree.hybrid_model(model, (1, 2), omega0=[0.0, 0.0, 1.0])
+    hm = jaxtree.hybrid_model(model, (1, 2), omega0=[0.0, 0.0, 1.0], basis="set")
     assert hm.form == "real" and hm.precomputed and hm.n_modes == 2 and hm.large == ()
     return model, p, hm
 
@@ -261,7 +261,10 @@ def test_rhs_reproduces_eq30(fig4, appendix):
     rng = np.random.default_rng(3)
     _, hm = fig4
     errs, caret = {}, {}
-    errs["fig4 A=5..10 first-order"], caret["fig4"] = check_rhs_against_eq30(hm, rng)
+    errs["fig4 A=5..10 first-order (precomputed)"], caret["fig4"] = check_rhs_against_eq30(hm, rng)
+    general = jaxtree.hybrid_model(hm.model, FIG4_SMALL, omega0=FIG4_SPIN, basis="set", precompute=False)
+    assert not general.precomputed
+    errs["fig4 A=5..10 first-order (general)"], _ = check_rhs_against_eq30(general, rng)
     # a coefficient a_01 without its caret part (the OCR's reading of Eq. 30c) would miss by far more
     assert caret["fig4"] > 100.0, caret
     # the dense solve of Eq. (118) (used when A is not a terminal appendage) on the same system
@@ -269,7 +272,7 @@ def test_rhs_reproduces_eq30(fig4, appendix):
     errs["fig4 A=5..10 first-order, dense solve"], _ = check_rhs_against_eq30(dense, rng)
     app, _, h = appendix
     errs["appendix C real (precomputed)"], _ = check_rhs_against_eq30(h, rng)
-    hf = jaxtree.hybrid_model(app, (1, 2), omega0=[0.0, 0.0, 1.0], form="first_order")
+    hf = jaxtree.hybrid_model(app, (1, 2), omega0=[0.0, 0.0, 1.0], form="first_order", basis="set")
     assert hf.precomputed and hf.form == "first_order"
     errs["appendix C first-order (precomputed)"], _ = check_rhs_against_eq30(hf, rng)
     print("max relative difference from Eq. (30):", errs)
@@ -318,7 +321,7 @@ def test_nominal_modal_block_and_left_eigenvector_scaling(fig4):
         np.testing.assert_allclose(np.sort(np.abs(lam.imag))[::2], sigma[:k], rtol=1e-9)
     # modal damping (end of Sec. III E, spinning case): i sigma -> -zeta sigma + i sigma
     zeta = 0.02
-    hd = jaxtree.hybrid_model(held, FIG4_SMALL, omega0=FIG4_SPIN, damping=zeta)
+    hd = jaxtree.hybrid_model(held, FIG4_SMALL, omega0=FIG4_SPIN, damping=zeta, basis="set")
     y = hd.pack(nominal)
     jac = modal_jacobian(hd, y)
     nx = 6
@@ -440,7 +443,7 @@ def test_truncation_error_decreases(fig4, fig4_run):
         assert all(errs[i + 1] < errs[i] for i in range(5)), errs
     assert panels[0] > 1e-2 and panels[4] < 0.2 * panels[0] and rates[4] < 0.02 * rates[0]
     # a model built with fewer modes is the masked one
-    small3 = jaxtree.hybrid_model(model, FIG4_SMALL, 3, omega0=FIG4_SPIN)
+    small3 = jaxtree.hybrid_model(model, FIG4_SMALL, 3, omega0=FIG4_SPIN, basis="set")
     np.testing.assert_allclose(np.asarray(small3.frequencies), np.asarray(hm.frequencies)[:3], rtol=1e-14)
     act = np.concatenate([np.arange(3), 6 + np.arange(3)])  # active columns of the masked model
     for a, b in ((small3.positions, hm.positions[:, act]), (small3.rates, hm.rates[:, act]),
@@ -448,7 +451,7 @@ def test_truncation_error_decreases(fig4, fig4_run):
                  (small3.kin_rhs, hm.kin_rhs[np.ix_(act, act)]), (small3.project, hm.project[act])):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-12 * float(np.abs(np.asarray(b)).max()))
     # a frequency cutoff keeps the modes below it
-    cut = jaxtree.hybrid_model(model, FIG4_SMALL, cutoff=12.0, omega0=FIG4_SPIN)
+    cut = jaxtree.hybrid_model(model, FIG4_SMALL, cutoff=12.0, omega0=FIG4_SPIN, basis="set")
     assert cut.n_modes == int(np.sum(np.asarray(hm.frequencies) <= 12.0)) == 4
 
 
@@ -517,8 +520,8 @@ def test_bad_input_messages(fig4):
         jaxtree.hybrid_model(model, FIG4_SMALL, cutoff=0.1, omega0=FIG4_SPIN)
     with pytest.raises(jaxtree.ModalError, match="form='real' needs real modes"):
         jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN, form="real")
-    with pytest.raises(ValueError, match="precompute=True"):
-        jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN, precompute=True)
+    with pytest.raises(ValueError, match="precompute=True"):  # the gimbal hinge has large hinges outboard
+        jaxtree.hybrid_model(model, (2,), precompute=True)
     with pytest.raises(ValueError, match="prescribed"):
         jaxtree.hybrid_model(model, (1, 5))
     with pytest.raises(ValueError, match="retain"):
