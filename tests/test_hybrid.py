@@ -552,3 +552,135 @@ def test_failures_are_reported_with_time_and_state_and_tolerances_may_be_traced(
     ends = jax.vmap(lambda tol: jaxtree.simulate_hybrid(hm, 12.0, y0=state, saveat=2, rtol=tol, atol=tol).gamma[-1])(tols)
     err = np.abs(np.asarray(ends) - np.asarray(ref.gamma[-1])).max(1)
     assert np.all(err < 1e3 * np.asarray(tols)) and err[1] < err[0]
+
+
+# ----------------------------------------------------------------------------- substructures (issue 11)
+def _wings(damping=True):
+    model = jaxtree.load_scene("wings")
+    if not damping:
+        model = eqx.tree_at(lambda m: m.damping, model, jnp.zeros_like(model.damping))
+    return model
+
+
+def test_precomputed_equals_general_with_loads_moving_platform_and_several_bases(fig4):
+    """The precomputed substructure terms give the same Eq. (118) as the general form (one jvp of
+    the whole Eq. 1 per right side) to round-off, at random large states: Fig. 4 with its
+    prescribed (moving) platform, gimbals, spinning rotor and a torque on the bus; and the wings with
+    each wing's outer hinges small, hanging from two different large bodies that move."""
+    rng = np.random.default_rng(12)
+    model, _ = fig4
+    loaded = model.with_loads(jaxtree.BodyTorque(0, [3.0, -2.0, 1.0], lambda t: jnp.sin(2.0 * t)))
+    cases = [(loaded, FIG4_SMALL, dict(omega0=FIG4_SPIN)), (_wings(), (2, 3, 4, 6, 7, 8), dict(omega0=[0.1, 0.0, 0.4]))]
+    for model, small, kw in cases:
+        pre = jaxtree.hybrid_model(model, small, **kw)
+        gen = jaxtree.hybrid_model(model, small, precompute=False, **kw)
+        assert pre.precomputed and not gen.precomputed and pre.basis == "substructure"
+        for _ in range(3):
+            y = pre.pack(random_state(model, rng))
+            t = jnp.asarray(rng.uniform(0, 3))
+            m1, r1 = equations_jit(pre, t, y)
+            m2, r2 = equations_jit(gen, t, y)
+            np.testing.assert_allclose(np.asarray(m1), np.asarray(m2), atol=1e-11 * float(np.abs(m2).max()))
+            np.testing.assert_allclose(np.asarray(r1), np.asarray(r2), atol=1e-11 * float(np.abs(r2).max()))
+    assert len({g.base for g in pre.groups}) == 2 and pre.modal_inverse is None  # two moving bases
+
+
+def test_substructure_modes_with_all_modes_reproduce_eq30(fig4):
+    """Each substructure's own held-base modes, all retained, are Eq. (30) in other coordinates:
+    Fig. 4's panels (gyroscopic, spinning) and the two damped wings (general first-order modes)."""
+    rng = np.random.default_rng(21)
+    model, _ = fig4
+    for hm in (jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN),
+               jaxtree.hybrid_model(_wings(), tuple(range(1, 9)), omega0=[0.0, 0.0, 0.3])):
+        assert hm.basis == "substructure"
+        worst, _ = check_rhs_against_eq30(hm, rng)
+        assert worst < 1e-10
+
+
+def test_held_base_modes_are_the_cantilever_modes():
+    """A wing's modes on its held base equal the set-A modes of the same wing on a hub made a
+    billion times heavier (jaxtree.linearize, checked against the Lagrange oracle elsewhere): the
+    base then does not move. Non-spinning and spinning nominal; frequencies to 1e-6."""
+    model = _wings(damping=False)
+    heavy = eqx.tree_at(lambda m: (m.mass, m.inertia), model,
+                        (model.mass.at[0].multiply(1e9), model.inertia.at[0].multiply(1e9)))
+    for spin in ([0.0, 0.0, 0.0], [0.0, 0.0, 0.4]):
+        hm = jaxtree.hybrid_model(model, (1, 2, 3, 4), omega0=spin)
+        ref = jaxtree.modes(jaxtree.linearize(heavy, (1, 2, 3, 4), omega0=spin))
+        np.testing.assert_allclose(np.sort(np.asarray(hm.frequencies)), np.sort(np.asarray(ref.frequencies)),
+                                   rtol=1e-6)
+
+
+def test_truncation_under_a_slew_falls_as_modes_are_added():
+    """A slew of the wings' hub by a smooth torque pulse, panels at rest: the error of the
+    truncated model against the all-mode one falls as modes are added per wing and vanishes with
+    all of them; a repeated frequency (the two identical wings) is never split."""
+    model = _wings(damping=False).with_loads(
+        jaxtree.BodyTorque(0, [0.0, 8.0, 3.0], lambda t: jaxtree.loads.thruster_pulse(t, 0.5, 1.0, rise=0.1)))
+    state = model.initial._replace(gamma=jnp.zeros(model.n), gamma_dot=jnp.zeros(model.n))
+    small = tuple(range(1, 9))
+    full = jaxtree.hybrid_model(model, small)
+    assert full.n_modes == 8 and len(full.groups) == 2
+    ts = np.linspace(0.0, 4.0, 41)
+    ref = jaxtree.simulate_hybrid(full, 4.0, y0=state, saveat=ts, rtol=TOL, atol=TOL)
+    S = np.arange(8)
+    assert np.abs(np.asarray(ref.gamma)[:, S]).max() > 1e-3  # the wings do bend
+    errs = []
+    for k in (1, 2, 3):
+        hm = jaxtree.hybrid_model(model, small, k)
+        assert hm.n_modes == 2 * k  # k per wing
+        sol = jaxtree.simulate_hybrid(hm, 4.0, y0=state, saveat=ts, rtol=TOL, atol=TOL)
+        errs.append(float(np.sqrt(np.mean((np.asarray(sol.gamma) - np.asarray(ref.gamma)) ** 2))))
+    print("rms wing-angle error of k = 1, 2, 3 modes per wing:", errs)
+    assert errs[0] > errs[1] > errs[2] > 0
+    # energy and angular momentum of the rebuilt vehicle: the torque changes H; after the pulse
+    # both stay constant up to the linearization error
+    after = ts > 2.0
+    H = np.asarray(ref.angular_momentum)[after]
+    assert np.abs(H - H[0]).max() < 1e-3 * np.abs(H[0]).max()
+    # the hybrid model's energy at t = 0 is the vehicle's (kinetic energy + springs)
+    e0 = float(jaxtree.kinetic_energy(model, ref.final._replace(gamma=state.gamma, gamma_dot=state.gamma_dot,
+                                                                 omega0=state.omega0, dcm=state.dcm)))
+    assert abs(float(ref.energy[0]) - e0) < 1e-12 * max(1.0, abs(e0))
+
+
+def test_projection_residual_of_the_initial_state():
+    """The start is projected on the retained modes, and the part left out is reported: zero for
+    all modes, the size of the missing modes' share for a truncated model."""
+    model = _wings(damping=False)
+    small = tuple(range(1, 9))
+    rng = np.random.default_rng(4)
+    g = np.zeros(model.n)
+    g[:8] = rng.normal(size=8) * 0.01
+    state = model.initial._replace(gamma=jnp.asarray(g), gamma_dot=jnp.zeros(model.n))
+    full = jaxtree.hybrid_model(model, small)
+    assert float(full.projection_residual(state)) < 1e-12
+    one = jaxtree.hybrid_model(model, small, 1)
+    r = float(one.projection_residual(state))
+    # independent: the same residual from a least-squares fit in the I-weighted norm is not needed;
+    # with one mode per wing the random start is mostly outside the retained modes
+    assert 0.2 < r < 1.0
+    sol = jaxtree.simulate_hybrid(one, 0.5, y0=state, saveat=3)
+    assert abs(float(sol.projection_residual) - r) < 1e-12
+
+
+def test_held_base_frequencies_are_differentiable_in_the_stiffness():
+    """d sigma / d k of a wing's held-base modes (substructure terms, held_base, modes traced with
+    kind='real') against central finite differences."""
+    from jaxtree import substructure as sub
+
+    model = _wings(damping=False)
+    grp = sub.substructures(model, (1, 2, 3, 4))[0]
+
+    def frequencies(stiffness):
+        m = eqx.tree_at(lambda m: m.stiffness, model, stiffness)
+        tm = sub.terms(m, grp, jnp.zeros(m.n))
+        I, J, K = sub.held_base(tm, jnp.zeros(6), jnp.zeros(6), stiffness[:4], jnp.zeros(4))
+        return jaxtree.modes(I, J, K, kind="real").frequencies
+
+    k0 = model.stiffness
+    jac = jax.jacrev(frequencies)(k0)
+    for i in range(4):
+        h = 1e-5 * float(k0[i])
+        fd = (frequencies(k0.at[i].add(h)) - frequencies(k0.at[i].add(-h))) / (2 * h)
+        np.testing.assert_allclose(np.asarray(jac[:, i]), np.asarray(fd), rtol=1e-6, atol=1e-9)

@@ -293,6 +293,19 @@ class HybridModel(eqx.Module):
             s,
         ])
 
+    def projection_residual(self, state: State):
+        """The part of the small motion of `state` outside the retained modes:
+        ``|[y; y'] - [positions; rates] s| / |[y; y']|`` with ``s`` the projection of
+        :meth:`pack` (0 when the motion lies in the retained modes)."""
+        dtype = jnp.result_type(self.model.mass)
+        S = np.asarray(self.small, dtype=np.int64) - 1
+        x = jnp.concatenate([jnp.asarray(state.gamma, dtype)[S] - self.gamma_nominal.astype(dtype)[S],
+                             jnp.asarray(state.gamma_dot, dtype)[S]])
+        s = self.pack(state)[self.size - self.m:] * self._keep_m().astype(dtype)
+        back = jnp.concatenate([self.positions @ s, self.rates @ s])
+        norm = jnp.sqrt(jnp.sum(x * x))
+        return jnp.sqrt(jnp.sum((x - back) ** 2)) / jnp.maximum(norm, jnp.finfo(dtype).tiny)
+
     def modal(self, y):
         """The modal coordinates ``s`` of a flat state."""
         return self.unpack(y)[4]
@@ -992,6 +1005,14 @@ class HybridSolution(eqx.Module):
     `t_final` (where the run stopped: `t1` unless it failed), `result` (:class:`diffrax.RESULTS`),
     `stats` (diffrax's step counts), `hybrid`, and at `t_final` the physical
     :class:`~jaxtree.State` `final` and the modal coordinates `final_modal`.
+
+    For drift checks, at the saved times: `energy` (T,), the kinetic energy relative to the
+    system mass center of the physical state plus the potential energy of the hinge springs, and
+    `angular_momentum` (T, 3) about the system mass center in inertial components (both of the
+    full vehicle rebuilt from the modal coordinates: constant for a free vehicle without damping
+    up to the linearization and truncation errors). `projection_residual`: the part of the
+    initial small motion outside the retained modes, ``|[y; y'] - [positions; rates] s| /
+    |[y; y']|`` (0 when the start lies in the retained modes; NaN for a flat start).
     """
 
     ts: jax.Array
@@ -1007,10 +1028,24 @@ class HybridSolution(eqx.Module):
     hybrid: HybridModel
     final: State | None = None
     final_modal: jax.Array | None = None
+    energy: jax.Array | None = None
+    angular_momentum: jax.Array | None = None
+    projection_residual: jax.Array | None = None
 
     @property
     def ok(self) -> bool:
         return bool(np.all(np.asarray(self.result == dfx.RESULTS.successful)))
+
+    def energy_drift(self):
+        """``max |E - E_0| / |E_0|`` over the saved times."""
+        e = jnp.asarray(self.energy)
+        return jnp.max(jnp.abs(e - e[0])) / jnp.maximum(jnp.abs(e[0]), jnp.finfo(e.dtype).tiny)
+
+    def momentum_drift(self):
+        """``max |H - H_0| / |H_0|`` over the saved times."""
+        h = jnp.asarray(self.angular_momentum)
+        norm = lambda x: jnp.sqrt(jnp.sum(x * x, -1))
+        return jnp.max(norm(h - h[0])) / jnp.maximum(norm(h[0]), jnp.finfo(h.dtype).tiny)
 
 
 def _failure_code(result):
@@ -1040,7 +1075,18 @@ def _hybrid_failure_message(code, t, state, modal):
 
 
 @eqx.filter_jit
-def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, max_steps, report):
+def _energy_and_momentum(model, state):
+    """Kinetic energy plus the hinge springs' potential energy, and the angular momentum."""
+    from .dynamics import _energy_and_momentum as em
+
+    T, H = em(model, state)
+    if model.sprung:
+        k = np.asarray(model.sprung, np.int64) - 1
+        T = T + 0.5 * jnp.sum(model.stiffness[k] * state.gamma[k] ** 2)
+    return T, H
+
+
+def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, max_steps, report, residual):
     if controller is None:
         controller = dfx.PIDController(rtol=rtol, atol=atol, pcoeff=0.3, icoeff=0.3,
                                        dtmin=1e-12 * jnp.abs(t1 - t0), force_dtmin=False)
@@ -1056,10 +1102,12 @@ def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, m
     t_final, y_final = ts_f[i], ys_f[i]
     states = jax.vmap(hybrid.state)(ts_h, ys_h)
     final = hybrid.state(t_final, y_final)
+    energy, momentum = jax.vmap(lambda st: _energy_and_momentum(hybrid.model, st))(states)
     out = HybridSolution(
         ts=ts_h, omega0=states.omega0, dcm=states.dcm, gamma=states.gamma, gamma_dot=states.gamma_dot,
         modal=jax.vmap(hybrid.modal)(ys_h), ys=ys_h, t_final=t_final, result=sol.result,
         stats=dict(sol.stats), hybrid=hybrid, final=final, final_modal=hybrid.modal(y_final),
+        energy=energy, angular_momentum=momentum, projection_residual=residual,
     )
     if report:
         # Under a caller's jit/vmap: report failures from one host callback (for a whole batch).
@@ -1117,6 +1165,7 @@ def simulate_hybrid(
     if isinstance(y0, State):
         _check_state("simulate_hybrid", hybrid.model, y0)
     y = hybrid.pack(y0) if isinstance(y0, State) else jnp.asarray(y0, dtype)
+    residual = hybrid.projection_residual(y0) if isinstance(y0, State) else jnp.asarray(np.nan, dtype)
     if y.shape != (hybrid.size,):
         raise ValueError(f"simulate_hybrid: flat state of size {hybrid.size} expected, got {y.shape}")
     if isinstance(saveat, (int, np.integer)) and not isinstance(saveat, bool):
@@ -1129,7 +1178,7 @@ def simulate_hybrid(
     solver = dfx.Dopri8() if solver is None else solver
     traced = _is_traced((hybrid, y, t0a, t1a, ts, rtol, atol, dt0, solver, stepsize_controller))
     sol = _solve_hybrid(hybrid, y, t0a, t1a, ts, jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), dt0,
-                        solver, stepsize_controller, int(max_steps), bool(throw and traced))
+                        solver, stepsize_controller, int(max_steps), bool(throw and traced), residual)
     if throw and not traced:
         message = _hybrid_failure_message(_failure_code(sol.result), sol.t_final, sol.final, sol.final_modal)
         if message is not None:

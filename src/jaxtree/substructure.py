@@ -94,26 +94,41 @@ def _local_topology(model, sub: Substructure) -> Topology:
     return Topology(parents, (model.names[sub.base],) + tuple(model.names[k] for k in sub.hinges))
 
 
-def _gauss(model, sub, topo, gamma, yd, v):
+class _Bodies(NamedTuple):
+    """The substructure's data (its bodies in ascending order, the base first with no mass)."""
+
+    mass: jax.Array  # (nu+1,)
+    inertia: jax.Array  # (nu+1, 3, 3)
+    axis: jax.Array  # (nu, 3)
+    hinge_on_parent: jax.Array  # (nu, 3)
+    hinge_on_body: jax.Array  # (nu, 3)
+
+
+def _bodies(model, sub: Substructure) -> _Bodies:
+    h = np.asarray(sub.hinges, np.int64) - 1
+    bodies = np.concatenate([[0], h + 1])
+    return _Bodies(model.mass[bodies].at[0].set(0.0), model.inertia[bodies].at[0].set(0.0), model.axis[h],
+                   model.hinge_on_parent[h], model.hinge_on_body[h])
+
+
+def _gauss(topo, d: _Bodies, gamma, yd, v):
     """``(A (6+nu, 6+nu), b (6+nu,))`` of the substructure's Gauss function at its angles `gamma`,
     rates `yd` and base velocity `v` (6: angular, linear at the base's mass center, {b} comps)."""
-    h = np.asarray(sub.hinges, np.int64) - 1
-    nu = len(h)
+    nu = gamma.shape[0]
     dtype = gamma.dtype
-    axis = model.axis[h].astype(dtype)
+    axis = d.axis.astype(dtype)
     R = body_rotations(topo, axis, gamma)  # body i -> {b} components; R[0] = U
     par = np.asarray(topo.parents, np.int64)
-    to_hinge = mv(R[par], model.hinge_on_parent[h].astype(dtype))  # the root's: from b's mass center, {b}
-    from_hinge = -mv(R[1:], model.hinge_on_body[h].astype(dtype))
+    to_hinge = mv(R[par], d.hinge_on_parent.astype(dtype))  # the root's: from b's mass center, {b}
+    from_hinge = -mv(R[1:], d.hinge_on_body.astype(dtype))
     zero = jnp.zeros((1, 3), dtype)
     r = ancestor_sum(topo, jnp.concatenate([zero, to_hinge + from_hinge], 0))  # mass centers from b's
     hp = r[par] + to_hinge
     g = mv(R[par], axis)
     Sw, Su = g, cross(hp, g)
     # bodies of the substructure: inertia about b's mass center, velocities, bias accelerations
-    bodies = np.concatenate([[0], h + 1])
-    mass = model.mass[bodies].astype(dtype).at[0].set(0.0)
-    Jc = mm(mm(R, model.inertia[bodies].astype(dtype)), jnp.swapaxes(R, -1, -2)).at[0].set(0.0)
+    mass = d.mass.astype(dtype)
+    Jc = mm(mm(R, d.inertia.astype(dtype)), jnp.swapaxes(R, -1, -2))
     eye = jnp.eye(3, dtype=dtype)
     J = Jc + mass[:, None, None] * (jnp.sum(r * r, -1)[:, None, None] * eye - r[:, :, None] * r[:, None, :])
     hm = mass[:, None] * r
@@ -150,27 +165,27 @@ class Terms(eqx.Module):
 
 
 @eqx.filter_jit
-def _terms(model, sub: Substructure, gamma_bar):
-    topo = _local_topology(model, sub)
-    nu = len(sub.hinges)
+def _terms(topo, d: _Bodies, gamma_bar):
+    # one compilation per substructure shape: identical wings share it
+    nu = gamma_bar.shape[0]
     dtype = gamma_bar.dtype
     zn, z6 = jnp.zeros(nu, dtype), jnp.zeros(6, dtype)
-    A = lambda y: _gauss(model, sub, topo, gamma_bar + y, zn, z6)[0]
-    b = lambda y, yd, v: _gauss(model, sub, topo, gamma_bar + y, yd, v)[1]
+    A = lambda y: _gauss(topo, d, gamma_bar + y, zn, z6)[0]
+    b = lambda y, yd, v: _gauss(topo, d, gamma_bar + y, yd, v)[1]
     A0 = A(zn)
     A1 = jax.jacfwd(A)(zn)
     hess_v = lambda y: jax.hessian(lambda v: b(y, zn, v))(z6)
     G0 = hess_v(zn)
     G1 = jax.jacfwd(hess_v)(zn)
     G2 = jax.jacfwd(lambda yd: jax.jacfwd(lambda v: b(zn, yd, v))(z6))(zn)
-    mass = jnp.sum(model.mass[np.asarray(sub.hinges, np.int64)].astype(dtype))
-    return Terms(A0, A1, G0, G1, G2, mass)
+    return Terms(A0, A1, G0, G1, G2, jnp.sum(d.mass.astype(dtype)))
 
 
 def terms(model, sub: Substructure, gamma_nominal) -> Terms:
     """The Taylor coefficients of `sub` at the nominal angles (all n; its own entries are used)."""
     h = np.asarray(sub.hinges, np.int64) - 1
-    return _terms(model, sub, jnp.asarray(gamma_nominal)[h])
+    topo = Topology(_local_topology(model, sub).parents)  # unnamed: equal shapes share a compilation
+    return _terms(topo, _bodies(model, sub), jnp.asarray(gamma_nominal)[h])
 
 
 def held_base(t: Terms, v, c, stiffness, damping):
