@@ -684,3 +684,45 @@ def test_held_base_frequencies_are_differentiable_in_the_stiffness():
         h = 1e-5 * float(k0[i])
         fd = (frequencies(k0.at[i].add(h)) - frequencies(k0.at[i].add(-h))) / (2 * h)
         np.testing.assert_allclose(np.asarray(jac[:, i]), np.asarray(fd), rtol=1e-6, atol=1e-9)
+
+
+def test_gross_deformation_of_a_chain_limits_eq30():
+    """The report's claim (Abstract, Sec. I B) that the modal coordinates of Eq. (30) allow large
+    gross deformations with small local ones, tried on the sprung 50-segment chain: 25 hinges bent
+    by theta/25 each (local angles <= 0.08 rad, the tip turned by theta relative to the root),
+    released, 2 s, against the full Eq. (1). Eq. (30) with every mode retained (the hybrid model
+    adds only truncation to it) has a relative error that grows like theta^2, the gross rotation:
+    a few 1e-3 at theta = 0.25 rad, about 10 % at theta = 1 rad, where the all-linear
+    vehicle-normal-mode model (Eq. 42, Sec. III B, integrated by scipy) is *more* accurate, not less
+    (docs/errata_hybrid.md #8)."""
+    from scipy.integrate import solve_ivp
+
+    model = jaxtree.load_scene("chain50")
+    n = model.n
+    yh = np.flatnonzero(np.abs(np.asarray(model.axis)[:, 1]) > 0.5)  # the 25 hinges about b_2
+    ts = np.linspace(0.0, 2.0, 41)
+    hm = jaxtree.hybrid_model(model, tuple(range(1, n + 1)))
+    lin = jaxtree.linearize_vehicle(model)
+    I, J, K = (np.asarray(x) for x in lin)
+    Ii = np.linalg.inv(I)
+    out = {}
+    for theta in (0.25, 1.0):
+        g = np.zeros(n)
+        g[yh] = theta / len(yh)
+        s = model.initial._replace(gamma=jnp.asarray(g), gamma_dot=jnp.zeros(n), omega0=jnp.zeros(3))
+        ref = jaxtree.simulate(model, 2.0, y0=s, saveat=ts, rtol=1e-10, atol=1e-10)
+        G = np.asarray(ref.gamma)
+        assert np.abs(G).max() < 0.08 and np.abs(G[:, yh].sum(1)).max() >= 0.99 * theta
+        hyb = jaxtree.simulate_hybrid(hm, 2.0, y0=s, saveat=ts, rtol=1e-10, atol=1e-10)
+        nu = I.shape[0]  # three attitude angles, then the hinges
+        x0 = np.concatenate([np.zeros(3), g, np.zeros(nu)])
+        r = solve_ivp(lambda t, x: np.concatenate([x[nu:], -Ii @ (J @ x[nu:] + K @ x[:nu])]), (0.0, 2.0), x0,
+                      t_eval=ts, rtol=1e-10, atol=1e-10, method="DOP853")
+        scale = np.abs(G).max()
+        out[theta] = (float(np.abs(np.asarray(hyb.gamma) - G).max() / scale),
+                      float(np.abs(r.y[3:nu].T - G).max() / scale))
+    print("relative error of the hinge angles (Eq. 30, all-linear):", out)
+    (e30_small, lin_small), (e30_big, lin_big) = out[0.25], out[1.0]
+    assert e30_small < 0.02 and e30_big > 0.05
+    assert 8.0 < e30_big / e30_small < 32.0  # ~ (1 / 0.25)^2: governed by the gross rotation
+    assert lin_big < e30_big
