@@ -72,6 +72,8 @@ def as_float(value, what: str, shape=None, *, finite: bool = True) -> np.ndarray
     raises too: call this only on concrete data."""
     if isinstance(value, jax.core.Tracer):
         raise SceneTypeError(f"{what} is traced (inside jax.jit / vmap / grad); it needs a concrete value here")
+    if value is None:
+        raise SceneTypeError(f"{what} must be numeric, got None")
     if isinstance(value, (str, bytes)):
         raise SceneTypeError(f"{what} must be numeric, got the string {short(value)}")
     try:
@@ -81,6 +83,8 @@ def as_float(value, what: str, shape=None, *, finite: bool = True) -> np.ndarray
                          f"got {short(value)}") from None
     kind = a.dtype.kind
     if kind == "O":
+        if any(x is None for x in a.flat):
+            raise SceneTypeError(f"{what} must be numeric, got None in {short(value)}")
         try:
             a = np.asarray(value, dtype=float)
         except OverflowError:

@@ -230,7 +230,7 @@ def _initial(initial, n):
     omega0 = vec("omega0", 3)
     C = initial.get("dcm")
     C = np.eye(3) if C is None else rotation(C, "initial: field 'attitude_dcm'")
-    return State(jnp.asarray(C), jnp.asarray(omega0), jnp.asarray(gamma), jnp.asarray(gamma_dot))
+    return State(C, omega0, gamma, gamma_dot)  # numpy: build_model makes the JAX arrays after all checks
 
 
 # ----------------------------------------------------------------------------- building
@@ -341,6 +341,24 @@ def build_model(
             sine.append((k, j))
         elif isinstance(j, Prescribed):
             funcs.append((k, j))
+    state = _initial(initial, n)
+    massive = tuple(k for k in range(n + 1) if masses[k] > 0)
+    heavy = np.zeros(n + 1, dtype=bool)
+    heavy[list(massive)] = True
+    for k in sprung:
+        if not heavy[topology.path_elements[k - 1].astype(bool)].any():
+            raise SceneError(
+                f"{_where(k, names[k])}: field 'joint' puts a spring or damper on a hinge with only massless "
+                "bodies outboard (zero inertia about the hinge: the motion is undetermined)"
+            )
+    if loads is not None:
+        if not isinstance(loads, BodyLoads):
+            raise SceneTypeError(f"loads: expected a jaxtree.BodyLoads, got {short(loads)}")
+        for k in loads.bodies:
+            if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not 0 <= int(k) <= n:
+                raise SceneError(f"loads: body index {short(k)} is not in 0..{n}")
+
+    # every check passed: only now make JAX arrays (nothing above touches JAX)
     parts = []
     if sine:
         parts.append(
@@ -359,23 +377,6 @@ def build_model(
     elif parts:
         prescription = _PrescriptionGroup(sum((p.hinges for p in parts), ()), tuple(parts))
 
-    state = _initial(initial, n)
-    massive = tuple(k for k in range(n + 1) if masses[k] > 0)
-    heavy = np.zeros(n + 1, dtype=bool)
-    heavy[list(massive)] = True
-    for k in sprung:
-        if not heavy[topology.path_elements[k - 1].astype(bool)].any():
-            raise SceneError(
-                f"{_where(k, names[k])}: field 'joint' puts a spring or damper on a hinge with only massless "
-                "bodies outboard (zero inertia about the hinge: the motion is undetermined)"
-            )
-    if loads is not None:
-        if not isinstance(loads, BodyLoads):
-            raise SceneTypeError(f"loads: expected a jaxtree.BodyLoads, got {short(loads)}")
-        for k in loads.bodies:
-            if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not 0 <= int(k) <= n:
-                raise SceneError(f"loads: body index {short(k)} is not in 0..{n}")
-
     return Model(
         mass=jnp.asarray(masses),
         inertia=jnp.asarray(np.stack(inertias)),
@@ -384,7 +385,7 @@ def build_model(
         hinge_on_body=jnp.asarray(np.reshape(np.asarray(on_body, dtype=float), (n, 3))),
         stiffness=jnp.asarray(stiffness),
         damping=jnp.asarray(damping),
-        initial=state,
+        initial=State(*(jnp.asarray(x) for x in state)),
         prescription=prescription,
         loads=loads,
         topology=topology,

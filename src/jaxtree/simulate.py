@@ -920,20 +920,8 @@ def simulate(
     _check_tolerances("simulate", rtol, atol, max_steps)
     if stepsize_controller is None:
         _warn_below_roundoff(rtol, dtype, stacklevel=3)  # the caller of full_precision's wrapper
-    X0 = Xd0 = None
-    if isinstance(translation, tuple):
-        X0, Xd0 = translation
-        translation = True
-    control_size = 0
-    if controller is not None:
-        control_size = sum(int(np.prod(x.shape)) for x in jax.tree_util.tree_leaves(jax.eval_shape(controller.initial)))
-    problem = Problem(model, att, law, controller, params, bool(translation), control_size)
     y0 = model.initial if y0 is None else y0
     _check_state("simulate", model, y0)
-    if solver is None:
-        solver = dfx.Dopri8()
-    if adjoint is None:
-        adjoint = dfx.RecursiveCheckpointAdjoint()
     grid, user_saveat = None, False
     if isinstance(saveat, dfx.SaveAt):
         if saveat.subs is None:
@@ -945,14 +933,28 @@ def simulate(
             raise SceneError(f"simulate: saveat: need at least 2 save points, got {grid}")
         saveat = None
     else:
-        if not _is_traced(saveat):
-            as_float(saveat, "simulate: saveat", finite=False)
-        saveat = jnp.asarray(saveat, dtype)
-        if saveat.ndim != 1:
+        shape = jnp.shape(saveat) if _is_traced(saveat) else as_float(saveat, "simulate: saveat", finite=False).shape
+        if len(shape) != 1:
             raise SceneError(f"simulate: saveat: expected a number of save points or a 1-D array of times, "
-                             f"got shape {saveat.shape}")
-    _check_times("simulate", t0, t1, saveat if isinstance(saveat, jax.Array) else None)
+                             f"got shape {shape}")
+    _check_times("simulate", t0, t1, None if grid is not None or user_saveat else saveat)
     ev, has_guard, user_event = _combine_events(event, att)
+    meter = _progress_meter(progress)
+    # every argument is checked: from here on JAX may trace
+    if not (grid is not None or user_saveat):
+        saveat = jnp.asarray(saveat, dtype)
+    X0 = Xd0 = None
+    if isinstance(translation, tuple):
+        X0, Xd0 = translation
+        translation = True
+    control_size = 0
+    if controller is not None:
+        control_size = sum(int(np.prod(x.shape)) for x in jax.tree_util.tree_leaves(jax.eval_shape(controller.initial)))
+    problem = Problem(model, att, law, controller, params, bool(translation), control_size)
+    if solver is None:
+        solver = dfx.Dopri8()
+    if adjoint is None:
+        adjoint = dfx.RecursiveCheckpointAdjoint()
     traced = _is_traced((model, y0, t0, t1, params, controller, law, saveat, ev, translation, X0, Xd0, rtol, atol,
                          dt0, solver, stepsize_controller, adjoint))
     if not traced and throw:
@@ -963,8 +965,7 @@ def simulate(
     opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced))
     as_array = lambda x: None if x is None else jnp.asarray(x, dtype)
     sol = _solve(problem, y0, as_array(X0), as_array(Xd0), as_array(t0), as_array(t1), as_array(rtol),
-                 as_array(atol), as_array(dt0), solver, stepsize_controller, saveat, adjoint, ev,
-                 _progress_meter(progress), opts)
+                 as_array(atol), as_array(dt0), solver, stepsize_controller, saveat, adjoint, ev, meter, opts)
     needs_law = model.prescription is not None
     diag = _diagnostics(model, law if needs_law else None, controller if needs_law else None,
                         params if needs_law else None, sol.ts,
