@@ -41,6 +41,7 @@ from .dynamics import (
     _matrix_condition,
     _null_direction_text,
     _unknown_labels,
+    _unknown_rows,
     mass_center_acceleration,
     rotational_equations,
     solve_accelerations,
@@ -571,6 +572,32 @@ def _last_finite(ts):
     return jnp.maximum(jnp.max(jnp.where(jnp.isfinite(ts), idx, -1)), 0)
 
 
+# A pivot d_i^2 of the Cholesky factorization A = L L^T of Eq. (1)'s matrix (unknown rows) is
+# at round-off level when d_i^2 / A_ii < SINGULAR_PIVOT sqrt(m) eps (m rows, eps the unit roundoff).
+# d_i^2 / A_ii are the pivots of the Jacobi-scaled matrix D^-1/2 A D^-1/2, so mass ratios do not
+# enter. Measured on this project's scenes (40 random states each, float64 and float32): exact
+# gimbal locks give pivots of 1.5-114 eps (fig4_free: 40 eps with m = 13; chain200 with a gimbal:
+# 114 eps with m = 206) or fail the factorization (NaN); regular states give at least 5e-5
+# (panels95 and chain200 at random angles: 480 eps in float32, where the threshold is 200 eps).
+SINGULAR_PIVOT = 20.0
+
+
+def _singular(problem: Problem, t, y):
+    """True when the Eq. (1) matrix at (t, y) is singular to working precision (see
+    SINGULAR_PIVOT): one factorization, no eigenvalues. An exactly singular matrix may leave the
+    factorization a pivot at round-off level instead of failing it, and the solve then returns
+    finite garbage; this catches both."""
+    model = problem.model
+    state = problem.state(t, y)
+    A = rotational_equations(model, state, t)[0]
+    u = _unknown_rows(model)
+    A = A[np.ix_(u, u)]
+    L = jax.lax.linalg.cholesky(A, symmetrize_input=False)
+    pivot = jnp.diagonal(L) ** 2 / jnp.diagonal(A)
+    tol = SINGULAR_PIVOT * math.sqrt(len(u)) * float(jnp.finfo(A.dtype).eps)
+    return ~(jnp.min(pivot) > tol)  # a failed factorization (NaN) is singular too
+
+
 def _initial_step(problem: Problem, y0, t0, t1):
     """A first step of about 0.01 rad of the fastest rotation (no vector-field evaluation, so
     nothing more to compile); the step-size controller corrects it within a few steps."""
@@ -598,9 +625,13 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     dtype = jnp.result_type(problem.model.mass)
     y = problem.pack(y0, None, X0, Xd0)
     # A non-finite start cannot be integrated: NaN error estimates give NaN steps until max_steps
-    # (a vmapped batch would wait for its worst member). Integrate the vehicle at rest in its
-    # place, report "nonfinite_start" and return NaN histories for such a run.
-    start_ok = jnp.all(jnp.isfinite(y))
+    # (a vmapped batch would wait for its worst member). Nor can a start where Eq. (1) is singular
+    # to working precision (exact gimbal lock): the accelerations are undetermined, and the
+    # factorization may even return finite garbage. Integrate the vehicle at rest in their place,
+    # report "nonfinite_start" / "singular_start" and return NaN histories for such a run.
+    finite_start = jnp.all(jnp.isfinite(y))
+    singular_start = finite_start & _singular(problem, t0, jax.lax.stop_gradient(y))
+    start_ok = finite_start & ~singular_start
     n, z3 = problem.model.n, jnp.zeros(3, dtype)
     rest = problem.pack(State(jnp.eye(3, dtype=dtype), z3, jnp.zeros(n, dtype), jnp.zeros(n, dtype)))
     y_start = y
@@ -647,7 +678,8 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     R = dfx.RESULTS
     ok = (sol.result == R.successful) | ((sol.result == R.event_occurred) & ~singular)
     failure = jnp.where(start_ok, jnp.where(ok, 0, _result_code(sol.result, singular)),
-                        _KINDS.index("nonfinite_start") + 1)
+                        jnp.where(singular_start, _KINDS.index("singular_start") + 1,
+                                  _KINDS.index("nonfinite_start") + 1))
     out = Solution(
         ts=ts_h, gamma=hist["gamma"], gamma_dot=hist["gamma_dot"], omega0=hist["omega0"], dcm=hist["dcm"],
         attitude=hist["attitude"], control_state=hist["control_state"], X=hist["X"], X_dot=hist["X_dot"],
@@ -694,7 +726,7 @@ def _report(host, args):
 
 
 # ----------------------------------------------------------------------------- failures
-_KINDS = ("max_steps", "dt_min", "singular_attitude", "other", "nonfinite_start")
+_KINDS = ("max_steps", "dt_min", "singular_attitude", "other", "nonfinite_start", "singular_start")
 
 
 def _failure_kind(sol: Solution):
@@ -716,6 +748,8 @@ _MESSAGES = {
                          "tolerance of Eq. 24); use attitude='quaternion' or 'dcm'",
     "other": "the solver failed",
     "nonfinite_start": "the initial state is not finite",
+    "singular_start": "the Eq. (1) matrix is singular at the initial state to working precision (a pivot of its "
+                      "Cholesky factorization is at round-off level): the accelerations are undetermined",
 }
 
 
