@@ -428,8 +428,8 @@ def validate_model(model: Model) -> Model:
              "hinge_on_body": (n, 3), "stiffness": (n,), "damping": (n,)}
     for k in tails:
         x = getattr(model, k)
-        kind = getattr(np.asarray(x) if isinstance(x, (np.ndarray, jax.Array)) else None, "dtype", None)
-        if kind is None or kind.kind != "f":
+        kind = x.dtype if isinstance(x, (np.ndarray, jax.Array)) else None
+        if kind is None or not jnp.issubdtype(kind, jnp.floating):
             raise SceneTypeError(f"model: field {k!r} must be a floating-point array, got "
                                  f"{short(x) if kind is None else f'an array of {kind}'}")
     shapes = {k: np.shape(getattr(model, k)) for k in tails}
@@ -504,7 +504,7 @@ def _validate_leaves_of(model: Model) -> None:
     for field, tail in (("dcm", (3, 3)), ("omega0", (3,)), ("gamma", (n,)), ("gamma_dot", (n,))):
         x = getattr(model.initial, field)
         what = f"model: field 'initial.{field}'"
-        if not isinstance(x, (np.ndarray, jax.Array)) or np.asarray(x).dtype.kind != "f":
+        if not isinstance(x, (np.ndarray, jax.Array)) or not jnp.issubdtype(x.dtype, jnp.floating):
             raise SceneTypeError(f"{what} must be a floating-point array, got {short(x)}")
         x = np.asarray(x, float)
         if x.shape[x.ndim - len(tail):] != tail or x.ndim < len(tail):
