@@ -263,6 +263,9 @@ def build_model(
         raise SceneError("bodies: a scene needs at least the reference body")
     if not isinstance(name, str):
         raise SceneTypeError(f"name: expected a string, got {short(name)}")
+    if not isinstance(method, str):
+        raise SceneTypeError(f"method: must be 'auto', 'dense' or 'articulated', got {short(method)}")
+    _method(method)
     n = len(bodies) - 1
     for k, b in enumerate(bodies):
         if not isinstance(b.name, str) or not b.name:
