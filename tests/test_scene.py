@@ -120,7 +120,6 @@ CASES = {
                          "'joint.function'"),
     "stiffness_nan": (_set(7, "joint", {"kind": "spring_damper", "stiffness": None}), "body 7",
                       "'joint.stiffness'"),
-    "unknown_field": (_set(7, "colour", "red"), "body 7", "unknown fields"),
     "duplicate_name": (_set(7, "name", "panel_2"), "body 7", "'name'", "duplicates body 6"),
     "gamma_length": (lambda d: d["initial"].__setitem__("gamma", [0.0] * 9), "initial", "'gamma'", "length 10"),
     "dcm_not_rotation": (lambda d: d["initial"].__setitem__("attitude_dcm", [[1, 0, 0], [0, 1, 0], [0, 0, -1]]),

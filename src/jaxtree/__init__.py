@@ -33,6 +33,7 @@ from .scene import (
     PrescribedSine as PrescribedSine,
     Prescribed as Prescribed,
     SceneError as SceneError,
+    SceneWarning as SceneWarning,
     build_model as build_model,
     validate_model as validate_model,
     load_scene as load_scene,

@@ -80,6 +80,7 @@ import numpy as np
 from . import substructure as _sub
 from .articulated import _force_cross, _inertia_apply, _inertia_matrix, _motion_cross
 from .attitude import AbstractAttitude, get_attitude
+from . import _checks
 from .dynamics import configuration, mass_matrix, rotational_equations
 from .kinematics import ancestor_sum, body_rotations, cross, full_precision, mm, mv
 from .linearize import linearize, resolve_hinges
@@ -846,6 +847,8 @@ def hybrid_model(
 
     **Returns:** :class:`HybridModel`.
     """
+    _checks.hybrid_model_args(model, small, n_modes, cutoff=cutoff, omega0=omega0, gamma=gamma, dcm=dcm,
+                              damping=damping, form=form, precompute=precompute, attitude=attitude, rtol=rtol, basis=basis)
     S = resolve_hinges(model, small)
     L = tuple(k for k in model.unknown_hinges if k not in S)
     dtype = jnp.result_type(model.mass)

@@ -43,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .dynamics import rotational_equations
+from . import _checks
 from .kinematics import full_precision, tilde
 from .model import Model, State
 
@@ -244,6 +245,7 @@ def linearized_equations(model: Model, small, state: State, *, omega0_dot=None, 
 
     **Returns:** :class:`PartialLinearization` (all n + 3 rows of Eq. 1).
     """
+    _checks.linearized_equations_args(model, small, state, omega0_dot, gamma_ddot, t)
     hinges = resolve_hinges(model, small)
     dtype = model.mass.dtype
     n = model.n
@@ -286,6 +288,7 @@ def linearize(model: Model, small, *, omega0=None, gamma=None, dcm=None, t=0.0) 
 
     **Returns:** :class:`LinearSystem` (unpacks as ``I, J, K``).
     """
+    _checks.linearize_args("linearize", model, small, omega0=omega0, gamma=gamma, dcm=dcm, t=t)
     hinges = resolve_hinges(model, small)
     w, g, C = _nominal(model, omega0, gamma, dcm)
     I, J, K, bias = _held(model, hinges, C, w, g, jnp.asarray(t, g.dtype))
@@ -334,6 +337,7 @@ def linearize_vehicle(model: Model, *, omega0=None, gamma=None, dcm=None, t=0.0,
     rigid rotations (about the spin axis when spinning; all three at rest) have zero
     stiffness, and :func:`jaxtree.modes` reports them as zero-frequency rigid-body modes.
     """
+    _checks.linearize_args("linearize_vehicle", model, small, omega0=omega0, gamma=gamma, dcm=dcm, t=t)
     if small is None:
         hinges = model.unknown_hinges
         if not hinges:

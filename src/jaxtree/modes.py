@@ -47,6 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .linearize import LinearSystem, structure
+from . import _checks
 
 __all__ = ["Modes", "ModalError", "UnstableError", "DefectiveError", "modes", "first_order"]
 
@@ -279,6 +280,7 @@ def modes(I, J=None, K=None, *, damping=None, kind: str | None = None, labels: S
     eigenvectors are fine. In the real and gyroscopic cases the result is
     differentiable (``jax.grad`` of `frequencies`) for distinct nonzero frequencies.
     """
+    _checks.modes_args(I, J, K, damping, kind, labels, rtol)
     hinges_of = ()
     if isinstance(I, LinearSystem):
         lin = I

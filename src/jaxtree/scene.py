@@ -13,13 +13,15 @@ import json
 import os
 import pathlib
 import tempfile
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._checks import (SceneError, SceneTypeError, SceneWarning, as_float, is_traced, rotation, short,
+                      unknown_keys)
 from .model import BodyLoads, Model, Prescription, SinePrescription, State
 from .topology import Topology
 
@@ -30,6 +32,7 @@ __all__ = [
     "PrescribedSine",
     "Prescribed",
     "SceneError",
+    "SceneWarning",
     "build_model",
     "validate_model",
     "load_scene",
@@ -42,10 +45,6 @@ __all__ = [
 
 FORMAT = "jaxtree-scene/1"
 _SCENES = pathlib.Path(__file__).resolve().parent / "scenes"
-
-
-class SceneError(ValueError):
-    """Invalid vehicle description; the message names the body and the field."""
 
 
 # ----------------------------------------------------------------------------- joints
@@ -122,36 +121,17 @@ def _where(k, name):
 
 
 def _vector(value, k, name, field, length=3):
-    try:
-        a = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise SceneError(f"{_where(k, name)}: field {field!r} must be numeric, got {value!r}") from None
-    if a.shape != (length,):
-        raise SceneError(f"{_where(k, name)}: field {field!r} must have length {length}, got shape {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise SceneError(f"{_where(k, name)}: field {field!r} must be finite, got {a.tolist()}")
-    return a
+    return as_float(value, f"{_where(k, name)}: field {field!r}", (length,))
 
 
 def _scalar(value, k, name, field):
-    try:
-        a = float(value)
-    except (TypeError, ValueError):
-        raise SceneError(f"{_where(k, name)}: field {field!r} must be a number, got {value!r}") from None
-    if not np.isfinite(a):
-        raise SceneError(f"{_where(k, name)}: field {field!r} must be finite, got {a}")
-    return a
+    if value is None:
+        raise SceneError(f"{_where(k, name)}: field {field!r} is missing")
+    return float(as_float(value, f"{_where(k, name)}: field {field!r}", ()))
 
 
 def _inertia(value, mass, k, name):
-    try:
-        J = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise SceneError(f"{_where(k, name)}: field 'inertia' must be a 3x3 numeric matrix") from None
-    if J.shape != (3, 3):
-        raise SceneError(f"{_where(k, name)}: field 'inertia' must be 3x3, got shape {J.shape}")
-    if not np.all(np.isfinite(J)):
-        raise SceneError(f"{_where(k, name)}: field 'inertia' must be finite")
+    J = as_float(value, f"{_where(k, name)}: field 'inertia'", (3, 3))
     scale = max(float(np.abs(J).max()), 1e-300)
     tol = 1e-9 * scale
     if np.abs(J - J.T).max() > tol:
@@ -169,31 +149,49 @@ def _inertia(value, mass, k, name):
     return 0.5 * (J + J.T)
 
 
+_JOINT_KEYS = {"free": {"kind"}, "spring_damper": {"kind", "stiffness", "damping"},
+               "prescribed": {"kind", "function", "amplitude", "frequency", "phase"}}
+
+
 def _joint(joint, k, name):
     if isinstance(joint, (Free, SpringDamper, PrescribedSine, Prescribed)):
         j = joint
     elif isinstance(joint, dict):
-        kind = joint.get("kind")
+        if "kind" not in joint:
+            raise SceneError(f"{_where(k, name)}: field 'joint.kind' is missing (expected 'free', 'spring_damper' "
+                             "or 'prescribed')")
+        kind = joint["kind"]
+        if not isinstance(kind, str) or kind not in _JOINT_KEYS:
+            raise SceneError(
+                f"{_where(k, name)}: unknown joint kind {short(kind)} in field 'joint' "
+                "(expected 'free', 'spring_damper' or 'prescribed')"
+            )
+        unknown_keys(joint, _JOINT_KEYS[kind], f"{_where(k, name)}: field 'joint' ({kind})")
         if kind == "free":
             j = Free()
         elif kind == "spring_damper":
-            j = SpringDamper(joint.get("stiffness", 0.0), joint.get("damping", 0.0))
-        elif kind == "prescribed":
+            if "stiffness" not in joint:
+                raise SceneError(f"{_where(k, name)}: field 'joint.stiffness' is missing (a spring_damper needs it; "
+                                 "use 0 for a pure damper)")
+            j = SpringDamper(joint["stiffness"], joint.get("damping", 0.0))
+        else:
             fn = joint.get("function")
             if fn != "sine":
-                raise SceneError(f"{_where(k, name)}: field 'joint.function' must be 'sine', got {fn!r}")
-            j = PrescribedSine(joint.get("amplitude"), joint.get("frequency"), joint.get("phase", 0.0))
-        else:
-            raise SceneError(
-                f"{_where(k, name)}: unknown joint kind {kind!r} in field 'joint' "
-                "(expected 'free', 'spring_damper' or 'prescribed')"
-            )
+                raise SceneError(f"{_where(k, name)}: field 'joint.function' must be 'sine', got {short(fn)}")
+            for field in ("amplitude", "frequency"):
+                if field not in joint:
+                    raise SceneError(f"{_where(k, name)}: field 'joint.{field}' is missing")
+            j = PrescribedSine(joint["amplitude"], joint["frequency"], joint.get("phase", 0.0))
     elif joint is None:
         j = Free()
     else:
-        raise SceneError(f"{_where(k, name)}: field 'joint' has an unknown joint {joint!r}")
+        raise SceneTypeError(f"{_where(k, name)}: field 'joint' has an unknown joint {short(joint)}")
     if isinstance(j, SpringDamper):
         j = SpringDamper(_scalar(j.stiffness, k, name, "joint.stiffness"), _scalar(j.damping, k, name, "joint.damping"))
+        for field, value in (("stiffness", j.stiffness), ("damping", j.damping)):
+            if value < 0:
+                raise SceneError(f"{_where(k, name)}: field 'joint.{field}' must be >= 0, got {value} (a negative "
+                                 f"{'spring' if field == 'stiffness' else 'damper'} is no spring_damper)")
     if isinstance(j, PrescribedSine):
         j = PrescribedSine(
             _scalar(j.amplitude, k, name, "joint.amplitude"),
@@ -201,40 +199,38 @@ def _joint(joint, k, name):
             _scalar(j.phase, k, name, "joint.phase"),
         )
     if isinstance(j, Prescribed) and not callable(j.fn):
-        raise SceneError(f"{_where(k, name)}: field 'joint.fn' must be callable")
+        raise SceneTypeError(f"{_where(k, name)}: field 'joint.fn' must be callable")
     return j
 
 
+_INITIAL_KEYS = {"gamma", "gamma_dot", "omega0", "dcm", "attitude_dcm"}
+
+
 def _initial(initial, n):
-    initial = {} if initial is None else dict(initial)
-    if isinstance(initial.get("dcm"), type(None)) and "attitude_dcm" in initial:
+    if isinstance(initial, State):
+        initial = initial._asdict()
+    elif initial is None:
+        initial = {}
+    elif not isinstance(initial, dict):
+        raise SceneTypeError(f"initial: expected an object with fields {sorted(_INITIAL_KEYS)} or a jaxtree.State, "
+                             f"got {short(initial)}")
+    initial = dict(initial)
+    unknown_keys(initial, _INITIAL_KEYS, "initial")
+    if initial.get("dcm") is not None and initial.get("attitude_dcm") is not None:
+        raise SceneError("initial: give the attitude once, as 'dcm' or as 'attitude_dcm', not both")
+    if initial.get("dcm") is None and "attitude_dcm" in initial:
         initial["dcm"] = initial.pop("attitude_dcm")
-    known = {"gamma", "gamma_dot", "omega0", "dcm"}
-    extra = set(initial) - known
-    if extra:
-        raise SceneError(f"initial: unknown fields {sorted(extra)} (expected {sorted(known)} or 'attitude_dcm')")
 
-    def vec(field, length, default):
-        v = initial.get(field, default)
-        try:
-            a = np.asarray(v, dtype=float)
-        except (TypeError, ValueError):
-            raise SceneError(f"initial: field {field!r} must be numeric") from None
-        if a.shape != (length,):
-            raise SceneError(f"initial: field {field!r} must have length {length}, got shape {a.shape}")
-        if not np.all(np.isfinite(a)):
-            raise SceneError(f"initial: field {field!r} must be finite")
-        return a
+    def vec(field, length):
+        v = initial.get(field)
+        return np.zeros(length) if v is None else as_float(v, f"initial: field {field!r}", (length,))
 
-    gamma = vec("gamma", n, np.zeros(n))
-    gamma_dot = vec("gamma_dot", n, np.zeros(n))
-    omega0 = vec("omega0", 3, np.zeros(3))
-    C = np.asarray(initial.get("dcm", np.eye(3)), dtype=float)
-    if C.shape != (3, 3) or not np.all(np.isfinite(C)):
-        raise SceneError(f"initial: field 'attitude_dcm' must be a finite 3x3 matrix, got shape {C.shape}")
-    if np.abs(C @ C.T - np.eye(3)).max() > 1e-9 or np.linalg.det(C) < 0:
-        raise SceneError("initial: field 'attitude_dcm' must be a proper rotation (orthonormal, det +1)")
-    return State(jnp.asarray(C), jnp.asarray(omega0), jnp.asarray(gamma), jnp.asarray(gamma_dot))
+    gamma = vec("gamma", n)
+    gamma_dot = vec("gamma_dot", n)
+    omega0 = vec("omega0", 3)
+    C = initial.get("dcm")
+    C = np.eye(3) if C is None else rotation(C, "initial: field 'attitude_dcm'")
+    return State(C, omega0, gamma, gamma_dot)  # numpy: build_model makes the JAX arrays after all checks
 
 
 # ----------------------------------------------------------------------------- building
@@ -260,48 +256,72 @@ def build_model(
 
     Raises :class:`SceneError` naming the body and field of any invalid input.
     """
+    if isinstance(bodies, (str, bytes, dict)) or not isinstance(bodies, Iterable):
+        raise SceneTypeError(f"bodies: expected a list of Body records or objects, got {short(bodies)}")
     bodies = [b if isinstance(b, Body) else _body_from_dict(b, i) for i, b in enumerate(bodies)]
     if not bodies:
         raise SceneError("bodies: a scene needs at least the reference body")
+    if not isinstance(name, str):
+        raise SceneTypeError(f"name: expected a string, got {short(name)}")
+    if not isinstance(method, str):
+        raise SceneTypeError(f"method: must be 'auto', 'dense' or 'articulated', got {short(method)}")
+    _method(method)
     n = len(bodies) - 1
-    names = [str(b.name) for b in bodies]
+    for k, b in enumerate(bodies):
+        if not isinstance(b.name, str) or not b.name:
+            raise SceneTypeError(f"body {k}: field 'name' must be a non-empty string, got {short(b.name)}")
+    names = [b.name for b in bodies]
+    first = {}
     for k, nm in enumerate(names):
-        if names.index(nm) != k:
-            raise SceneError(f"{_where(k, nm)}: field 'name' duplicates body {names.index(nm)}")
+        if nm in first:
+            raise SceneError(f"{_where(k, nm)}: field 'name' duplicates body {first[nm]}")
+        first[nm] = k
 
     parents, axes, on_parent, on_body, masses, inertias, joints = [], [], [], [], [], [], []
     for k, b in enumerate(bodies):
         nm = names[k]
+        if b.mass is None:
+            raise SceneError(f"{_where(k, nm)}: field 'mass' is missing")
         m = _scalar(b.mass, k, nm, "mass")
         if m < 0:
             raise SceneError(f"{_where(k, nm)}: field 'mass' must be >= 0, got {m}")
         masses.append(m)
+        if b.inertia is None:
+            raise SceneError(f"{_where(k, nm)}: field 'inertia' is missing")
         inertias.append(_inertia(b.inertia, m, k, nm))
         if k == 0:
             if b.parent is not None:
                 raise SceneError(f"{_where(0, nm)}: the reference body must not have a 'parent'")
+            for field in ("axis", "hinge_on_parent", "hinge_on_body"):
+                if getattr(b, field) is not None:
+                    raise SceneError(f"{_where(0, nm)}: the reference body has no hinge: remove field {field!r}")
+            if not (b.joint is None or isinstance(b.joint, Free) or (isinstance(b.joint, dict) and b.joint == {"kind": "free"})):
+                raise SceneError(f"{_where(0, nm)}: the reference body has no hinge: remove field 'joint'")
             continue
         if b.parent is None:
             raise SceneError(f"{_where(k, nm)}: field 'parent' is missing (every body but the first needs one)")
         p = b.parent
         if isinstance(p, str):
             if p not in names[:k]:
+                later = f" (body {names.index(p)}: parents come before children)" if p in names else ""
                 raise SceneError(
-                    f"{_where(k, nm)}: field 'parent' names {p!r}, which is not an earlier body (Def. 4)"
+                    f"{_where(k, nm)}: field 'parent' names {p!r}, which is not an earlier body{later} (Def. 4)"
                 )
             p = names.index(p)
-        if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or not 0 <= int(p) < k:
+        if isinstance(p, (bool, np.bool_)) or not isinstance(p, (int, np.integer)) or not 0 <= int(p) < k:
             raise SceneError(
-                f"{_where(k, nm)}: field 'parent' must be an index in 0..{k - 1} (Def. 4: parents before children), got {p!r}"
+                f"{_where(k, nm)}: field 'parent' must be an index in 0..{k - 1} (Def. 4: parents before children), "
+                f"got {short(p)}"
             )
         parents.append(int(p))
         if b.axis is None:
             raise SceneError(f"{_where(k, nm)}: field 'axis' is missing")
         g = _vector(b.axis, k, nm, "axis")
-        norm = np.linalg.norm(g)
+        big = float(np.abs(g).max())
+        norm = big * float(np.linalg.norm(g / big)) if big > 0 else 0.0  # no overflow for huge entries
         if norm < 1e-12:
             raise SceneError(f"{_where(k, nm)}: field 'axis' must be a nonzero 3-vector, got {g.tolist()}")
-        axes.append(g / norm)
+        axes.append((g / big) / (norm / big))
         for field, store in (("hinge_on_parent", on_parent), ("hinge_on_body", on_body)):
             v = getattr(b, field)
             if v is None:
@@ -310,7 +330,7 @@ def build_model(
         joints.append(_joint(b.joint, k, nm))
 
     if sum(masses) <= 0:
-        raise SceneError("bodies: the total mass must be positive")
+        raise SceneError("bodies: the total mass must be positive (field 'mass' is 0 on every body)")
     topology = Topology(parents, names)
 
     stiffness = np.zeros(n)
@@ -324,6 +344,24 @@ def build_model(
             sine.append((k, j))
         elif isinstance(j, Prescribed):
             funcs.append((k, j))
+    state = _initial(initial, n)
+    massive = tuple(k for k in range(n + 1) if masses[k] > 0)
+    heavy = np.zeros(n + 1, dtype=bool)
+    heavy[list(massive)] = True
+    for k in sprung:
+        if not heavy[topology.path_elements[k - 1].astype(bool)].any():
+            raise SceneError(
+                f"{_where(k, names[k])}: field 'joint' puts a spring or damper on a hinge with only massless "
+                "bodies outboard (zero inertia about the hinge: the motion is undetermined)"
+            )
+    if loads is not None:
+        if not isinstance(loads, BodyLoads):
+            raise SceneTypeError(f"loads: expected a jaxtree.BodyLoads, got {short(loads)}")
+        for k in loads.bodies:
+            if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not 0 <= int(k) <= n:
+                raise SceneError(f"loads: body index {short(k)} is not in 0..{n}")
+
+    # every check passed: only now make JAX arrays (nothing above touches JAX)
     parts = []
     if sine:
         parts.append(
@@ -342,21 +380,6 @@ def build_model(
     elif parts:
         prescription = _PrescriptionGroup(sum((p.hinges for p in parts), ()), tuple(parts))
 
-    state = initial if isinstance(initial, State) else _initial(initial, n)
-    massive = tuple(k for k in range(n + 1) if masses[k] > 0)
-    heavy = np.zeros(n + 1, dtype=bool)
-    heavy[list(massive)] = True
-    for k in sprung:
-        if not heavy[topology.path_elements[k - 1].astype(bool)].any():
-            raise SceneError(
-                f"{_where(k, names[k])}: field 'joint' puts a spring or damper on a hinge with only massless "
-                "bodies outboard (zero inertia about the hinge: the motion is undetermined)"
-            )
-    if loads is not None:
-        for k in loads.bodies:
-            if not 0 <= int(k) <= n:
-                raise SceneError(f"loads: body index {k} outside 0..{n}")
-
     return Model(
         mass=jnp.asarray(masses),
         inertia=jnp.asarray(np.stack(inertias)),
@@ -365,7 +388,7 @@ def build_model(
         hinge_on_body=jnp.asarray(np.reshape(np.asarray(on_body, dtype=float), (n, 3))),
         stiffness=jnp.asarray(stiffness),
         damping=jnp.asarray(damping),
-        initial=state,
+        initial=State(*(jnp.asarray(x) for x in state)),
         prescription=prescription,
         loads=loads,
         topology=topology,
@@ -398,12 +421,20 @@ def validate_model(model: Model) -> Model:
     field, e.g. ``run (17,): body 0 ('bus'): field 'inertia' violates the triangle inequality``;
     returns `model` unchanged.
     """
-    if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(model)):
-        raise TypeError("validate_model needs concrete arrays: call it on the model (or batch of models) "
-                        "before jax.jit / jax.vmap, not inside")
+    if not isinstance(model, Model):
+        raise SceneTypeError(f"validate_model: expected a jaxtree.Model, got {short(model)}")
+    if is_traced(model):
+        raise SceneTypeError("validate_model needs concrete arrays: call it on the model (or batch of models) "
+                             "before jax.jit / jax.vmap, not inside")
     n, names = model.n, model.names
     tails = {"mass": (n + 1,), "inertia": (n + 1, 3, 3), "axis": (n, 3), "hinge_on_parent": (n, 3),
              "hinge_on_body": (n, 3), "stiffness": (n,), "damping": (n,)}
+    for k in tails:
+        x = getattr(model, k)
+        kind = x.dtype if isinstance(x, (np.ndarray, jax.Array)) else None
+        if kind is None or not jnp.issubdtype(kind, jnp.floating):
+            raise SceneTypeError(f"model: field {k!r} must be a floating-point array, got "
+                                 f"{short(x) if kind is None else f'an array of {kind}'}")
     shapes = {k: np.shape(getattr(model, k)) for k in tails}
     for k, tail in tails.items():
         if shapes[k][len(shapes[k]) - len(tail):] != tail:
@@ -459,10 +490,45 @@ def validate_model(model: Model) -> Model:
     for field in ("hinge_on_parent", "hinge_on_body"):
         v = leaf(getattr(model, field), (n, 3))
         fail(~np.isfinite(v).all(-1), lambda r, k, v=v, f=field: f"field {f!r} must be finite, got {v[r][k - 1].tolist()}", 1)
+    sprung = np.zeros(n, dtype=bool)
+    sprung[np.asarray(model.sprung, dtype=np.int64) - 1] = True
     for field in ("stiffness", "damping"):
         v = leaf(getattr(model, field), (n,))
         fail(~np.isfinite(v), lambda r, k, v=v, f=field: f"field 'joint.{f}' must be finite, got {v[r][k - 1]}", 1)
+        fail(sprung & (v < 0), lambda r, k, v=v, f=field: f"field 'joint.{f}' must be >= 0, got {v[r][k - 1]}", 1)
+    _validate_leaves_of(model)
     return model
+
+
+def _validate_leaves_of(model: Model) -> None:
+    """The initial state and the sine prescription of a (batch of) model(s): finite, of the
+    model's shapes (after any batch axes), and ``initial.dcm`` a rotation."""
+    n = model.n
+    for field, tail in (("dcm", (3, 3)), ("omega0", (3,)), ("gamma", (n,)), ("gamma_dot", (n,))):
+        x = getattr(model.initial, field)
+        what = f"model: field 'initial.{field}'"
+        if not isinstance(x, (np.ndarray, jax.Array)) or not jnp.issubdtype(x.dtype, jnp.floating):
+            raise SceneTypeError(f"{what} must be a floating-point array, got {short(x)}")
+        x = np.asarray(x, float)
+        if x.shape[x.ndim - len(tail):] != tail or x.ndim < len(tail):
+            raise SceneError(f"{what} must end in shape {tail}, got {x.shape}")
+        if not np.all(np.isfinite(x)):
+            raise SceneError(f"{what} must be finite")
+        if field == "dcm":
+            tol = max(1e-6, 1e3 * float(np.finfo(np.asarray(model.initial.dcm).dtype).eps))
+            err = np.abs(x @ np.swapaxes(x, -1, -2) - np.eye(3)).max()
+            if err > tol or np.any(np.linalg.det(x) < 0):
+                raise SceneError(f"{what} must be a proper rotation matrix (orthonormal, det +1): "
+                                 f"max |C C^T - I| = {err:.3g}")
+    pres = model.prescription
+    if isinstance(pres, SinePrescription):
+        for field in ("amplitude", "frequency", "phase"):
+            v = np.asarray(getattr(pres, field), float)
+            bad = ~np.isfinite(v)
+            if bad.any():
+                i = int(np.argwhere(bad)[0][-1])
+                k = pres.hinges[i]
+                raise SceneError(f"{_where(k, model.names[k])}: field 'joint.{field}' must be finite")
 
 
 _BODY_KEYS = {"name", "mass", "inertia", "parent", "axis", "hinge_on_parent", "hinge_on_body", "joint"}
@@ -470,26 +536,38 @@ _BODY_KEYS = {"name", "mass", "inertia", "parent", "axis", "hinge_on_parent", "h
 
 def _body_from_dict(d, k):
     if not isinstance(d, dict):
-        raise SceneError(f"body {k}: expected an object, got {type(d).__name__}")
-    extra = set(d) - _BODY_KEYS
-    if extra:
-        raise SceneError(f"{_where(k, d.get('name', '?'))}: unknown fields {sorted(extra)}")
+        raise SceneTypeError(f"body {k}: expected an object, got {short(d)}")
+    name = d.get("name", "?")
+    unknown_keys(d, _BODY_KEYS, _where(k, name) if isinstance(name, str) else f"body {k}")
     for field in ("name", "mass", "inertia"):
         if field not in d:
-            raise SceneError(f"{_where(k, d.get('name', '?'))}: field {field!r} is missing")
+            raise SceneError(f"{_where(k, name)}: field {field!r} is missing")
     return Body(**{key: d[key] for key in _BODY_KEYS if key in d})
 
 
 # ----------------------------------------------------------------------------- JSON
+_SCENE_KEYS = {"format", "name", "description", "bodies", "initial"}
+
+
 def scene_from_dict(data: dict) -> Model:
-    """Build a model from a parsed ``jaxtree-scene/1`` document."""
+    """Build a model from a parsed ``jaxtree-scene/1`` document.
+
+    Raises :class:`SceneError` naming the body and the field of any invalid entry; an unknown
+    key (anywhere) gives a :class:`SceneWarning` naming it and is ignored."""
     if not isinstance(data, dict):
-        raise SceneError("scene: expected a JSON object")
+        raise SceneTypeError(f"scene: expected a JSON object, got {short(data)}")
     if data.get("format") != FORMAT:
-        raise SceneError(f"scene: field 'format' must be {FORMAT!r}, got {data.get('format')!r}")
+        raise SceneError(f"scene: field 'format' must be {FORMAT!r}, got {short(data.get('format'))}")
+    unknown_keys(data, _SCENE_KEYS, "scene")
     if "bodies" not in data or not isinstance(data["bodies"], list):
         raise SceneError("scene: field 'bodies' must be a list")
-    return build_model(data["bodies"], data.get("initial"), name=str(data.get("name", "")))
+    for field in ("name", "description"):
+        if not isinstance(data.get(field, ""), str):
+            raise SceneTypeError(f"scene: field {field!r} must be a string, got {short(data[field])}")
+    initial = data.get("initial")
+    if initial is not None and not isinstance(initial, dict):
+        raise SceneTypeError(f"scene: field 'initial' must be an object, got {short(initial)}")
+    return build_model(data["bodies"], initial, name=data.get("name", ""))
 
 
 def scene_path(name: str) -> pathlib.Path:

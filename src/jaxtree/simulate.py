@@ -30,16 +30,18 @@ import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
+from ._checks import SceneError, SceneTypeError, as_float, as_int, short
+from ._checks import _model as check_model
 from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
 from .control import AbstractController
 from .kinematics import full_precision
 from .dynamics import (
     SINGULAR_CONDITION,
-    _check_shapes,
     _energy_and_momentum,
     _matrix_condition,
     _null_direction_text,
     _unknown_labels,
+    _unknown_rows,
     mass_center_acceleration,
     rotational_equations,
     solve_accelerations,
@@ -86,38 +88,49 @@ def default_tolerance(dtype) -> float:
 
 
 def _check_times(name, t0, t1, ts=None):
-    """Concrete start, end and save times, checked before tracing: finite, and the save times
-    ordered along the integration and within it (diffrax's own checks fire inside the compiled
-    solve, under a long traceback). Traced values are left to run time."""
+    """Concrete start, end and save times, checked before tracing: numbers, finite, and the save
+    times ordered along the integration and within it (diffrax's own checks fire inside the
+    compiled solve, under a long traceback). Traced values are left to run time."""
     values = [("t0", t0), ("t1", t1)] + ([] if ts is None else [("saveat", ts)])
-    if _is_traced([x for _, x in values]):
+    concrete = {label: x for label, x in values if not _is_traced(x)}
+    for label, x in concrete.items():
+        a = as_float(x, f"{name}: {label}", finite=False)
+        if label != "saveat" and a.shape != ():
+            raise SceneError(f"{name}: {label} must be a scalar time, got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise SceneError(f"{name}: {label} is not finite ({a.tolist()})")
+    if len(concrete) < len(values) or ts is None:
         return
     a, b = (float(np.asarray(x)) for x in (t0, t1))
-    for label, x in values:
-        if not np.all(np.isfinite(np.asarray(x, float))):
-            raise ValueError(f"{name}: {label} is not finite ({np.asarray(x).tolist()})")
-    if ts is None:
-        return
     ts = np.asarray(ts, float)
     step = np.diff(ts) * (1.0 if b >= a else -1.0)
     if np.any(step < 0):
         i = int(np.flatnonzero(step < 0)[0])
-        raise ValueError(f"{name}: saveat times must run from t0 toward t1 ({'increasing' if b >= a else 'decreasing'}); "
+        raise SceneError(f"{name}: saveat times must run from t0 toward t1 ({'increasing' if b >= a else 'decreasing'}); "
                          f"saveat[{i}] = {ts[i]:g} is followed by {ts[i + 1]:g}")
     lo, hi = min(a, b), max(a, b)
     outside = np.flatnonzero((ts < lo) | (ts > hi))
     if outside.size:
         i = int(outside[0])
-        raise ValueError(f"{name}: saveat[{i}] = {ts[i]:g} lies outside the integration from t0 = {a:g} to t1 = {b:g}")
+        raise SceneError(f"{name}: saveat[{i}] = {ts[i]:g} lies outside the integration from t0 = {a:g} to t1 = {b:g}")
 
 
 def _check_state(name, model: Model, state: State):
-    """A concrete initial :class:`~jaxtree.State`, checked before tracing: field shapes for the
-    model's n hinges (JAX would clamp out-of-range indices silently), and ``dcm`` a rotation
-    matrix (orthonormal, determinant +1). Traced fields are left alone."""
-    _check_shapes(name, model, state, prefix="y0.")
+    """A concrete initial :class:`~jaxtree.State`, checked before tracing: numeric fields of the
+    shapes for the model's n hinges (JAX would clamp out-of-range indices silently), and ``dcm``
+    a rotation matrix (orthonormal, determinant +1). Traced fields are left alone; non-finite
+    values are a failed run (``nonfinite_start``), not an input error."""
+    if not isinstance(state, State):
+        raise SceneTypeError(f"{name}: y0 must be a jaxtree.State, got {type(state).__name__}")
+    need = {"dcm": (3, 3), "omega0": (3,), "gamma": (model.n,), "gamma_dot": (model.n,)}
+    for field, shape in need.items():
+        x = getattr(state, field)
+        got = jnp.shape(x) if _is_traced(x) else as_float(x, f"{name}: y0.{field}", finite=False).shape
+        if got != shape:
+            raise SceneError(f"{name}: y0.{field} has shape {got}; the model '{model.name}' with {model.n} hinges "
+                             f"needs {shape}")
     C = state.dcm
-    if isinstance(C, jax.core.Tracer):
+    if _is_traced(C):
         return
     C = np.asarray(C, float)
     if not np.all(np.isfinite(C)):
@@ -126,23 +139,54 @@ def _check_state(name, model: Model, state: State):
     tol = max(1e-6, 1e3 * float(jnp.finfo(dtype).eps))
     err, det = float(np.abs(C @ C.T - np.eye(3)).max()), float(np.linalg.det(C))
     if err > tol or det < 0:
-        raise ValueError(f"{name}: y0.dcm is not a rotation matrix (max |C C^T - I| = {err:.3g}, "
+        raise SceneError(f"{name}: y0.dcm is not a rotation matrix (max |C C^T - I| = {err:.3g}, "
                          f"det C = {det:.6g}); give the direction cosines of Def. 9, {{b0}} = C {{i}}")
 
 
 def _check_tolerances(name, rtol, atol, max_steps):
     """Concrete tolerances non-negative and not both zero, and at least one step allowed."""
-    if int(max_steps) < 1:
-        raise ValueError(f"{name}: max_steps must be at least 1, got {max_steps}")
+    as_int(max_steps, f"{name}: max_steps", minimum=1)
     values = {"rtol": rtol, "atol": atol}
     if _is_traced(list(values.values())):
         return
     for label, x in values.items():
-        v = np.asarray(x, float)
+        v = as_float(x, f"{name}: {label}", finite=False)
         if not np.all(np.isfinite(v)) or np.any(v < 0):
-            raise ValueError(f"{name}: {label} must be finite and non-negative, got {v.tolist()}")
+            raise SceneError(f"{name}: {label} must be finite and non-negative, got {v.tolist()}")
     if np.all(np.asarray(rtol, float) == 0) and np.all(np.asarray(atol, float) == 0):
-        raise ValueError(f"{name}: rtol and atol are both zero: no step would ever be accepted")
+        raise SceneError(f"{name}: rtol and atol are both zero: no step would ever be accepted")
+
+
+def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw):
+    """The other arguments of :func:`simulate`, before tracing: the model a valid
+    :class:`~jaxtree.Model` (:func:`jaxtree.validate_model` when concrete), `dt0` finite and
+    pointing from `t0` toward `t1`, `translation` a bool or ``(X0 (3,), X_dot0 (3,))``, and
+    diffrax objects where diffrax objects go."""
+    check_model("simulate", model)
+    if dt0 is not None and not _is_traced((dt0, t0, t1)):
+        h = float(as_float(dt0, "simulate: dt0", ()))
+        direction = float(np.asarray(t1, float)) - float(np.asarray(t0, float))
+        if h * direction < 0:
+            raise SceneError(f"simulate: dt0 = {h:g} points away from t1 (t0 = {float(np.asarray(t0)):g}, "
+                             f"t1 = {float(np.asarray(t1)):g})")
+    if isinstance(translation, tuple):
+        if len(translation) != 2:
+            raise SceneError(f"simulate: translation must be True, False or (X0, X_dot0), got a tuple of "
+                             f"{len(translation)}")
+        for label, x in zip(("X0", "X_dot0"), translation):
+            if not _is_traced(x):
+                as_float(x, f"simulate: translation {label}", (3,))
+            elif jnp.shape(x) != (3,):
+                raise SceneError(f"simulate: translation {label} must have shape (3,), got {jnp.shape(x)}")
+    elif not isinstance(translation, (bool, np.bool_)):
+        raise SceneTypeError(f"simulate: translation must be True, False or (X0, X_dot0), got {short(translation)}")
+    for label, value, kind in (("solver", solver, dfx.AbstractSolver),
+                               ("stepsize_controller", stepsize_controller, dfx.AbstractStepSizeController),
+                               ("adjoint", adjoint, dfx.AbstractAdjoint)):
+        if value is not None and not isinstance(value, kind):
+            raise SceneTypeError(f"simulate: {label} must be a diffrax.{kind.__name__}, got {short(value)}")
+    if not isinstance(throw, (bool, np.bool_)):
+        raise SceneTypeError(f"simulate: throw must be True or False, got {short(throw)}")
 
 
 def _warn_below_roundoff(rtol, dtype, stacklevel):
@@ -375,7 +419,8 @@ def _combine_events(event, attitude: AbstractAttitude) -> tuple[Any, bool, bool]
         if callable(event):
             event = state_event(event)
         else:
-            raise TypeError(f"event: expected a diffrax.Event or a function (t, state) -> scalar, got {event!r}")
+            raise SceneTypeError(f"simulate: event must be a diffrax.Event or a function (t, state) -> scalar, "
+                                 f"got {short(event)}")
     if not guard:
         return event, False, event is not None
     guards = (_Singularity(), _Crossing())
@@ -527,6 +572,32 @@ def _last_finite(ts):
     return jnp.maximum(jnp.max(jnp.where(jnp.isfinite(ts), idx, -1)), 0)
 
 
+# A pivot d_i^2 of the Cholesky factorization A = L L^T of Eq. (1)'s matrix (unknown rows) is
+# at round-off level when d_i^2 / A_ii < SINGULAR_PIVOT sqrt(m) eps (m rows, eps the unit roundoff).
+# d_i^2 / A_ii are the pivots of the Jacobi-scaled matrix D^-1/2 A D^-1/2, so mass ratios do not
+# enter. Measured on this project's scenes (40 random states each, float64 and float32): exact
+# gimbal locks give pivots of 1.5-114 eps (fig4_free: 40 eps with m = 13; chain200 with a gimbal:
+# 114 eps with m = 206) or fail the factorization (NaN); regular states give at least 5e-5
+# (panels95 and chain200 at random angles: 480 eps in float32, where the threshold is 200 eps).
+SINGULAR_PIVOT = 20.0
+
+
+def _singular(problem: Problem, t, y):
+    """True when the Eq. (1) matrix at (t, y) is singular to working precision (see
+    SINGULAR_PIVOT): one factorization, no eigenvalues. An exactly singular matrix may leave the
+    factorization a pivot at round-off level instead of failing it, and the solve then returns
+    finite garbage; this catches both."""
+    model = problem.model
+    state = problem.state(t, y)
+    A = rotational_equations(model, state, t)[0]
+    u = _unknown_rows(model)
+    A = A[np.ix_(u, u)]
+    L = jax.lax.linalg.cholesky(A, symmetrize_input=False)
+    pivot = jnp.diagonal(L) ** 2 / jnp.diagonal(A)
+    tol = SINGULAR_PIVOT * math.sqrt(len(u)) * float(jnp.finfo(A.dtype).eps)
+    return ~(jnp.min(pivot) > tol)  # a failed factorization (NaN) is singular too
+
+
 def _initial_step(problem: Problem, y0, t0, t1):
     """A first step of about 0.01 rad of the fastest rotation (no vector-field evaluation, so
     nothing more to compile); the step-size controller corrects it within a few steps."""
@@ -554,9 +625,13 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     dtype = jnp.result_type(problem.model.mass)
     y = problem.pack(y0, None, X0, Xd0)
     # A non-finite start cannot be integrated: NaN error estimates give NaN steps until max_steps
-    # (a vmapped batch would wait for its worst member). Integrate the vehicle at rest in its
-    # place, report "nonfinite_start" and return NaN histories for such a run.
-    start_ok = jnp.all(jnp.isfinite(y))
+    # (a vmapped batch would wait for its worst member). Nor can a start where Eq. (1) is singular
+    # to working precision (exact gimbal lock): the accelerations are undetermined, and the
+    # factorization may even return finite garbage. Integrate the vehicle at rest in their place,
+    # report "nonfinite_start" / "singular_start" and return NaN histories for such a run.
+    finite_start = jnp.all(jnp.isfinite(y))
+    singular_start = finite_start & _singular(problem, t0, jax.lax.stop_gradient(y))
+    start_ok = finite_start & ~singular_start
     n, z3 = problem.model.n, jnp.zeros(3, dtype)
     rest = problem.pack(State(jnp.eye(3, dtype=dtype), z3, jnp.zeros(n, dtype), jnp.zeros(n, dtype)))
     y_start = y
@@ -603,7 +678,8 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     R = dfx.RESULTS
     ok = (sol.result == R.successful) | ((sol.result == R.event_occurred) & ~singular)
     failure = jnp.where(start_ok, jnp.where(ok, 0, _result_code(sol.result, singular)),
-                        _KINDS.index("nonfinite_start") + 1)
+                        jnp.where(singular_start, _KINDS.index("singular_start") + 1,
+                                  _KINDS.index("nonfinite_start") + 1))
     out = Solution(
         ts=ts_h, gamma=hist["gamma"], gamma_dot=hist["gamma_dot"], omega0=hist["omega0"], dcm=hist["dcm"],
         attitude=hist["attitude"], control_state=hist["control_state"], X=hist["X"], X_dot=hist["X_dot"],
@@ -650,7 +726,7 @@ def _report(host, args):
 
 
 # ----------------------------------------------------------------------------- failures
-_KINDS = ("max_steps", "dt_min", "singular_attitude", "other", "nonfinite_start")
+_KINDS = ("max_steps", "dt_min", "singular_attitude", "other", "nonfinite_start", "singular_start")
 
 
 def _failure_kind(sol: Solution):
@@ -672,6 +748,8 @@ _MESSAGES = {
                          "tolerance of Eq. 24); use attitude='quaternion' or 'dcm'",
     "other": "the solver failed",
     "nonfinite_start": "the initial state is not finite",
+    "singular_start": "the Eq. (1) matrix is singular at the initial state to working precision (a pivot of its "
+                      "Cholesky factorization is at round-off level): the accelerations are undetermined",
 }
 
 
@@ -778,7 +856,7 @@ def _progress_meter(progress):
             return dfx.TextProgressMeter()
     if isinstance(progress, dfx.AbstractProgressMeter):
         return progress
-    raise TypeError(f"progress: expected a bool or a diffrax progress meter, got {progress!r}")
+    raise SceneTypeError(f"simulate: progress must be a bool or a diffrax progress meter, got {short(progress)}")
 
 
 @full_precision
@@ -859,11 +937,15 @@ def simulate(
     Pure: jittable, vmappable over initial states and model parameters, and differentiable
     (through the diffrax adjoint).
     """
-    att = get_attitude(attitude)
+    _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw)
+    try:
+        att = get_attitude(attitude)
+    except ValueError as e:
+        raise SceneError(f"simulate: {e}") from None
     if controller is not None and not isinstance(controller, AbstractController):
-        raise TypeError(f"controller: expected an AbstractController, got {controller!r}")
+        raise SceneTypeError(f"simulate: controller must be an AbstractController, got {short(controller)}")
     if law is not None and not callable(law):
-        raise TypeError(f"law: expected a callable tau(t, state, params), got {law!r}")
+        raise SceneTypeError(f"simulate: law must be a callable tau(t, state, params), got {short(law)}")
     dtype = jnp.result_type(model.mass)
     if rtol is None:
         rtol = default_tolerance(dtype)
@@ -872,6 +954,29 @@ def simulate(
     _check_tolerances("simulate", rtol, atol, max_steps)
     if stepsize_controller is None:
         _warn_below_roundoff(rtol, dtype, stacklevel=3)  # the caller of full_precision's wrapper
+    y0 = model.initial if y0 is None else y0
+    _check_state("simulate", model, y0)
+    grid, user_saveat = None, False
+    if isinstance(saveat, dfx.SaveAt):
+        if saveat.subs is None:
+            raise SceneError("simulate: saveat: the SaveAt must save at least one time (t0, t1, ts or steps)")
+        user_saveat = True
+    elif saveat is None or (isinstance(saveat, (int, np.integer)) and not isinstance(saveat, bool)):
+        grid = DEFAULT_SAVE_POINTS if saveat is None else int(saveat)
+        if grid < 2:
+            raise SceneError(f"simulate: saveat: need at least 2 save points, got {grid}")
+        saveat = None
+    else:
+        shape = jnp.shape(saveat) if _is_traced(saveat) else as_float(saveat, "simulate: saveat", finite=False).shape
+        if len(shape) != 1:
+            raise SceneError(f"simulate: saveat: expected a number of save points or a 1-D array of times, "
+                             f"got shape {shape}")
+    _check_times("simulate", t0, t1, None if grid is not None or user_saveat else saveat)
+    ev, has_guard, user_event = _combine_events(event, att)
+    meter = _progress_meter(progress)
+    # every argument is checked: from here on JAX may trace
+    if not (grid is not None or user_saveat):
+        saveat = jnp.asarray(saveat, dtype)
     X0 = Xd0 = None
     if isinstance(translation, tuple):
         X0, Xd0 = translation
@@ -880,30 +985,10 @@ def simulate(
     if controller is not None:
         control_size = sum(int(np.prod(x.shape)) for x in jax.tree_util.tree_leaves(jax.eval_shape(controller.initial)))
     problem = Problem(model, att, law, controller, params, bool(translation), control_size)
-    y0 = model.initial if y0 is None else y0
-    if not isinstance(y0, State):
-        raise TypeError(f"y0: expected a jaxtree.State, got {type(y0).__name__}")
-    _check_state("simulate", model, y0)
     if solver is None:
         solver = dfx.Dopri8()
     if adjoint is None:
         adjoint = dfx.RecursiveCheckpointAdjoint()
-    grid, user_saveat = None, False
-    if isinstance(saveat, dfx.SaveAt):
-        if saveat.subs is None:
-            raise ValueError("saveat: the SaveAt must save at least one time (t0, t1, ts or steps)")
-        user_saveat = True
-    elif saveat is None or (isinstance(saveat, (int, np.integer)) and not isinstance(saveat, bool)):
-        grid = DEFAULT_SAVE_POINTS if saveat is None else int(saveat)
-        if grid < 2:
-            raise ValueError(f"saveat: need at least 2 save points, got {grid}")
-        saveat = None
-    else:
-        saveat = jnp.asarray(saveat, dtype)
-        if saveat.ndim != 1:
-            raise ValueError(f"saveat: expected a 1-D array of times, got shape {saveat.shape}")
-    _check_times("simulate", t0, t1, saveat if isinstance(saveat, jax.Array) else None)
-    ev, has_guard, user_event = _combine_events(event, att)
     traced = _is_traced((model, y0, t0, t1, params, controller, law, saveat, ev, translation, X0, Xd0, rtol, atol,
                          dt0, solver, stepsize_controller, adjoint))
     if not traced and throw:
@@ -914,8 +999,7 @@ def simulate(
     opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced))
     as_array = lambda x: None if x is None else jnp.asarray(x, dtype)
     sol = _solve(problem, y0, as_array(X0), as_array(Xd0), as_array(t0), as_array(t1), as_array(rtol),
-                 as_array(atol), as_array(dt0), solver, stepsize_controller, saveat, adjoint, ev,
-                 _progress_meter(progress), opts)
+                 as_array(atol), as_array(dt0), solver, stepsize_controller, saveat, adjoint, ev, meter, opts)
     needs_law = model.prescription is not None
     diag = _diagnostics(model, law if needs_law else None, controller if needs_law else None,
                         params if needs_law else None, sol.ts,

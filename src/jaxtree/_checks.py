@@ -1,0 +1,331 @@
+"""Input checks shared by the public functions: every bad input is named before tracing.
+
+A scene, a builder call or an argument of :func:`jaxtree.simulate`, :func:`jaxtree.linearize`,
+:func:`jaxtree.modes` or :func:`jaxtree.hybrid_model` that cannot describe a vehicle or a run
+raises :class:`SceneError` naming the body and the field (or the function and the argument),
+on plain numpy data and before anything is traced, so that no exception from inside JAX or
+numpy reaches the user. Values that are traced (under ``jax.jit``, ``jax.vmap``,
+``jax.grad``) are left to run time.
+
+:class:`SceneError` is a :class:`ValueError`; a wrong type raises a SceneError that is also a
+:class:`TypeError`, an unknown body name one that is also a :class:`KeyError`, so that both
+``except jaxtree.SceneError`` and the built-in exception types catch them.
+"""
+
+from __future__ import annotations
+
+import difflib
+import os
+import sys
+import warnings
+
+import jax
+import numpy as np
+
+__all__ = ["SceneError", "SceneWarning"]
+
+
+class SceneError(ValueError):
+    """Invalid vehicle description or argument; the message names the body and the field
+    (or the function and the argument)."""
+
+
+class SceneTypeError(SceneError, TypeError):
+    """A :class:`SceneError` for a value of the wrong type (also a :class:`TypeError`)."""
+
+
+class SceneKeyError(SceneError, KeyError):
+    """A :class:`SceneError` for an unknown name (also a :class:`KeyError`)."""
+
+    __str__ = Exception.__str__  # KeyError quotes its message
+
+
+class SceneWarning(UserWarning):
+    """A scene or builder input was accepted with a change the user should know of (an unknown
+    key, ignored)."""
+
+
+def is_traced(tree) -> bool:
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
+
+
+def short(value, limit: int = 80) -> str:
+    """``repr(value)``, cut to `limit` characters (a 400-digit integer stays readable)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _shape_text(shape) -> str:
+    if len(shape) == 1:
+        return f"length {shape[0]}"
+    if len(shape) == 2 and shape[0] == shape[1]:
+        return f"{shape[0]}x{shape[1]}"
+    return f"shape {shape}"
+
+
+def as_float(value, what: str, shape=None, *, finite: bool = True) -> np.ndarray:
+    """`value` as a float64 numpy array, or :class:`SceneError` naming `what`.
+
+    Rejected: strings, booleans, complex numbers, ``None``, dicts and other non-numbers
+    (SceneTypeError), ragged nested lists, a shape other than `shape` (when given), and
+    non-finite entries or integers too large for a float (when `finite`). A traced value
+    raises too: call this only on concrete data."""
+    if isinstance(value, jax.core.Tracer):
+        raise SceneTypeError(f"{what} is traced (inside jax.jit / vmap / grad); it needs a concrete value here")
+    if value is None:
+        raise SceneTypeError(f"{what} must be numeric, got None")
+    if isinstance(value, (str, bytes)):
+        raise SceneTypeError(f"{what} must be numeric, got the string {short(value)}")
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError, OverflowError):
+        raise SceneError(f"{what} must be a number or a (nested) list of numbers of one shape, "
+                         f"got {short(value)}") from None
+    kind = a.dtype.kind
+    if kind == "O":
+        if any(x is None for x in a.flat):
+            raise SceneTypeError(f"{what} must be numeric, got None in {short(value)}")
+        try:
+            a = np.asarray(value, dtype=float)
+        except OverflowError:
+            raise SceneError(f"{what} must be finite, got an integer too large for a float: {short(value)}") from None
+        except (TypeError, ValueError):
+            raise SceneTypeError(f"{what} must be numeric, got {short(value)}") from None
+    elif kind == "b":
+        raise SceneTypeError(f"{what} must be numeric, got a boolean {short(value)}")
+    elif kind in "US":
+        raise SceneTypeError(f"{what} must be numeric, got strings {short(value)}")
+    elif kind == "c":
+        raise SceneTypeError(f"{what} must be real, got a complex value {short(value)}")
+    elif kind not in "iuf":
+        raise SceneTypeError(f"{what} must be numeric, got {short(value)}")
+    with np.errstate(over="ignore"):
+        a = a.astype(float)
+    if shape is not None and a.shape != tuple(shape):
+        raise SceneError(f"{what} must have {_shape_text(tuple(shape))}, got shape {a.shape}")
+    if finite and not np.all(np.isfinite(a)):
+        raise SceneError(f"{what} must be finite, got {short(a.tolist())}")
+    return a
+
+
+def as_int(value, what: str, minimum=None) -> int:
+    """A Python int (not a bool, not a float with a fraction), at least `minimum`."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        if isinstance(value, (float, np.floating)) and np.isfinite(value) and float(value).is_integer():
+            value = int(value)
+        else:
+            raise SceneTypeError(f"{what} must be an integer, got {short(value)}")
+    value = int(value)
+    if minimum is not None and value < minimum:
+        raise SceneError(f"{what} must be at least {minimum}, got {value}")
+    return value
+
+
+def unknown_keys(given, known, where: str) -> None:
+    """Warn (:class:`SceneWarning`) for each key of `given` not in `known`, naming it and the
+    nearest known key; the key is ignored."""
+    for key in given:
+        if key in known:
+            continue
+        close = difflib.get_close_matches(str(key), [str(k) for k in known], n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else f" (known: {sorted(map(str, known))})"
+        warnings.warn(f"{where}: unknown key {key!r} ignored{hint}", SceneWarning, stacklevel=_caller_level())
+
+
+_PACKAGE = os.path.dirname(os.path.abspath(__file__))
+
+
+def _caller_level() -> int:
+    """The `stacklevel` of the first frame outside jaxtree (the user's call), for warnings."""
+    level, frame = 1, sys._getframe(1)
+    while frame is not None and os.path.dirname(os.path.abspath(frame.f_code.co_filename)) == _PACKAGE:
+        level += 1
+        frame = frame.f_back
+    return level
+
+
+def rotation(C, what: str, tol: float = 1e-9) -> np.ndarray:
+    """A concrete 3x3 proper rotation matrix (orthonormal, determinant +1)."""
+    C = as_float(C, what, (3, 3))
+    err, det = float(np.abs(C @ C.T - np.eye(3)).max()), float(np.linalg.det(C))
+    if err > tol or det < 0:
+        raise SceneError(f"{what} must be a proper rotation matrix (orthonormal, det +1): max |C C^T - I| = "
+                         f"{err:.3g}, det C = {det:.6g}")
+    return C
+
+
+# ----------------------------------------------------------------------------- functions
+def _model(name, model):
+    from .model import Model
+    from .scene import validate_model
+
+    if not isinstance(model, Model):
+        raise SceneTypeError(f"{name}: model must be a jaxtree.Model (load_scene / build_model), "
+                             f"got {type(model).__name__}")
+    if not is_traced(model):
+        validate_model(model)
+
+
+def _small(name, model, small):
+    """The set A: hinge indices 1..n or body names, none repeated, none prescribed; the checks
+    of :func:`jaxtree.linearize.resolve_hinges`, raising SceneErrors."""
+    if isinstance(small, (str, int, np.integer)):
+        small = (small,)
+    try:
+        items = list(small)
+    except TypeError:
+        raise SceneTypeError(f"{name}: small must be hinge indices 1..{model.n} or body names, "
+                             f"got {short(small)}") from None
+    if not items:
+        raise SceneError(f"{name}: the set A of small hinges is empty")
+    seen = set()
+    for item in items:
+        if isinstance(item, str):
+            if item not in model.names:
+                raise SceneKeyError(f"{name}: no body named {item!r}; hinges are named by their outboard body: "
+                                    f"{model.names[1:]}")
+            k = model.names.index(item)
+            if k == 0:
+                raise SceneError(f"{name}: {item!r} is the reference body b_0, which has no hinge")
+        elif isinstance(item, (bool, np.bool_)) or not isinstance(item, (int, np.integer)):
+            raise SceneTypeError(f"{name}: hinges are given by index 1..{model.n} or by body name, got {short(item)}")
+        else:
+            k = int(item)
+            if not 1 <= k <= model.n:
+                raise SceneError(f"{name}: hinge index {k} is not in 1..{model.n} (hinge k joins body k to its parent)")
+        if k in seen:
+            raise SceneError(f"{name}: hinge {k} ({model.names[k]!r}) is listed twice in the set A")
+        if k in model.prescribed:
+            raise SceneError(f"{name}: hinge {k} ({model.names[k]!r}) is kinematically prescribed; it cannot be a "
+                             "small (linearized) variable. Leave it out of the set A: it is then held at its "
+                             "nominal angle.")
+        seen.add(k)
+
+
+def _nominal(name, model, omega0, gamma, dcm, t):
+    """The nominal motion's omega0 (3,), gamma (n,), dcm (a rotation) and t: concrete ones
+    finite and of the right shape."""
+    for label, value, shape in (("omega0", omega0, (3,)), ("gamma", gamma, (model.n,)), ("dcm", dcm, (3, 3)),
+                                ("t", t, ())):
+        if value is None or is_traced(value):
+            continue
+        if label == "dcm":
+            rotation(value, f"{name}: dcm", tol=1e-6)
+        else:
+            as_float(value, f"{name}: {label}", shape)
+
+
+def linearize_args(name, model, small=None, *, omega0=None, gamma=None, dcm=None, t=0.0):
+    """Arguments of :func:`jaxtree.linearize` and :func:`jaxtree.linearize_vehicle`."""
+    _model(name, model)
+    if small is not None:
+        _small(name, model, small)
+    _nominal(name, model, omega0, gamma, dcm, t)
+
+
+def linearized_equations_args(model, small, state, omega0_dot=None, gamma_ddot=None, t=0.0):
+    """Arguments of :func:`jaxtree.linearized_equations`."""
+    from .model import State
+
+    name = "linearized_equations"
+    _model(name, model)
+    _small(name, model, small)
+    if not isinstance(state, State):
+        raise SceneTypeError(f"{name}: state must be a jaxtree.State, got {type(state).__name__}")
+    shapes = {"dcm": (3, 3), "omega0": (3,), "gamma": (model.n,), "gamma_dot": (model.n,)}
+    for field, shape in shapes.items():
+        value = getattr(state, field)
+        if not is_traced(value):
+            as_float(value, f"{name}: state.{field}", shape)
+    for label, value, shape in (("omega0_dot", omega0_dot, (3,)), ("gamma_ddot", gamma_ddot, (model.n,)),
+                                ("t", t, ())):
+        if value is not None and not is_traced(value):
+            as_float(value, f"{name}: {label}", shape)
+
+
+def modes_args(I, J=None, K=None, damping=None, kind=None, labels=None, rtol=1e-9):
+    """Arguments of :func:`jaxtree.modes`: I, J, K square float matrices of one size (finite
+    when concrete), `damping` a non-negative scalar or one per coordinate, `kind` known,
+    `labels` one string per coordinate, `rtol` in [0, 1)."""
+    from .linearize import LinearSystem
+
+    name = "modes"
+    if isinstance(I, LinearSystem):
+        I, J, K = I.I, I.J, I.K
+    if J is None or K is None:
+        raise SceneTypeError(f"{name}: give I, J, K (or a LinearSystem)")
+    sizes = []
+    for label, M in (("I", I), ("J", J), ("K", K)):
+        shape = np.shape(M) if is_traced(M) else as_float(M, f"{name}: {label}", finite=True).shape
+        if len(shape) != 2 or shape[0] != shape[1]:
+            raise SceneError(f"{name}: {label} must be a square matrix, got shape {shape}")
+        sizes.append(shape[0])
+    if len(set(sizes)) != 1:
+        raise SceneError(f"{name}: I, J, K must have one size, got {sizes[0]}, {sizes[1]}, {sizes[2]}")
+    nu = sizes[0]
+    if nu == 0:
+        raise SceneError(f"{name}: I, J, K are empty (no coordinate)")
+    if kind is not None and kind not in ("real", "gyroscopic", "general"):
+        raise SceneError(f"{name}: kind must be 'real', 'gyroscopic', 'general' or None, got {short(kind)}")
+    if damping is not None and not is_traced(damping):
+        z = as_float(damping, f"{name}: damping")
+        if z.ndim > 1 or (z.ndim == 1 and z.shape != (nu,)):
+            raise SceneError(f"{name}: damping must be a scalar or one ratio per coordinate ({nu}), got shape {z.shape}")
+        if np.any(z < 0):
+            raise SceneError(f"{name}: modal damping ratios must be >= 0, got {z.tolist()}")
+    if labels is not None:
+        if isinstance(labels, str):
+            raise SceneTypeError(f"{name}: labels must be a sequence of {nu} names, got the string {labels!r}")
+        try:
+            labels = list(labels)
+        except TypeError:
+            raise SceneTypeError(f"{name}: labels must be a sequence of {nu} names, got {short(labels)}") from None
+        if len(labels) != nu:
+            raise SceneError(f"{name}: {len(labels)} labels for {nu} coordinates")
+    _tolerance(name, rtol)
+
+
+def _tolerance(name, rtol, label="rtol"):
+    r = float(as_float(rtol, f"{name}: {label}", ()))
+    if not 0.0 <= r < 1.0:
+        raise SceneError(f"{name}: {label} must be in [0, 1), got {r}")
+
+
+def hybrid_model_args(model, small, n_modes=None, *, cutoff=None, omega0=None, gamma=None, dcm=None, damping=None,
+                      form=None, precompute=None, attitude="quaternion", rtol=1e-9, basis=None):
+    """Arguments of :func:`jaxtree.hybrid_model`, checked before the linearization is traced."""
+    from .attitude import AbstractAttitude, _BY_NAME
+
+    name = "hybrid_model"
+    linearize_args(name, model, small, omega0=omega0, gamma=gamma, dcm=dcm)
+    if basis is not None and basis not in ("substructure", "set"):
+        raise SceneError(f"{name}: basis must be 'substructure', 'set' or None, got {short(basis)}")
+    if n_modes is not None:
+        if isinstance(n_modes, (list, tuple)):  # one number per substructure
+            if not n_modes:
+                raise SceneError(f"{name}: n_modes is an empty sequence")
+            for i, m in enumerate(n_modes):
+                as_int(m, f"{name}: n_modes[{i}]", minimum=1)
+        else:
+            as_int(n_modes, f"{name}: n_modes", minimum=1)
+    if cutoff is not None:
+        c = float(as_float(cutoff, f"{name}: cutoff", ()))
+        if c < 0:
+            raise SceneError(f"{name}: cutoff must be >= 0 (a frequency in rad/s), got {c}")
+    if damping is not None:
+        z = as_float(damping, f"{name}: damping")
+        nu = len((small,) if isinstance(small, (str, int, np.integer)) else list(small))
+        # at most one mode per small hinge is retained (the exact number is known after the modes)
+        if z.ndim > 1 or (z.ndim == 1 and z.shape[0] != 1 and z.shape[0] > nu):
+            raise SceneError(f"{name}: damping must be a scalar or one ratio per retained mode (at most {nu}), "
+                             f"got shape {z.shape}")
+        if np.any(z < 0):
+            raise SceneError(f"{name}: modal damping ratios must be >= 0, got {z.tolist()}")
+    if form is not None and form not in ("real", "first_order"):
+        raise SceneError(f"{name}: form must be 'real', 'first_order' or None, got {short(form)}")
+    if precompute is not None and not isinstance(precompute, (bool, np.bool_)):
+        raise SceneTypeError(f"{name}: precompute must be True, False or None, got {short(precompute)}")
+    if not isinstance(attitude, AbstractAttitude) and not (isinstance(attitude, str) and attitude.lower() in _BY_NAME):
+        raise SceneError(f"{name}: attitude must be one of {sorted(_BY_NAME)} or an AbstractAttitude, "
+                         f"got {short(attitude)}")
+    _tolerance(name, rtol)
