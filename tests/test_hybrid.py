@@ -726,3 +726,16 @@ def test_gross_deformation_of_a_chain_limits_eq30():
     assert e30_small < 0.02 and e30_big > 0.05
     assert 8.0 < e30_big / e30_small < 32.0  # ~ (1 / 0.25)^2: governed by the gross rotation
     assert lin_big < e30_big
+
+
+def test_a_nonfinite_start_fails_at_once_under_jit(appendix):
+    """A NaN in the initial state stops a jitted hybrid run at t0 with the 'not finite' failure,
+    instead of running to max_steps; a damping vector of the wrong length is named."""
+    model, _, hm = appendix
+    state = State(jnp.eye(3), jnp.array([0.05, -0.03, 1.0]), jnp.array([jnp.nan, -0.01]), jnp.array([0.02, 0.05]))
+    sol = jax.jit(lambda s: jaxtree.simulate_hybrid(hm, 12.0, y0=s, throw=False))(state)
+    assert not sol.ok and float(sol.t_final) == 0.0 and int(sol.stats["num_steps"]) < 10
+    with pytest.raises(jaxtree.SimulationError, match="initial state is not finite"):
+        jaxtree.simulate_hybrid(hm, 12.0, y0=state)
+    with pytest.raises(ValueError, match="damping has 2 ratios for 1 retained modes"):
+        jaxtree.hybrid_model(model, (1, 2), 1, omega0=[0.0, 0.0, 1.0], basis="set", damping=[0.1, 0.2])

@@ -62,6 +62,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._math import regular as _regular
 from .kinematics import ancestor_sum, cross, dot, mv
 
 __all__ = ["METHODS", "resolve_method", "plan", "BlockPlan"]
@@ -336,9 +337,11 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
     m = len(bp.parent)
     P = [None] * m
     factors = [None] * m
+    ok = jnp.asarray(True)  # no pivot at round-off level (see jaxtree.dynamics.SINGULAR_PIVOT)
     leaves = np.asarray([j for j in range(m) if not bp.children[j]], np.int64)
     if len(leaves):
         Lf = jax.lax.linalg.cholesky(M0[leaves] + corner, symmetrize_input=False)
+        ok = _regular(Lf[..., :b, :b], M0[leaves][..., :b, :b])
         Pl = C[leaves] - _gram(Lf[..., b:, :b])
         for i, j in enumerate(leaves):
             P[j], factors[j] = Pl[i], Lf[i]
@@ -350,12 +353,15 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
         Nl = N[ported]
         Mp = M0[ported] + jnp.einsum("jia,jik,jkb->jab", Nl, Pout, Nl)
         Lf = jax.lax.linalg.cholesky(Mp + corner, symmetrize_input=False)
+        ok = ok & _regular(Lf[..., :b, :b], Mp[..., :b, :b])
         Pp = Mp[..., b:, b:] - _gram(Lf[..., b:, :b])
         for i, j in enumerate(ported):
             P[j], factors[j] = Pp[i], Lf[i]
     # body 0: its own inertia and bias, and the articulated inertias of the blocks on it
     P0 = _homogeneous(_inertia_matrix(J[0], h[0], mass[0]), W[0]) + sum(P[c] for c in bp.root_children)
-    a0 = -_spd_solve(P0[:6, :6], P0[:6, 6])
+    L0 = jax.lax.linalg.cholesky(P0[:6, :6], symmetrize_input=False)
+    ok = ok & _regular(L0, P0[:6, :6])
+    a0 = -_cho_solve(L0, P0[:6, 6][:, None])[:, 0]
 
     # ------------------------------------------------------------------ outward
     # gamma_ddot = -M11^{-1} M12 a~ = -L11^{-T} L21^T a~, and the port's acceleration is N (gamma_ddot, a~)
@@ -387,6 +393,7 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
     order = np.full(n, flat.size, np.int64)
     order[flat[flat < n]] = np.flatnonzero(flat < n)
     gdd = jnp.concatenate([qdd.reshape(-1), jnp.zeros((1,), dtype)])[order]
+    gdd, a0 = jnp.where(ok, gdd, jnp.nan), jnp.where(ok, a0, jnp.nan)
     if prescribed_acc is not None:
         gdd = gdd.at[np.asarray(model.prescribed, np.int64) - 1].set(prescribed_acc)
     hold = jnp.zeros((0,), dtype)

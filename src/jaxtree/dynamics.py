@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import articulated
+from ._math import SINGULAR_PIVOT, regular as _regular  # noqa: F401 (SINGULAR_PIVOT is public here)
 from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum
 from .model import Model, State
 
@@ -519,8 +520,11 @@ def _cholesky_solve(A, b):
                          jnp.concatenate([b, big[None]])[None, :]], 0)
     L = jax.lax.linalg.cholesky(M, symmetrize_input=False)
     y = L[n, :n]  # = L_A^{-1} b: the bordered factorization does the forward substitution
-    return jax.lax.linalg.triangular_solve(L[:n, :n], y[:, None], left_side=True, lower=True,
-                                           transpose_a=True)[:, 0]
+    x = jax.lax.linalg.triangular_solve(L[:n, :n], y[:, None], left_side=True, lower=True,
+                                        transpose_a=True)[:, 0]
+    return jnp.where(_regular(L[:n, :n], A), x, jnp.nan)
+
+
 
 
 @full_precision

@@ -86,6 +86,9 @@ from .kinematics import ancestor_sum, body_rotations, cross, full_precision, mm,
 from .linearize import linearize, resolve_hinges
 from .model import Model, State
 from .modes import ModalError, modes as _modes
+from .simulate import (_KINDS, _MESSAGES, SimulationError, _check_state, _check_times, _check_tolerances,
+                       _failure_report, _is_traced, _last_finite, _report, _result_code, _warn_below_roundoff,
+                       default_tolerance)
 from .topology import Topology
 
 __all__ = [
@@ -704,6 +707,9 @@ def _basis(md, I, K, cand, form, zeta):
 
 
 def _zeta(damping, k, kind):
+    if damping is not None and np.ndim(damping) and np.shape(damping) != (k,):
+        raise ValueError(f"hybrid_model: damping has {np.size(damping)} ratios for {k} retained modes "
+                         "(give a scalar or one per retained mode)")
     zeta = np.zeros(k) if damping is None else np.broadcast_to(np.asarray(damping, float), (k,)).copy()
     if damping is not None:
         if np.any(zeta < 0) or not np.all(np.isfinite(zeta)):
@@ -1034,10 +1040,11 @@ class HybridSolution(eqx.Module):
     energy: jax.Array | None = None
     angular_momentum: jax.Array | None = None
     projection_residual: jax.Array | None = None
+    failure: jax.Array | None = None
 
     @property
     def ok(self) -> bool:
-        return bool(np.all(np.asarray(self.result == dfx.RESULTS.successful)))
+        return bool(np.all(np.asarray(self.failure == 0)))
 
     def energy_drift(self):
         """``max |E - E_0| / |E_0|`` over the saved times."""
@@ -1053,16 +1060,12 @@ class HybridSolution(eqx.Module):
 
 def _failure_code(result):
     """0 for success, else the ``Solution.failure`` code of :func:`jaxtree.simulate`."""
-    from .simulate import _result_code
-
     return jnp.where(result == dfx.RESULTS.successful, 0, _result_code(result))
 
 
 def _hybrid_failure_message(code, t, state, modal):
     """The report of failed hybrid runs (batch index, time, physical state, modal coordinates),
     or None when every run succeeded."""
-    from .simulate import _MESSAGES, _failure_report
-
     np.set_printoptions(precision=6, suppress=False, linewidth=120)
 
     def describe(kind, pick):
@@ -1077,7 +1080,6 @@ def _hybrid_failure_message(code, t, state, modal):
     return _failure_report(code, describe)
 
 
-@eqx.filter_jit
 def _energy_and_momentum(model, state):
     """Kinetic energy plus the hinge springs' potential energy, and the angular momentum."""
     from .dynamics import _energy_and_momentum as em
@@ -1089,7 +1091,17 @@ def _energy_and_momentum(model, state):
     return T, H
 
 
+@eqx.filter_jit
 def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, max_steps, report, residual):
+    # A non-finite start cannot be integrated (NaN error estimates give NaN steps until max_steps):
+    # integrate the vehicle at rest in its place, report "nonfinite_start" and return NaN histories.
+    finite_start = jnp.all(jnp.isfinite(y0))
+    dtype = y0.dtype
+    model = hybrid.model
+    rest = hybrid.pack(State(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype), hybrid.gamma_nominal.astype(dtype),
+                             jnp.zeros(model.n, dtype)))
+    y_start = y0
+    y0 = jnp.where(finite_start, y0, rest)
     if controller is None:
         controller = dfx.PIDController(rtol=rtol, atol=atol, pcoeff=0.3, icoeff=0.3,
                                        dtmin=1e-12 * jnp.abs(t1 - t0), force_dtmin=False)
@@ -1098,11 +1110,13 @@ def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, m
         dfx.ODETerm(hybrid_rhs), solver, t0, t1, dt0, y0, args=hybrid, saveat=saveat,
         stepsize_controller=controller, max_steps=max_steps, throw=False,
     )
-    from .simulate import _last_finite
-
     (ts_h, ts_f), (ys_h, ys_f) = sol.ts, sol.ys
     i = _last_finite(ts_f)
     t_final, y_final = ts_f[i], ys_f[i]
+    t_final = jnp.where(finite_start, t_final, t0)
+    y_final = jnp.where(finite_start, y_final, y_start)
+    ys_h = jnp.where(finite_start, ys_h, jnp.nan)
+    code = jnp.where(finite_start, _failure_code(sol.result), _KINDS.index("nonfinite_start") + 1)
     states = jax.vmap(hybrid.state)(ts_h, ys_h)
     final = hybrid.state(t_final, y_final)
     energy, momentum = jax.vmap(lambda st: _energy_and_momentum(hybrid.model, st))(states)
@@ -1110,18 +1124,16 @@ def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, m
         ts=ts_h, omega0=states.omega0, dcm=states.dcm, gamma=states.gamma, gamma_dot=states.gamma_dot,
         modal=jax.vmap(hybrid.modal)(ys_h), ys=ys_h, t_final=t_final, result=sol.result,
         stats=dict(sol.stats), hybrid=hybrid, final=final, final_modal=hybrid.modal(y_final),
-        energy=energy, angular_momentum=momentum, projection_residual=residual,
+        energy=energy, angular_momentum=momentum, projection_residual=residual, failure=code,
     )
     if report:
         # Under a caller's jit/vmap: report failures from one host callback (for a whole batch).
-        from .simulate import SimulationError, _report
-
         def host(code, t, state, modal):
             message = _hybrid_failure_message(code, t, state, modal)
             if message is not None:
                 raise SimulationError(message)
 
-        _report(host, jax.lax.stop_gradient((_failure_code(sol.result), t_final, final, out.final_modal)))
+        _report(host, jax.lax.stop_gradient((code, t_final, final, out.final_modal)))
     return out
 
 
@@ -1155,8 +1167,6 @@ def simulate_hybrid(
     eagerly, from a host callback at run time under ``jax.jit`` or ``jax.vmap`` (one for a whole
     batch). Tolerances, controllers and solvers may be traced (a vmapped tolerance sweep).
     """
-    from .simulate import (SimulationError, _check_state, _check_times, _check_tolerances, _is_traced,
-                           _warn_below_roundoff, default_tolerance)
 
     dtype = jnp.result_type(hybrid.model.mass)
     rtol = default_tolerance(dtype) if rtol is None else rtol
@@ -1183,7 +1193,7 @@ def simulate_hybrid(
     sol = _solve_hybrid(hybrid, y, t0a, t1a, ts, jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), dt0,
                         solver, stepsize_controller, int(max_steps), bool(throw and traced), residual)
     if throw and not traced:
-        message = _hybrid_failure_message(_failure_code(sol.result), sol.t_final, sol.final, sol.final_modal)
+        message = _hybrid_failure_message(sol.failure, sol.t_final, sol.final, sol.final_modal)
         if message is not None:
             raise SimulationError(message)
     return sol

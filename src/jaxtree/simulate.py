@@ -572,14 +572,8 @@ def _last_finite(ts):
     return jnp.maximum(jnp.max(jnp.where(jnp.isfinite(ts), idx, -1)), 0)
 
 
-# A pivot d_i^2 of the Cholesky factorization A = L L^T of Eq. (1)'s matrix (unknown rows) is
-# at round-off level when d_i^2 / A_ii < SINGULAR_PIVOT sqrt(m) eps (m rows, eps the unit roundoff).
-# d_i^2 / A_ii are the pivots of the Jacobi-scaled matrix D^-1/2 A D^-1/2, so mass ratios do not
-# enter. Measured on this project's scenes (40 random states each, float64 and float32): exact
-# gimbal locks give pivots of 1.5-114 eps (fig4_free: 40 eps with m = 13; chain200 with a gimbal:
-# 114 eps with m = 206) or fail the factorization (NaN); regular states give at least 5e-5
-# (panels95 and chain200 at random angles: 480 eps in float32, where the threshold is 200 eps).
-SINGULAR_PIVOT = 20.0
+# (the round-off threshold of a Cholesky pivot: see jaxtree.dynamics.SINGULAR_PIVOT)
+from .dynamics import SINGULAR_PIVOT  # noqa: E402
 
 
 def _singular(problem: Problem, t, y):
