@@ -85,7 +85,7 @@ class _Config(NamedTuple):
 
 def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     """One member: its histories and per-run figures (a dict of arrays)."""
-    from .simulate import _condition, simulate
+    from .simulate import simulate
 
     kw = {}
     if cfg.dt is not None:
@@ -98,25 +98,38 @@ def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
         hist["hold_torque"] = sol.hold_torque
     finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in hist.values()]))
     code = sol.failure  # 0 ok, else 1 + index in simulate's _KINDS (the first five of FAILURES)
-    # a failed run's Eq. (1) matrix at the state where it stopped: singular (gimbal lock, a
-    # vanishing mass) or not
-    cond, _ = _condition(model, sol.final, sol.t_final)
-    singular = ~jnp.isfinite(cond) | (cond > SINGULAR_CONDITION)
-    failed = code > 0
     state_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in sol.final]))
     diagnosis = jnp.where(
-        failed,
-        jnp.where(code == FAILURES.index("nonfinite_start"), code,
-                  jnp.where(~state_ok, FAILURES.index("nonfinite_state"),
-                            jnp.where(singular & (code != FAILURES.index("singular_attitude")),
-                                      FAILURES.index("singular_matrix"), code))),
+        code > 0,
+        jnp.where((code == FAILURES.index("nonfinite_start")) | state_ok, code, FAILURES.index("nonfinite_state")),
         jnp.where(finite, 0, FAILURES.index("nonfinite_state")))
     ok = diagnosis == 0
     hist = {k: jnp.where(ok, v, jnp.nan) for k, v in hist.items()}
-    out = dict(hist, result=sol.result._value, diagnosis=diagnosis,  # noqa: SLF001
-               steps=sol.stats["num_steps"], rejected=sol.stats["num_rejected_steps"],
-               rhs_evaluations=sol.stats["rhs_evaluations"], t_final=sol.t_final)
-    return out
+    # (whether a failed run's Eq. (1) matrix is singular where it stopped is decided on the host,
+    # for the failed members only: see _diagnose_failures)
+    return dict(hist, result=sol.result._value, diagnosis=diagnosis,  # noqa: SLF001
+                steps=sol.stats["num_steps"], rejected=sol.stats["num_rejected_steps"],
+                rhs_evaluations=sol.stats["rhs_evaluations"], t_final=sol.t_final,
+                final=tuple(sol.final))
+
+
+def _diagnose_failures(out: dict, models, model: Model) -> None:
+    """Failed members that stopped at a finite state (step limit, step-size collapse): 'singular_matrix'
+    when Eq. (1)'s matrix is singular or nearly so there (gimbal lock, a vanishing mass). One
+    eager evaluation per failed member, on the host (batched LAPACK calls in the vmapped chunk
+    would cost every member a decomposition, and can deadlock on the CPU, see _sharded)."""
+    from .model import State
+    from .simulate import _condition_jit
+
+    code = out["diagnosis"]
+    suspects = np.flatnonzero(np.isin(code, [FAILURES.index(k) for k in ("max_steps", "dt_min", "other")]))
+    for i in suspects:
+        member = _take(models, i)
+        state = State(*(np.asarray(x)[i] for x in out["final"]))
+        cond, _ = _condition_jit(member, state, np.asarray(out["t_final"])[i])
+        cond = float(cond)
+        if not np.isfinite(cond) or cond > SINGULAR_CONDITION:
+            code[i] = FAILURES.index("singular_matrix")
 
 
 def _pilot_member(model: Model, ts, t1, rtol, atol, cfg: _Config):
@@ -128,10 +141,35 @@ def _pilot_member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     return dict(steps=sol.stats["num_steps"])
 
 
-def _sharded(fn, n_devices):
+# jaxlib's CPU LAPACK kernels (potrf, trsm, syevd, ...) split a batch of matrices over XLA's
+# intra-op thread pool when it is worth more than about 2e5 flops (jax::ParallelBatchMap), and
+# block the calling pool thread until the parts are done. The executions of a program's device
+# shards run on that same pool: two shards that both split a batch can hold every pool thread
+# while their parts wait behind each other, and the process hangs (benchmarks/README.md has the
+# reproduction). Below that size the kernel runs inline. So on the CPU each shard runs its
+# members in vmapped groups small enough for Eq. (1)'s factorization to stay inline.
+_LAPACK_INLINE_FLOPS = 2e5
+
+
+def _cpu_group(model: Model) -> int:
+    """Members per vmapped group on a CPU shard: the batched Cholesky of Eq. (1) (order n + 4
+    with its border) stays under jaxlib's threshold for splitting a batch over the pool."""
+    order = model.n + 4
+    return max(1, int(_LAPACK_INLINE_FLOPS / (order**3 / 3.0)) - 1)
+
+
+def _sharded(fn, n_devices, group):
     """`fn` over a batch (vmapped), split over the first `n_devices` local devices when more than
-    one (``shard_map``: each device runs its own integration loop)."""
-    batched = jax.vmap(fn, in_axes=(0, None, None, None, None, None))
+    one (``shard_map``: each device runs its own integration loop, so a device does not wait for
+    the other's slowest member); `group` members at a time per device (None: all at once)."""
+    one = lambda m, ts, t1, rtol, atol, cfg: fn(m, ts, t1, rtol, atol, cfg)  # noqa: E731
+
+    def batched(models, ts, t1, rtol, atol, cfg):
+        size = jax.tree_util.tree_leaves(models)[0].shape[0]
+        if group is None or group >= size:
+            return jax.vmap(one, in_axes=(0, None, None, None, None, None))(models, ts, t1, rtol, atol, cfg)
+        return jax.lax.map(lambda m: one(m, ts, t1, rtol, atol, cfg), models, batch_size=group)
+
     if n_devices <= 1:
         return batched
     from jax.sharding import Mesh, PartitionSpec as P
@@ -148,33 +186,27 @@ def _sharded(fn, n_devices):
 
 
 @eqx.filter_jit
-def _run_chunk_jit(models, ts, t1, rtol, atol, cfg: _Config, n_devices: int, pilot: bool):
-    return _sharded(_pilot_member if pilot else _member, n_devices)(models, ts, t1, rtol, atol, cfg)
-
-
-def _lapack_serialized() -> bool:
-    """True where concurrent executions of batched LAPACK calls can deadlock: jaxlib's CPU
-    LAPACK kernels split a batch over XLA's intra-op thread pool and block a pool thread until
-    the parts are done (``jax::ParallelBatchMap``); two executions at once (two host devices,
-    two threads) can hold every pool thread while waiting for parts queued behind each other.
-    See benchmarks/README.md."""
-    return jax.default_backend() == "cpu"
+def _run_chunk_jit(models, ts, t1, rtol, atol, cfg: _Config, n_devices: int, group, pilot: bool):
+    return _sharded(_pilot_member if pilot else _member, n_devices, group)(models, ts, t1, rtol, atol, cfg)
 
 
 def run_chunk(models, ts, t1, rtol, atol, cfg: _Config, pilot: bool = False, devices: int | None = None):
     """Run one chunk (a batch of models with a leading run axis) in this process: numpy outputs.
 
-    Public for Dask workers (:func:`monte_carlo` submits it); `devices` local devices share the
-    chunk (default all of them, or one on the CPU, see :func:`_lapack_serialized`)."""
-    size = jax.tree_util.tree_leaves(models)[0].shape[0]
-    if devices is None:
-        devices = 1 if _lapack_serialized() else len(jax.local_devices())
-    devices = max(1, min(int(devices), len(jax.local_devices())))
+    Public for Dask workers (:func:`monte_carlo` submits it). The chunk is split over `devices`
+    local devices (default all of them; fewer if the chunk does not divide evenly)."""
+    leaves = [x for x in jax.tree_util.tree_leaves(models) if eqx.is_array(x)]
+    size = leaves[0].shape[0]
+    devices = len(jax.local_devices()) if devices is None else int(devices)
+    devices = max(1, min(devices, len(jax.local_devices())))
     while size % devices:
         devices -= 1
-    dtype = jnp.result_type(jax.tree_util.tree_leaves(models)[0])
+    group = None
+    if devices > 1 and jax.default_backend() == "cpu":
+        group = _cpu_group(models)
+    dtype = jnp.result_type(models.mass)
     out = _run_chunk_jit(models, jnp.asarray(ts, dtype), jnp.asarray(t1, dtype), jnp.asarray(rtol, dtype),
-                         jnp.asarray(atol, dtype), cfg, devices, pilot)
+                         jnp.asarray(atol, dtype), cfg, devices, group, pilot)
     return jax.tree_util.tree_map(np.asarray, out)
 
 
@@ -417,9 +449,11 @@ def monte_carlo(
       every member takes the same steps, so nobody waits.
     - `max_steps`: step limit per run (simulate's default; ``ceil(t1 / dt) + 1`` with `dt`).
     - `attitude`: the attitude variables integrated (see :func:`jaxtree.simulate`).
-    - `devices`: local devices a chunk is split over (default: all of them on accelerators;
-      one on the CPU, where two concurrent executions of jaxlib's batched LAPACK calls can
-      deadlock, see ``benchmarks/README.md``; more processes or a Dask cluster use the cores).
+    - `devices`: local devices a chunk is split over (default all; several CPU devices come from
+      ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` set before JAX starts). On the CPU
+      each device runs its members in vmapped groups small enough that jaxlib's batched
+      LAPACK calls stay on the calling thread (larger batches are split over XLA's thread
+      pool, and two device shards doing that at once can deadlock; see benchmarks/README.md).
     - `progress`: print one line per finished chunk.
 
     **Returns:** an ``xarray.Dataset`` with dimensions ``run`` (member index), ``time``,
@@ -520,7 +554,8 @@ def monte_carlo(
 
     def finish(k, res, wall):
         idx, _ = chunk_members(k, order_)
-        res = {key_: np.asarray(v)[:len(idx)] for key_, v in res.items()}
+        res = jax.tree_util.tree_map(lambda v: np.array(v)[:len(idx)], res)
+        _diagnose_failures(res, _take(models, idx), model)
         ds = _chunk_dataset(res, np.arange(k * chunk_size, k * chunk_size + len(idx)),
                             {name: x[idx] for name, x in params.items()}, ts, model)
         ds = ds.assign(member=(("run",), idx.astype(np.int64)))
