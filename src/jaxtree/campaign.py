@@ -343,7 +343,7 @@ class _Store:
                 shutil.rmtree(tmp, ignore_errors=True)
                 template = template.assign(chunk_done=(("chunk",), np.zeros(self.n_chunks, bool)))
                 template.attrs["jaxtree_campaign"] = self.fingerprint
-                template.to_zarr(tmp, mode="w", compute=False, consolidated=False)
+                template.to_zarr(tmp, mode="w", compute=False, consolidated=False, zarr_format=2)
                 os.replace(tmp, self.path)
             region = {"run": slice(int(ds.run[0]), int(ds.run[-1]) + 1)}
             ds.drop_vars([v for v in ds.coords if "run" not in ds[v].dims]).to_zarr(
