@@ -128,8 +128,8 @@ def fig4():
     of a_{.1} in the G terms of Eq. 30c)."""
     model = jaxtree.load_scene("fig4")
     model = eqx.tree_at(lambda m: m.hinge_on_body, model, model.hinge_on_body.at[0].set(jnp.array([0.25, 0, -0.3])))
-    hm = jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN)
-    assert hm.form == "first_order" and hm.kind == "gyroscopic" and not hm.precomputed
+    hm = jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN, basis="set")
+    assert hm.form == "first_order" and hm.kind == "gyroscopic" and hm.precomputed
     assert hm.large == (2, 3, 4) and hm.n_modes == 6
     return model, hm
 
@@ -139,7 +139,7 @@ def appendix():
     """Fig. C-1 with both rod hinges small and omega0 the only large variable: the precomputed
     (polynomial) path with real modes (Eq. 121), modes on the nominal spin Omega b3."""
     model, p = _appendix_c()
-    hm = jaxtree.hybrid_model(model, (1, 2), omega0=[0.0, 0.0, 1.0])
+    hm = jaxtree.hybrid_model(model, (1, 2), omega0=[0.0, 0.0, 1.0], basis="set")
     assert hm.form == "real" and hm.precomputed and hm.n_modes == 2 and hm.large == ()
     return model, p, hm
 
@@ -261,7 +261,10 @@ def test_rhs_reproduces_eq30(fig4, appendix):
     rng = np.random.default_rng(3)
     _, hm = fig4
     errs, caret = {}, {}
-    errs["fig4 A=5..10 first-order"], caret["fig4"] = check_rhs_against_eq30(hm, rng)
+    errs["fig4 A=5..10 first-order (precomputed)"], caret["fig4"] = check_rhs_against_eq30(hm, rng)
+    general = jaxtree.hybrid_model(hm.model, FIG4_SMALL, omega0=FIG4_SPIN, basis="set", precompute=False)
+    assert not general.precomputed
+    errs["fig4 A=5..10 first-order (general)"], _ = check_rhs_against_eq30(general, rng)
     # a coefficient a_01 without its caret part (the OCR's reading of Eq. 30c) would miss by far more
     assert caret["fig4"] > 100.0, caret
     # the dense solve of Eq. (118) (used when A is not a terminal appendage) on the same system
@@ -269,7 +272,7 @@ def test_rhs_reproduces_eq30(fig4, appendix):
     errs["fig4 A=5..10 first-order, dense solve"], _ = check_rhs_against_eq30(dense, rng)
     app, _, h = appendix
     errs["appendix C real (precomputed)"], _ = check_rhs_against_eq30(h, rng)
-    hf = jaxtree.hybrid_model(app, (1, 2), omega0=[0.0, 0.0, 1.0], form="first_order")
+    hf = jaxtree.hybrid_model(app, (1, 2), omega0=[0.0, 0.0, 1.0], form="first_order", basis="set")
     assert hf.precomputed and hf.form == "first_order"
     errs["appendix C first-order (precomputed)"], _ = check_rhs_against_eq30(hf, rng)
     print("max relative difference from Eq. (30):", errs)
@@ -318,7 +321,7 @@ def test_nominal_modal_block_and_left_eigenvector_scaling(fig4):
         np.testing.assert_allclose(np.sort(np.abs(lam.imag))[::2], sigma[:k], rtol=1e-9)
     # modal damping (end of Sec. III E, spinning case): i sigma -> -zeta sigma + i sigma
     zeta = 0.02
-    hd = jaxtree.hybrid_model(held, FIG4_SMALL, omega0=FIG4_SPIN, damping=zeta)
+    hd = jaxtree.hybrid_model(held, FIG4_SMALL, omega0=FIG4_SPIN, damping=zeta, basis="set")
     y = hd.pack(nominal)
     jac = modal_jacobian(hd, y)
     nx = 6
@@ -440,7 +443,7 @@ def test_truncation_error_decreases(fig4, fig4_run):
         assert all(errs[i + 1] < errs[i] for i in range(5)), errs
     assert panels[0] > 1e-2 and panels[4] < 0.2 * panels[0] and rates[4] < 0.02 * rates[0]
     # a model built with fewer modes is the masked one
-    small3 = jaxtree.hybrid_model(model, FIG4_SMALL, 3, omega0=FIG4_SPIN)
+    small3 = jaxtree.hybrid_model(model, FIG4_SMALL, 3, omega0=FIG4_SPIN, basis="set")
     np.testing.assert_allclose(np.asarray(small3.frequencies), np.asarray(hm.frequencies)[:3], rtol=1e-14)
     act = np.concatenate([np.arange(3), 6 + np.arange(3)])  # active columns of the masked model
     for a, b in ((small3.positions, hm.positions[:, act]), (small3.rates, hm.rates[:, act]),
@@ -448,7 +451,7 @@ def test_truncation_error_decreases(fig4, fig4_run):
                  (small3.kin_rhs, hm.kin_rhs[np.ix_(act, act)]), (small3.project, hm.project[act])):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-12 * float(np.abs(np.asarray(b)).max()))
     # a frequency cutoff keeps the modes below it
-    cut = jaxtree.hybrid_model(model, FIG4_SMALL, cutoff=12.0, omega0=FIG4_SPIN)
+    cut = jaxtree.hybrid_model(model, FIG4_SMALL, cutoff=12.0, omega0=FIG4_SPIN, basis="set")
     assert cut.n_modes == int(np.sum(np.asarray(hm.frequencies) <= 12.0)) == 4
 
 
@@ -517,8 +520,8 @@ def test_bad_input_messages(fig4):
         jaxtree.hybrid_model(model, FIG4_SMALL, cutoff=0.1, omega0=FIG4_SPIN)
     with pytest.raises(jaxtree.ModalError, match="form='real' needs real modes"):
         jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN, form="real")
-    with pytest.raises(ValueError, match="precompute=True"):
-        jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN, precompute=True)
+    with pytest.raises(ValueError, match="precompute=True"):  # the gimbal hinge has large hinges outboard
+        jaxtree.hybrid_model(model, (2,), precompute=True)
     with pytest.raises(ValueError, match="prescribed"):
         jaxtree.hybrid_model(model, (1, 5))
     with pytest.raises(ValueError, match="retain"):
@@ -549,3 +552,135 @@ def test_failures_are_reported_with_time_and_state_and_tolerances_may_be_traced(
     ends = jax.vmap(lambda tol: jaxtree.simulate_hybrid(hm, 12.0, y0=state, saveat=2, rtol=tol, atol=tol).gamma[-1])(tols)
     err = np.abs(np.asarray(ends) - np.asarray(ref.gamma[-1])).max(1)
     assert np.all(err < 1e3 * np.asarray(tols)) and err[1] < err[0]
+
+
+# ----------------------------------------------------------------------------- substructures (issue 11)
+def _wings(damping=True):
+    model = jaxtree.load_scene("wings")
+    if not damping:
+        model = eqx.tree_at(lambda m: m.damping, model, jnp.zeros_like(model.damping))
+    return model
+
+
+def test_precomputed_equals_general_with_loads_moving_platform_and_several_bases(fig4):
+    """The precomputed substructure terms give the same Eq. (118) as the general form (one jvp of
+    the whole Eq. 1 per right side) to round-off, at random large states: Fig. 4 with its
+    prescribed (moving) platform, gimbals, spinning rotor and a torque on the bus; and the wings with
+    each wing's outer hinges small, hanging from two different large bodies that move."""
+    rng = np.random.default_rng(12)
+    model, _ = fig4
+    loaded = model.with_loads(jaxtree.BodyTorque(0, [3.0, -2.0, 1.0], lambda t: jnp.sin(2.0 * t)))
+    cases = [(loaded, FIG4_SMALL, dict(omega0=FIG4_SPIN)), (_wings(), (2, 3, 4, 6, 7, 8), dict(omega0=[0.1, 0.0, 0.4]))]
+    for model, small, kw in cases:
+        pre = jaxtree.hybrid_model(model, small, **kw)
+        gen = jaxtree.hybrid_model(model, small, precompute=False, **kw)
+        assert pre.precomputed and not gen.precomputed and pre.basis == "substructure"
+        for _ in range(3):
+            y = pre.pack(random_state(model, rng))
+            t = jnp.asarray(rng.uniform(0, 3))
+            m1, r1 = equations_jit(pre, t, y)
+            m2, r2 = equations_jit(gen, t, y)
+            np.testing.assert_allclose(np.asarray(m1), np.asarray(m2), atol=1e-11 * float(np.abs(m2).max()))
+            np.testing.assert_allclose(np.asarray(r1), np.asarray(r2), atol=1e-11 * float(np.abs(r2).max()))
+    assert len({g.base for g in pre.groups}) == 2 and pre.modal_inverse is None  # two moving bases
+
+
+def test_substructure_modes_with_all_modes_reproduce_eq30(fig4):
+    """Each substructure's own held-base modes, all retained, are Eq. (30) in other coordinates:
+    Fig. 4's panels (gyroscopic, spinning) and the two damped wings (general first-order modes)."""
+    rng = np.random.default_rng(21)
+    model, _ = fig4
+    for hm in (jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN),
+               jaxtree.hybrid_model(_wings(), tuple(range(1, 9)), omega0=[0.0, 0.0, 0.3])):
+        assert hm.basis == "substructure"
+        worst, _ = check_rhs_against_eq30(hm, rng)
+        assert worst < 1e-10
+
+
+def test_held_base_modes_are_the_cantilever_modes():
+    """A wing's modes on its held base equal the set-A modes of the same wing on a hub made a
+    billion times heavier (jaxtree.linearize, checked against the Lagrange oracle elsewhere): the
+    base then does not move. Non-spinning and spinning nominal; frequencies to 1e-6."""
+    model = _wings(damping=False)
+    heavy = eqx.tree_at(lambda m: (m.mass, m.inertia), model,
+                        (model.mass.at[0].multiply(1e9), model.inertia.at[0].multiply(1e9)))
+    for spin in ([0.0, 0.0, 0.0], [0.0, 0.0, 0.4]):
+        hm = jaxtree.hybrid_model(model, (1, 2, 3, 4), omega0=spin)
+        ref = jaxtree.modes(jaxtree.linearize(heavy, (1, 2, 3, 4), omega0=spin))
+        np.testing.assert_allclose(np.sort(np.asarray(hm.frequencies)), np.sort(np.asarray(ref.frequencies)),
+                                   rtol=1e-6)
+
+
+def test_truncation_under_a_slew_falls_as_modes_are_added():
+    """A slew of the wings' hub by a smooth torque pulse, panels at rest: the error of the
+    truncated model against the all-mode one falls as modes are added per wing and vanishes with
+    all of them; a repeated frequency (the two identical wings) is never split."""
+    model = _wings(damping=False).with_loads(
+        jaxtree.BodyTorque(0, [0.0, 8.0, 3.0], lambda t: jaxtree.loads.thruster_pulse(t, 0.5, 1.0, rise=0.1)))
+    state = model.initial._replace(gamma=jnp.zeros(model.n), gamma_dot=jnp.zeros(model.n))
+    small = tuple(range(1, 9))
+    full = jaxtree.hybrid_model(model, small)
+    assert full.n_modes == 8 and len(full.groups) == 2
+    ts = np.linspace(0.0, 4.0, 41)
+    ref = jaxtree.simulate_hybrid(full, 4.0, y0=state, saveat=ts, rtol=TOL, atol=TOL)
+    S = np.arange(8)
+    assert np.abs(np.asarray(ref.gamma)[:, S]).max() > 1e-3  # the wings do bend
+    errs = []
+    for k in (1, 2, 3):
+        hm = jaxtree.hybrid_model(model, small, k)
+        assert hm.n_modes == 2 * k  # k per wing
+        sol = jaxtree.simulate_hybrid(hm, 4.0, y0=state, saveat=ts, rtol=TOL, atol=TOL)
+        errs.append(float(np.sqrt(np.mean((np.asarray(sol.gamma) - np.asarray(ref.gamma)) ** 2))))
+    print("rms wing-angle error of k = 1, 2, 3 modes per wing:", errs)
+    assert errs[0] > errs[1] > errs[2] > 0
+    # energy and angular momentum of the rebuilt vehicle: the torque changes H; after the pulse
+    # both stay constant up to the linearization error
+    after = ts > 2.0
+    H = np.asarray(ref.angular_momentum)[after]
+    assert np.abs(H - H[0]).max() < 1e-3 * np.abs(H[0]).max()
+    # the hybrid model's energy at t = 0 is the vehicle's (kinetic energy + springs)
+    e0 = float(jaxtree.kinetic_energy(model, ref.final._replace(gamma=state.gamma, gamma_dot=state.gamma_dot,
+                                                                 omega0=state.omega0, dcm=state.dcm)))
+    assert abs(float(ref.energy[0]) - e0) < 1e-12 * max(1.0, abs(e0))
+
+
+def test_projection_residual_of_the_initial_state():
+    """The start is projected on the retained modes, and the part left out is reported: zero for
+    all modes, the size of the missing modes' share for a truncated model."""
+    model = _wings(damping=False)
+    small = tuple(range(1, 9))
+    rng = np.random.default_rng(4)
+    g = np.zeros(model.n)
+    g[:8] = rng.normal(size=8) * 0.01
+    state = model.initial._replace(gamma=jnp.asarray(g), gamma_dot=jnp.zeros(model.n))
+    full = jaxtree.hybrid_model(model, small)
+    assert float(full.projection_residual(state)) < 1e-12
+    one = jaxtree.hybrid_model(model, small, 1)
+    r = float(one.projection_residual(state))
+    # independent: the same residual from a least-squares fit in the I-weighted norm is not needed;
+    # with one mode per wing the random start is mostly outside the retained modes
+    assert 0.2 < r < 1.0
+    sol = jaxtree.simulate_hybrid(one, 0.5, y0=state, saveat=3)
+    assert abs(float(sol.projection_residual) - r) < 1e-12
+
+
+def test_held_base_frequencies_are_differentiable_in_the_stiffness():
+    """d sigma / d k of a wing's held-base modes (substructure terms, held_base, modes traced with
+    kind='real') against central finite differences."""
+    from jaxtree import substructure as sub
+
+    model = _wings(damping=False)
+    grp = sub.substructures(model, (1, 2, 3, 4))[0]
+
+    def frequencies(stiffness):
+        m = eqx.tree_at(lambda m: m.stiffness, model, stiffness)
+        tm = sub.terms(m, grp, jnp.zeros(m.n))
+        I, J, K = sub.held_base(tm, jnp.zeros(6), jnp.zeros(6), stiffness[:4], jnp.zeros(4))
+        return jaxtree.modes(I, J, K, kind="real").frequencies
+
+    k0 = model.stiffness
+    jac = jax.jacrev(frequencies)(k0)
+    for i in range(4):
+        h = 1e-5 * float(k0[i])
+        fd = (frequencies(k0.at[i].add(h)) - frequencies(k0.at[i].add(-h))) / (2 * h)
+        np.testing.assert_allclose(np.asarray(jac[:, i]), np.asarray(fd), rtol=1e-6, atol=1e-9)

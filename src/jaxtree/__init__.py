@@ -122,3 +122,4 @@ from .hybrid import (
 from .campaign import (
     monte_carlo as monte_carlo,
 )
+from . import viewer as viewer

@@ -40,6 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import articulated
 from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum
 from .model import Model, State
 
@@ -397,6 +398,8 @@ def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelera
 
 
 def _solve_accelerations(model, state, t, tau):
+    if articulated.resolve_method(model) == "articulated":
+        return _solve_articulated(model, state, t, tau)
     state, gdd_p = _complete_state(model, t, state)
     A, rhs = rotational_equations(model, state, t, tau)
     u, p, inverse = _split(model)
@@ -412,6 +415,22 @@ def _solve_accelerations(model, state, t, tau):
     x = jnp.concatenate([xu[:3], gdd])
     hold = A[p] @ x - rhs[p]
     return Accelerations(x[:3], gdd, hold)
+
+
+def _solve_articulated(model, state, t, tau):
+    """Eq. (1) by the blocked articulated-body recursion of :mod:`jaxtree.articulated`."""
+    state, gdd_p = _complete_state(model, t, state)
+    dtype = _dtype(model, state.gamma, state.gamma_dot, state.omega0)
+    gamma, gamma_dot = jnp.asarray(state.gamma, dtype), jnp.asarray(state.gamma_dot, dtype)
+    state = State(jnp.asarray(state.dcm, dtype), jnp.asarray(state.omega0, dtype), gamma, gamma_dot)
+    cfg, omega = _configuration(model, gamma, state.omega0, gamma_dot)
+    torque = hinge_torques(model, gamma, gamma_dot)
+    if tau is not None:
+        torque = torque + tau
+    loads = external_loads(model, t, state, cfg)
+    w_dot, gdd, hold = articulated.solve(model, cfg, omega, _velocities(model, cfg, omega), gamma_dot, torque,
+                                         loads, gdd_p)
+    return Accelerations(w_dot, gdd, hold)
 
 
 def _check_finite(name, model, state, t, tau, acc):

@@ -4,11 +4,11 @@ Likins (1972), Eqs. (105)-(123).
 The vehicle is split as in Sec. III A-B: the set A of *small* hinges (the even groups
 ``gamma^2, gamma^4, ...`` of Eq. 30c; ``nu`` of them) and the *large* variables (``omega0`` and
 the hinges not in A, the odd groups). Eq. (30), the partially linearized Eq. (1), keeps the
-large variables unrestricted and the small ones to first order. The small hinges then get
-constant-coefficient equations ``I y'' + J y' + K y = 0`` on a nominal motion (Eq. 42 = Eq. 105
-per group, :func:`jaxtree.linearize`), whose modes (:func:`jaxtree.modes`, Eqs. 70-104) define
-the *large-deformation modal coordinates*; keeping only some modes (truncation) gives the
-hybrid-coordinate equations:
+large variables unrestricted and the small ones to first order. The small hinges fall into
+*substructures* (connected groups, e.g. one wing: :func:`jaxtree.substructure.substructures`);
+their constant-coefficient equations ``I y'' + J y' + K y = 0`` (Eq. 42 = Eq. 105 per group) give
+the modes (:func:`jaxtree.modes`, Eqs. 70-104) that define the *large-deformation modal
+coordinates*; keeping only some modes (truncation) gives the hybrid-coordinate equations:
 
 - **real modes** (``J = 0``, ``K`` symmetric; Eqs. 119-121): ``y = phi_r eta_r``; the small-hinge
   columns of Eq. (30c) are post-multiplied by ``phi_r`` and its rows premultiplied by
@@ -19,6 +19,14 @@ hybrid-coordinate equations:
   ``Phi_r`` (Eq. 115), rows premultiplied by the left eigenvectors (Eq. 117), truncation
   (Eq. 118); modal damping ``-zeta sigma Y_r`` (the replacement ``i sigma -> -zeta sigma + i
   sigma`` of Sec. III E, spinning case).
+
+**Which modes.** By default (``basis="substructure"``) each substructure has its own modes, on its
+own held base (its base body moving on the nominal motion: cantilever modes, with centrifugal
+stiffening and Coriolis coupling when the nominal spins; :func:`jaxtree.substructure.held_base`),
+and the number kept is chosen per substructure, a group of repeated frequencies kept whole.
+``basis="set"`` takes the modes of the whole set A with the large variables held (Eq. 42 for A,
+:func:`jaxtree.linearize`), the seed's single-appendage reading. With all modes retained both are
+Eq. (30) in other coordinates (exactly, to round-off); truncation removes the modes left out.
 
 Conventions and the two choices the seed leaves open (see ``docs/errata_hybrid.md``):
 
@@ -40,22 +48,23 @@ the large hinges that are unknowns of Eq. (1) (prescribed hinges follow their pr
 leave the state, as in Eq. 25) and ``s`` the modal coordinates: ``[eta_r; eta_r']`` (real form)
 or the ``2 k`` real coordinates of ``Y_r`` (first-order form; ``k`` retained pairs).
 
-Each right-hand side evaluates Eq. (30) at the current large state: the bar parts are Eq. (1)
-at the small hinges' nominal angles and the caret parts its directional derivative along the
-current small displacement (one forward-mode ``jax.jvp`` of Eq. 1; nothing of Eqs. 36-37 is
-transcribed), then solves Eq. (118)/(121). Two cheaper cases:
+**Two ways to evaluate Eq. (30).**
 
-- a **terminal appendage** (no large or prescribed hinge outboard of a small one, Sec. III A):
-  the block ``a_bar`` of the small hinges is constant (note to Eq. 30c), so is the modal block,
-  and the solve is a Schur complement on the ``3 + n_L`` large unknowns with its inverse
-  precomputed;
-- **omega0 the only large variable** (no large or prescribed hinge, no external load): every
-  coefficient is a polynomial in ``omega0`` (Eq. 1 is quadratic in the rates) with constant
-  modal matrices; they are computed once (``precompute``) and a right-hand side costs
-  ``O(k^2)`` plus a 3 x 3 solve.
+- *Precomputed* (every substructure terminal, no external load on a small body; the default then):
+  each substructure's share of Eq. (1) is summarized once, in its base's frame, by the Taylor
+  coefficients of :mod:`jaxtree.substructure`, projected on the retained modes. A right side
+  evaluates Eq. (1) over the large bodies only (a Newton-Euler form with the translation of b_0,
+  eliminated at the end as in Eq. 1), adds each substructure through its base's velocity and
+  acceleration, and costs ``O(n_L^3 + k^2)``: nothing of the size of the small set. Large hinges
+  (free, sprung, prescribed), loads on large bodies and a spinning nominal keep this cost.
+- *General* (an internal substructure: a large hinge outboard of a small one): the bar parts are
+  Eq. (1) at the small hinges' nominal angles and the caret parts its directional derivative along
+  the current small displacement (one forward-mode ``jax.jvp`` of Eq. 1 per right side).
 
-With all modes retained the hybrid equations are Eq. (30) in other coordinates (exactly, to
-round-off); truncation removes the modes left out.
+Both give the same equations to round-off (tests/test_hybrid.py). When the modal block of the
+projected system is constant (all substructures terminal and on one base body: ``a_bar`` of the
+small hinges is then constant, note to Eq. 30c), the linear system is solved by a Schur complement
+on the ``3 + n_L`` large unknowns with that block's inverse precomputed.
 """
 
 from __future__ import annotations
@@ -68,12 +77,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import substructure as _sub
+from .articulated import _force_cross, _inertia_apply, _inertia_matrix, _motion_cross
 from .attitude import AbstractAttitude, get_attitude
-from .kinematics import full_precision
-from .dynamics import rotational_equations
+from .dynamics import configuration, mass_matrix, rotational_equations
+from .kinematics import ancestor_sum, body_rotations, cross, full_precision, mm, mv
 from .linearize import linearize, resolve_hinges
 from .model import Model, State
 from .modes import ModalError, modes as _modes
+from .topology import Topology
 
 __all__ = [
     "HybridModel",
@@ -86,27 +98,37 @@ __all__ = [
 
 
 # ----------------------------------------------------------------------------- the model
-class _Poly(eqx.Module):
-    """Constant coefficients of the hybrid equations when the only large variable is omega0.
+class _Precomputed(eqx.Module):
+    """Each substructure's share of Eq. (30), projected on the retained modes (see
+    :mod:`jaxtree.substructure`), stacked over the ``p`` substructures. Axis ``u``: the modal rows
+    and unknowns of the substructure (padded), ``m``: its modal coordinates (padded); ``a``, ``b``,
+    ``c``: the base's spatial axes (6).
 
-    Rows ``r`` of the projected system (3 omega0 rows, then the ``u`` modal rows), columns
-    ``[omega0_dot (3), modal unknowns (u)]``; ``s`` the modal state (m), ``w`` = omega0:
-
-    - matrix ``mat0 + [dmat @ s, 0]`` (only the omega0 columns carry the caret parts);
-    - right side ``c0 + c1 w + c2 : w w / 2 + (g0 + g1 . w + g2 : w w / 2) s``;
-    - ``xh`` (3, u) = ``mat0[omega0 rows, modal columns] @ modal_inverse`` (masked), for the
-      Schur-complement solve.
+    - matrix: ``aa0 + aa1 . s`` (base-base), ``wa0 + wa1 . s`` (modal rows, base columns),
+      ``aw0`` (base rows, modal columns), ``ww0`` (modal-modal, all substructures, (u, u));
+    - bias: ``g0a : v v / 2 + (g1a . s) : v v / 2 + (g2a . s) . v`` (base rows), the same with
+      ``g*w`` for the modal rows, and the springs ``w0 + w1 . s`` (modal rows);
+    - static: `mcols`, `ucols` (the substructure's modal coordinates and rows in the global
+      ones; padding points one past the end), `bases` (the body each hangs from).
     """
 
-    mat0: jax.Array
-    dmat: jax.Array  # (r, 3, m)
-    c0: jax.Array  # (r,)
-    c1: jax.Array  # (r, 3)
-    c2: jax.Array  # (r, 3, 3)
-    g0: jax.Array  # (r, m)
-    g1: jax.Array  # (r, m, 3)
-    g2: jax.Array  # (r, m, 3, 3)
-    xh: jax.Array
+    aa0: jax.Array
+    aa1: jax.Array
+    wa0: jax.Array
+    wa1: jax.Array
+    aw0: jax.Array
+    ww0: jax.Array
+    g0a: jax.Array
+    g1a: jax.Array
+    g2a: jax.Array
+    g0w: jax.Array
+    g1w: jax.Array
+    g2w: jax.Array
+    w0: jax.Array
+    w1: jax.Array
+    mcols: tuple = eqx.field(static=True)
+    ucols: tuple = eqx.field(static=True)
+    bases: tuple = eqx.field(static=True)
 
 
 class HybridModel(eqx.Module):
@@ -117,7 +139,8 @@ class HybridModel(eqx.Module):
     - `model`: the vehicle; `gamma_nominal` (n,), `omega0_nominal` (3,): the nominal motion the
       modes were computed on (the small hinges' entries of `gamma_nominal` are the expansion
       point ``gamma_bar`` of Eq. 29);
-    - `inertia` (nu, nu): ``I`` of Eq. (42) on the nominal motion (``a_bar`` of the small hinges);
+    - `inertia` (nu, nu): ``a_bar`` of the small hinges at the nominal motion (Eq. 36d; ``I`` of
+      Eq. 42 for the set A);
     - `frequencies`, `damping_ratios` (k,): ``sigma_j`` and the modal damping ``zeta_j`` of the
       retained modes (ascending frequency);
     - `positions`, `rates` (nu, m): ``y = positions @ s`` and ``y' = rates @ s``
@@ -129,15 +152,16 @@ class HybridModel(eqx.Module):
     - `project` (m, 2nu): ``s = project @ [y; y']`` (exact for motions in the retained modes);
     - `keep` (k,): 1 for a retained mode, 0 for a mode masked by :meth:`retain`;
     - `modal_inverse` (u, u) or None: the inverse of the modal block of Eq. (118)/(121) (masked
-      modes included), present when that block is constant: the set A is a terminal appendage
-      (no large or prescribed hinge outboard of a small one, Sec. III A), so ``a_bar`` of the small
-      hinges is constant (note to Eq. 30c) and equals ``I``; the linear system is then solved by a
-      Schur complement on the large unknowns only;
-    - `poly`: the precomputed coefficients, or None.
+      modes included), present when that block is constant (all substructures terminal and on
+      one base body); the linear system is then solved by a Schur complement on the large
+      unknowns only;
+    - `pre`: the precomputed substructure terms (:class:`_Precomputed`), or None (general path).
 
     Static: `small` (the set A), `large` (the large hinges in the state), `form`
-    (``"real"``: Eq. 121; ``"first_order"``: Eq. 118), `kind` (of :func:`jaxtree.modes`),
-    `mode_index` (index of each retained mode in the ordering of :func:`jaxtree.modes`) and the
+    (``"real"``: Eq. 121; ``"first_order"``: Eq. 118), `kind` (of :func:`jaxtree.modes`; of the
+    first substructure's modes when there are several), `mode_index` (each retained mode's index
+    among its substructure's modes, or among the set's for ``basis="set"``), `mode_group` (the
+    substructure of each retained mode), `groups` (the substructures), `basis` and the
     `attitude` parametrisation of b_0.
     """
 
@@ -156,13 +180,16 @@ class HybridModel(eqx.Module):
     project: jax.Array
     keep: jax.Array
     modal_inverse: jax.Array | None
-    poly: _Poly | None
+    pre: _Precomputed | None
     attitude: AbstractAttitude
     small: tuple[int, ...] = eqx.field(static=True)
     large: tuple[int, ...] = eqx.field(static=True)
     form: str = eqx.field(static=True)
     kind: str = eqx.field(static=True)
     mode_index: tuple[int, ...] = eqx.field(static=True)
+    mode_group: tuple[int, ...] = eqx.field(static=True, default=())
+    groups: tuple = eqx.field(static=True, default=())
+    basis: str = eqx.field(static=True, default="set")
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -191,7 +218,9 @@ class HybridModel(eqx.Module):
 
     @property
     def precomputed(self) -> bool:
-        return self.poly is not None
+        """Whether a right side uses the precomputed substructure terms (cost independent of the
+        number of small hinges) rather than a derivative of the whole Eq. (1)."""
+        return self.pre is not None
 
     def _keep_u(self):
         return self.keep if self.form == "real" else jnp.concatenate([self.keep, self.keep])
@@ -264,6 +293,19 @@ class HybridModel(eqx.Module):
             s,
         ])
 
+    def projection_residual(self, state: State):
+        """The part of the small motion of `state` outside the retained modes:
+        ``|[y; y'] - [positions; rates] s| / |[y; y']|`` with ``s`` the projection of
+        :meth:`pack` (0 when the motion lies in the retained modes)."""
+        dtype = jnp.result_type(self.model.mass)
+        S = np.asarray(self.small, dtype=np.int64) - 1
+        x = jnp.concatenate([jnp.asarray(state.gamma, dtype)[S] - self.gamma_nominal.astype(dtype)[S],
+                             jnp.asarray(state.gamma_dot, dtype)[S]])
+        s = self.pack(state)[self.size - self.m:] * self._keep_m().astype(dtype)
+        back = jnp.concatenate([self.positions @ s, self.rates @ s])
+        norm = jnp.sqrt(jnp.sum(x * x))
+        return jnp.sqrt(jnp.sum((x - back) ** 2)) / jnp.maximum(norm, jnp.finfo(dtype).tiny)
+
     def modal(self, y):
         """The modal coordinates ``s`` of a flat state."""
         return self.unpack(y)[4]
@@ -289,22 +331,193 @@ def _selector(n, hinges):
 
 
 def _modal_block(hm: HybridModel):
-    """The constant modal block ``kin + rows^T I accel`` of a terminal appendage, masked."""
+    """The constant modal block ``kin + rows^T I accel`` (masked), when the projected small-small
+    block of Eq. (30) is constant."""
     ku = hm._keep_u()
     H = hm.kin + hm.rows.T @ hm.inertia @ hm.accel
     return H * ku[:, None] * ku[None, :] + jnp.diag(1.0 - ku)
 
 
 def _with_inverse(hm: HybridModel) -> HybridModel:
-    """Recompute `modal_inverse` and the polynomial path's ``xh`` for the current mask (eager)."""
+    """Recompute `modal_inverse` for the current mask (eager)."""
     if hm.modal_inverse is None:
         return hm
-    hinv = jnp.linalg.inv(_modal_block(hm))
-    out = eqx.tree_at(lambda h: h.modal_inverse, hm, hinv)
-    if hm.poly is not None:
-        xh = (hm.poly.mat0[:3, 3:] * hm._keep_u()[None, :]) @ hinv
-        out = eqx.tree_at(lambda h: h.poly.xh, out, xh)
-    return out
+    return eqx.tree_at(lambda h: h.modal_inverse, hm, jnp.linalg.inv(_modal_block(hm)))
+
+
+# ----------------------------------------------------------------------------- precomputed path
+def _large_structure(hm: HybridModel):
+    """Static: the large bodies (body 0 and the bodies of the large and prescribed hinges,
+    ascending), their parents among them, and the hinges of the Newton-Euler columns after
+    ``omega0`` (3) and the translation of b_0 (3): the large hinges, then the prescribed ones."""
+    model = hm.model
+    hinges = tuple(sorted(hm.large + model.prescribed))
+    bodies = (0,) + hinges
+    local = {b: i for i, b in enumerate(bodies)}
+    parents = tuple(local[model.topology.parents[k - 1]] for k in hinges)
+    return bodies, parents, hm.large + model.prescribed, local
+
+
+def _to_base(E, r, x):
+    """Motion vectors (6 along axis -2) from {b^0} components about b_0's mass center to a base's
+    components about its mass center: ``(E w, E (u - r x w))``."""
+    w, u = x[..., :3, :], x[..., 3:, :]
+    rw = jnp.stack([r[..., 1, None] * w[..., 2, :] - r[..., 2, None] * w[..., 1, :],
+                    r[..., 2, None] * w[..., 0, :] - r[..., 0, None] * w[..., 2, :],
+                    r[..., 0, None] * w[..., 1, :] - r[..., 1, None] * w[..., 0, :]], -2)
+    return jnp.concatenate([E @ w, E @ (u - rw)], -2)
+
+
+def _large_frame(hm: HybridModel, bases, t, dcm, w, gL, gdL, v0=None):
+    """Eq. (1) over the large bodies, as a Newton-Euler Gauss function in ``z = [omega0_dot,
+    acceleration of b_0's mass center, gamma_ddot of the large hinges, of the prescribed ones]``
+    about b_0's mass center in {b^0} components (b_0's mass center at rest: Eq. 1 does not depend
+    on a uniform translation), and the motion of each substructure's base.
+
+    **Returns:** ``(A (nz, nz), b (nz,), Jb (p, 6, nz), vb (p, 6), cb (p, 6), prescribed
+    accelerations)``: the large bodies' matrix and bias (hinge laws of the large hinges included),
+    and for each substructure (its base body in `bases`) the base's acceleration map, velocity and
+    velocity-product acceleration in the base's frame about its mass center. `v0`: the spatial
+    velocity of b_0 about its mass center (default: ``omega0`` and no translation)."""
+    model = hm.model
+    bodies, parents, cols, local = _large_structure(hm)
+    topo = Topology(parents)
+    hinges = bodies[1:]
+    dtype = w.dtype
+    nL, nP = len(hm.large), len(model.prescribed)
+    gddP = None
+    gcol, gdcol = gL, gdL
+    if nP:
+        gp, gdp, gddP = model.prescription.derivatives(jnp.asarray(t, dtype))
+        gcol = jnp.concatenate([gL, gp.astype(dtype)])
+        gdcol = jnp.concatenate([gdL, gdp.astype(dtype)])
+        gddP = gddP.astype(dtype)
+    order = np.asarray([cols.index(k) for k in hinges], np.int64)  # body order -> column order
+    gam, gamd = gcol[order], gdcol[order]
+    hk = np.asarray(hinges, np.int64) - 1
+    axis = model.axis[hk].astype(dtype)
+    R = body_rotations(topo, axis, gam)
+    par = np.asarray(parents, np.int64)
+    zero3 = jnp.zeros((1, 3), dtype)
+    to_h = mv(R[par], model.hinge_on_parent[hk].astype(dtype))
+    r = ancestor_sum(topo, jnp.concatenate([zero3, to_h - mv(R[1:], model.hinge_on_body[hk].astype(dtype))], 0))
+    g = mv(R[par], axis)
+    S = jnp.concatenate([g, cross(r[par] + to_h, g)], 1)  # (nh, 6) hinge motions
+    v0 = jnp.concatenate([w, jnp.zeros(3, dtype)]) if v0 is None else v0
+    vel = ancestor_sum(topo, jnp.concatenate([v0[None], S * gamd[:, None]], 0))
+    cw, cu = _motion_cross(vel[par, :3], vel[par, 3:], S[:, :3] * gamd[:, None], S[:, 3:] * gamd[:, None])
+    c = jnp.concatenate([cw, cu], 1)  # (the prescribed accelerations enter through their columns of z)
+    cbar = ancestor_sum(topo, jnp.concatenate([jnp.zeros((1, 6), dtype), c], 0))
+    bidx = np.asarray(bodies, np.int64)
+    mass = model.mass[bidx].astype(dtype)
+    Jc = mm(mm(R, model.inertia[bidx].astype(dtype)), jnp.swapaxes(R, -1, -2))
+    eye = jnp.eye(3, dtype=dtype)
+    J = Jc + mass[:, None, None] * (jnp.sum(r * r, -1)[:, None, None] * eye - r[:, :, None] * r[:, None, :])
+    h = mass[:, None] * r
+    Lw, Lu = _inertia_apply(J, h, mass, vel[:, :3], vel[:, 3:])
+    bw, bu = _force_cross(vel[:, :3], vel[:, 3:], Lw, Lu)
+    Mcw, Mcu = _inertia_apply(J, h, mass, cbar[:, :3], cbar[:, 3:])
+    wrench = jnp.concatenate([Mcw + bw, Mcu + bu], 1)
+    if model.loads is not None:
+        lb = np.asarray([local[int(b)] for b in model.loads.bodies], np.int64)
+        F, T = model.loads(t, _loads_state(hm, t, dcm, w, gL, gdL))
+        F0, T0 = mv(R[lb], F.astype(dtype)), mv(R[lb], T.astype(dtype))
+        wrench = wrench.at[lb].add(-jnp.concatenate([T0 + cross(r[lb], F0), F0], 1))
+    # the unknowns' motion map of each large body: rotation and translation of b_0, then the hinges
+    nz = 6 + nL + nP
+    inv = _inverse(order)  # column -> body order
+    path = topo.path_elements[inv].T  # (nb, nc): the column's hinge is on the path to the body
+    Jac = jnp.concatenate([jnp.broadcast_to(jnp.eye(6, dtype=dtype), (len(bodies), 6, 6)),
+                           jnp.einsum("ca,ic->iac", S[inv], jnp.asarray(path, dtype))], -1)
+    M6 = _inertia_matrix(J, h, mass)
+    A = jnp.einsum("iak,iab,ibl->kl", Jac, M6, Jac)
+    b = jnp.einsum("iak,ia->k", Jac, wrench)
+    # hinge laws of the large hinges (b is minus the generalized force)
+    sprung = [k for k in cols if k in model.sprung]
+    if sprung:
+        ci = np.asarray([cols.index(k) for k in sprung], np.int64)
+        ki = np.asarray(sprung, np.int64) - 1
+        tau = -model.stiffness[ki].astype(dtype) * gcol[ci] - model.damping[ki].astype(dtype) * gdcol[ci]
+        b = b.at[6 + ci].add(-tau)
+    # the substructures' bases
+    lbs = np.asarray([local[bb] for bb in bases], np.int64)
+    E = jnp.swapaxes(R[lbs], -1, -2)
+    rb = r[lbs]
+    Jb = _to_base(E, rb, Jac[lbs])
+    vb = _to_base(E, rb, vel[lbs][..., None])[..., 0]
+    cb = _to_base(E, rb, cbar[lbs][..., None])[..., 0]
+    return A, b, Jb, vb, cb, gddP
+
+
+def _inverse(order):
+    inv = np.empty_like(order)
+    inv[order] = np.arange(len(order))
+    return inv
+
+
+def _loads_state(hm, t, dcm, w, gL, gdL):
+    """The physical state for the loads' law (small hinges at their nominal angles; loads act on
+    large bodies only, whose forces do not depend on the small angles to the order kept)."""
+    gamma, gamma_dot, _ = hm._large_configuration(t, gL, gdL)
+    return State(dcm, w, gamma, gamma_dot)
+
+
+def _pre_system(hm: HybridModel, t, y):
+    """Eq. (118)/(121) from the precomputed substructure terms: ``(matrix, rhs)`` as
+    :func:`_project` returns them from the general form."""
+    att, w, gL, gdL, s = hm.unpack(y)
+    dtype = y.dtype
+    s_in = s * hm._keep_m().astype(dtype)
+    dcm = hm.attitude.to_dcm(att)
+    pre = hm.pre
+    A0zz, b0z, Jb, vb, cb, gddP = _large_frame(hm, pre.bases, t, dcm, w, gL, gdL)
+    nz = A0zz.shape[0]
+    u = hm.u
+    sp = jnp.concatenate([s_in, jnp.zeros((1,), dtype)])
+    sS = sp[np.asarray(pre.mcols, np.int64)]  # (p, mS)
+    onehot = np.zeros((len(pre.bases), len(pre.ucols[0]), u + 1))
+    for g, uc in enumerate(pre.ucols):
+        onehot[g, np.arange(len(uc)), np.asarray(uc)] = 1.0
+    U = jnp.asarray(onehot[..., :u], dtype)  # (p, uS, u): substructure rows -> global rows
+    vv = vb[:, :, None] * vb[:, None, :]
+    aa1 = jnp.einsum("pabm,pm->pab", pre.aa1, sS)
+    wa1 = jnp.einsum("puam,pm->pua", pre.wa1, sS)
+    fa0 = 0.5 * jnp.einsum("pabc,pbc->pa", pre.g0a, vv) + jnp.einsum("pab,pb->pa", pre.aa0, cb)
+    fa1 = (0.5 * jnp.einsum("pabcm,pbc,pm->pa", pre.g1a, vv, sS) + jnp.einsum("pabm,pb,pm->pa", pre.g2a, vb, sS)
+           + jnp.einsum("pab,pb->pa", aa1, cb))
+    fw0 = 0.5 * jnp.einsum("pubc,pbc->pu", pre.g0w, vv) + jnp.einsum("pua,pa->pu", pre.wa0, cb) + pre.w0
+    fw1 = (0.5 * jnp.einsum("pubcm,pbc,pm->pu", pre.g1w, vv, sS) + jnp.einsum("pubm,pb,pm->pu", pre.g2w, vb, sS)
+           + jnp.einsum("pua,pa->pu", wa1, cb) + jnp.einsum("pum,pm->pu", pre.w1, sS))
+    # the whole Newton-Euler system in (z, modal unknowns): bar parts and caret parts
+    A0zz = A0zz + jnp.einsum("pak,pab,pbl->kl", Jb, pre.aa0, Jb)
+    A1zz = jnp.einsum("pak,pab,pbl->kl", Jb, aa1, Jb)
+    A0wz = jnp.einsum("pvu,pva,pak->uk", U, pre.wa0, Jb)
+    A1wz = jnp.einsum("pvu,pva,pak->uk", U, wa1, Jb)
+    A0zw = jnp.einsum("pak,pav,pvu->ku", Jb, pre.aw0, U)
+    b0 = jnp.concatenate([b0z + jnp.einsum("pak,pa->k", Jb, fa0), jnp.einsum("pvu,pv->u", U, fw0)])
+    b1 = jnp.concatenate([jnp.einsum("pak,pa->k", Jb, fa1), jnp.einsum("pvu,pv->u", U, fw1)])
+    A0 = jnp.concatenate([jnp.concatenate([A0zz, A0zw], 1), jnp.concatenate([A0wz, pre.ww0], 1)], 0)
+    A1 = jnp.concatenate([A1zz, A1wz], 0)  # caret parts: the columns of z only (Eq. 30c)
+    # eliminate the translation of b_0 (rows and columns 3..5): Eq. (1) is the Schur complement,
+    # and Eq. (30) its first-order part (M, the total mass, carries no caret)
+    nL, nP = len(hm.large), len(hm.model.prescribed)
+    T = np.arange(3, 6)
+    Rw = np.concatenate([np.arange(3), np.arange(6, 6 + nL), nz + np.arange(u)])
+    Kc = np.concatenate([np.arange(3), np.arange(6, nz)])
+    Wc = nz + np.arange(u)
+    minv = 1.0 / jnp.sum(hm.model.mass.astype(dtype))
+    A0RT, A1RT = A0[np.ix_(Rw, T)], A1[np.ix_(Rw, T)]
+    A0TK, A1TK = A0[np.ix_(T, Kc)], A1[np.ix_(T, Kc)]
+    AK = A0[np.ix_(Rw, Kc)] + A1[np.ix_(Rw, Kc)] - minv * (A0RT @ A0TK + A1RT @ A0TK + A0RT @ A1TK)
+    AW = A0[np.ix_(Rw, Wc)] - minv * A0RT @ A0[np.ix_(T, Wc)]
+    rhs = -(b0[Rw] + b1[Rw] - minv * (A0RT @ b0[T] + A1RT @ b0[T] + A0RT @ b1[T]))
+    nx = 3 + nL
+    if nP:
+        rhs = rhs - AK[:, nx:] @ gddP
+    mat = jnp.concatenate([AK[:, :nx], AW], 1)
+    mat = mat.at[nx:, nx:].add(hm.kin)
+    rhs = rhs.at[nx:].add(hm.kin_rhs @ s_in)
+    return mat, rhs
 
 
 # ----------------------------------------------------------------------------- Eq. (30) parts
@@ -354,32 +567,6 @@ def _mask(hm, mat, rhs):
     return mat, rhs * r
 
 
-def _poly_rhs(p: _Poly, w, s_in):
-    ww = w[:, None] * w[None, :]
-    c = p.c0 + p.c1 @ w + 0.5 * jnp.einsum("rab,ab->r", p.c2, ww)
-    G = p.g0 + p.g1 @ w + 0.5 * jnp.einsum("rjab,ab->rj", p.g2, ww)
-    return c + G @ s_in
-
-
-@full_precision
-def hybrid_equations(hybrid: HybridModel, t, y):
-    """The linear system of Eq. (118) (first-order form) or Eq. (121) (real form) at ``(t, y)``:
-    ``(matrix, rhs)`` for the unknowns ``[omega0_dot, gamma_ddot_L, modal]`` (modal: ``eta_r''``
-    or ``Y_r'``), masked modes included as ``1 * x = 0`` rows. For inspection and tests; the
-    right-hand side :func:`hybrid_rhs` solves the same system."""
-    att, w, gL, gdL, s = hybrid.unpack(y)
-    s_in = s * hybrid._keep_m().astype(y.dtype)
-    if hybrid.poly is not None:
-        p = hybrid.poly
-        mat = jnp.concatenate([p.mat0[:, :3] + p.dmat @ s_in, p.mat0[:, 3:]], 1)
-        rhs = _poly_rhs(p, w, s_in)
-    else:
-        dcm = hybrid.attitude.to_dcm(att)
-        Ml, Ms, R = _eq30(hybrid, t, dcm, w, gL, gdL, hybrid.positions @ s_in, hybrid.rates @ s_in)
-        mat, rhs = _project(hybrid, Ml, Ms, R, s_in)
-    return _mask(hybrid, mat, rhs)
-
-
 def _schur_solve(hinv, Mxx, Mxh, Mhx, rx, rh, xh=None):
     """Solve ``[[Mxx, Mxh], [Mhx, H]] [x; a] = [rx; rh]`` with ``H^{-1} = hinv`` known: a system of
     the size of the large unknowns only."""
@@ -388,28 +575,42 @@ def _schur_solve(hinv, Mxx, Mxh, Mhx, rx, rh, xh=None):
     return x, hinv @ (rh - Mhx @ x)
 
 
-def _solve_poly(hm: HybridModel, w, s_in):
-    """Polynomial path: a 3 x 3 system per call."""
-    p = hm.poly
-    ku = hm._keep_u().astype(w.dtype)
-    Mw = p.mat0[:, :3] + p.dmat @ s_in  # (r, 3)
-    rhs = _poly_rhs(p, w, s_in)
-    return _schur_solve(hm.modal_inverse, Mw[:3], None, Mw[3:] * ku[:, None], rhs[:3], rhs[3:] * ku, xh=p.xh)
+@full_precision
+def hybrid_equations(hybrid: HybridModel, t, y):
+    """The linear system of Eq. (118) (first-order form) or Eq. (121) (real form) at ``(t, y)``:
+    ``(matrix, rhs)`` for the unknowns ``[omega0_dot, gamma_ddot_L, modal]`` (modal: ``eta_r''``
+    or ``Y_r'``), masked modes included as ``1 * x = 0`` rows. For inspection and tests; the
+    right-hand side :func:`hybrid_rhs` solves the same system."""
+    if hybrid.pre is not None:
+        mat, rhs = _pre_system(hybrid, t, y)
+    else:
+        att, w, gL, gdL, s = hybrid.unpack(y)
+        s_in = s * hybrid._keep_m().astype(y.dtype)
+        dcm = hybrid.attitude.to_dcm(att)
+        Ml, Ms, R = _eq30(hybrid, t, dcm, w, gL, gdL, hybrid.positions @ s_in, hybrid.rates @ s_in)
+        mat, rhs = _project(hybrid, Ml, Ms, R, s_in)
+    return _mask(hybrid, mat, rhs)
 
 
-def _solve_terminal(hm: HybridModel, t, y):
-    """General path for a terminal appendage: Eq. (30) by jvp, then a Schur complement on the
-    large unknowns with the constant modal block (which is therefore never formed)."""
-    att, w, gL, gdL, s = hm.unpack(y)
-    s_in = s * hm._keep_m().astype(y.dtype)
+def _solve(hm: HybridModel, t, y):
+    """``(omega0_dot, gamma_ddot_L, modal accelerations)`` of Eq. (118)/(121)."""
+    nx = 3 + len(hm.large)
+    if hm.modal_inverse is None:
+        mat, rhs = hybrid_equations(hm, t, y)
+        x = jnp.linalg.solve(mat, rhs)
+        return x[:3], x[3:nx], x[nx:]
+    # constant modal block: a Schur complement on the large unknowns
+    if hm.pre is not None:
+        mat, rhs = _pre_system(hm, t, y)
+    else:
+        att, w, gL, gdL, s = hm.unpack(y)
+        s_in = s * hm._keep_m().astype(y.dtype)
+        Ml, Ms, R = _eq30(hm, t, hm.attitude.to_dcm(att), w, gL, gdL, hm.positions @ s_in, hm.rates @ s_in)
+        mat, rhs = _project(hm, Ml, Ms, R, s_in)
     ku = hm._keep_u().astype(y.dtype)
-    Ml, Ms, R = _eq30(hm, t, hm.attitude.to_dcm(att), w, gL, gdL, hm.positions @ s_in, hm.rates @ s_in)
-    X = _large_columns(hm)
-    S = np.asarray(hm.small, dtype=np.int64) + 2
-    Mxh = (Ms[X] @ hm.accel) * ku[None, :]
-    Mhx = (hm.rows.T @ Ml[S]) * ku[:, None]
-    rh = (hm.rows.T @ R[S] + hm.kin_rhs @ s_in) * ku
-    return _schur_solve(hm.modal_inverse, Ml[X], Mxh, Mhx, R[X], rh)
+    x, acc = _schur_solve(hm.modal_inverse, mat[:nx, :nx], mat[:nx, nx:] * ku[None, :], mat[nx:, :nx] * ku[:, None],
+                          rhs[:nx], rhs[nx:] * ku)
+    return x[:3], x[3:], acc
 
 
 @full_precision
@@ -424,17 +625,7 @@ def hybrid_rhs(t, y, args: HybridModel):
     att, w, gL, gdL, s = hm.unpack(y)
     km = hm._keep_m().astype(y.dtype)
     s_in = s * km
-    nl = len(hm.large)
-    if hm.poly is not None:
-        wd, acc = _solve_poly(hm, w, s_in)
-        gddL = jnp.zeros((0,), y.dtype)
-    elif hm.modal_inverse is not None:
-        x, acc = _solve_terminal(hm, t, y)
-        wd, gddL = x[:3], x[3:]
-    else:
-        mat, rhs = hybrid_equations(hm, t, y)
-        x = jnp.linalg.solve(mat, rhs)
-        wd, gddL, acc = x[:3], x[3:3 + nl], x[3 + nl:]
+    wd, gddL, acc = _solve(hm, t, y)
     if hm.form == "real":
         k = hm.n_modes
         ds = jnp.concatenate([s_in[k:], acc * hm.keep.astype(y.dtype)])
@@ -463,80 +654,154 @@ def _real_pairs(md, picked, tol):
     return np.stack(a_r + b_r, 1), np.stack(a_l + b_l, 1)
 
 
-# Sample rates for the exact quadratic interpolation in omega0: 0, +-e_a, e_a + e_b (a < b).
-_W_POINTS = np.concatenate([np.zeros((1, 3)), np.eye(3), -np.eye(3), np.eye(3)[[0, 0, 1]] + np.eye(3)[[1, 2, 2]]])
+
+# Frequencies within this relative distance of each other count as one repeated frequency: a
+# truncation keeps or drops such a group whole (six identical wings give six-fold repeats that
+# differ in the last digits; a cut inside them would pick members at random).
+DEGENERATE_RTOL = 1e-6
 
 
-def _quadratic(F):
-    """``(f0, f1, f2)`` with ``f(w) = f0 + f1 . w + f2 : w w / 2`` from the values `F` (10, ...) of a
-    quadratic at `_W_POINTS` (exact up to round-off); f1 and f2 carry the w axes last."""
-    f0, fp, fm, fab = F[0], F[1:4], F[4:7], F[7:10]
-    f1 = 0.5 * (fp - fm)
-    diag = fp + fm - 2.0 * f0
-    f2 = np.zeros((3, 3) + f0.shape)
-    for a in range(3):
-        f2[a, a] = diag[a]
-    for i, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))):
-        f2[a, b] = f2[b, a] = fab[i] - fp[a] - fp[b] + f0
-    return f0, np.moveaxis(f1, 0, -1), np.moveaxis(f2, (0, 1), (-2, -1))
+def _select(sigma, candidates, n, cutoff, where):
+    """Indices of the retained modes among `candidates` (ascending frequency): those up to
+    `cutoff`, the first `n` of them, and the rest of a repeated frequency the n-th belongs to."""
+    cand = [j for j in candidates if cutoff is None or sigma[j] <= float(cutoff)]
+    if n is not None:
+        n = int(n)
+        if n < 1:
+            raise ValueError(f"hybrid_model: n_modes must be >= 1, got {n}")
+        if n > len(cand):
+            raise ValueError(f"hybrid_model: {n} modes asked for{where}, only {len(cand)} available"
+                             + (f" (cutoff {cutoff})" if cutoff is not None else ""))
+        last = sigma[cand[n - 1]]
+        while n < len(cand) and abs(sigma[cand[n]] - last) <= DEGENERATE_RTOL * max(abs(last), 1e-300):
+            n += 1
+        cand = cand[:n]
+    return cand
 
 
-@eqx.filter_jit
-def _poly_physical(model, gamma_nominal, hinges, dcm):
-    """Eq. (30) coefficients for a vehicle whose only large variable is omega0: the matrix and
-    its derivative along the small angles (independent of omega0), and the right side and its
-    derivatives along ``(y, y')`` at the sample rates `_W_POINTS` (Eq. 1 is quadratic in the rates
-    and Eq. 30 linear in ``y, y'``, so a quadratic in omega0 through these points is exact)."""
-    n, nu = model.n, len(hinges)
-    dtype = gamma_nominal.dtype
-    E = jnp.asarray(_selector(n, hinges), dtype)
+def _basis(md, I, K, cand, form, zeta):
+    """Modal matrices of the retained modes `cand` of one set of coordinates (module docstring):
+    ``positions, rates (nu, m), accel, rows (nu, u), kin (u, u), kin_rhs (u, m), project (m, 2nu)``."""
+    nu, k = I.shape[0], len(cand)
+    sig = np.asarray(md.frequencies)[cand]
+    Z = np.zeros((nu, k))
+    if form == "real":
+        phi = np.asarray(md.shapes).real[:, cand]  # Eq. (119), phi^T I phi = U
+        Ip = phi.T @ I
+        return dict(positions=np.concatenate([phi, Z], 1), rates=np.concatenate([Z, phi], 1), accel=phi, rows=phi,
+                    kin=np.zeros((k, k)),
+                    kin_rhs=np.concatenate([np.zeros((k, k)), -np.diag(2.0 * zeta * sig)], 1),  # Eq. (104)
+                    project=np.block([[Ip, np.zeros_like(Ip)], [np.zeros_like(Ip), Ip]]))
+    scale = max(float(np.abs(np.asarray(md.eigenvalues)).max()), 1e-300)
+    T, V = _real_pairs(md, cand, 1e-9 * scale)
+    W = np.concatenate([K.T @ V[:nu], V[nu:]], 0)  # left vectors of the unscaled rows (30d)
+    Pu = np.block([[np.eye(nu), np.zeros((nu, nu))], [np.zeros((nu, nu)), I]])
+    W = W @ np.linalg.inv(W.T @ Pu @ T).T  # W^T diag(U, I) T = U (Eqs. 116-117)
+    positions, rates = T[:nu], T[nu:]
+    return dict(positions=positions, rates=rates, accel=rates, rows=W[nu:], kin=W[:nu].T @ positions,
+                kin_rhs=W[:nu].T @ rates - np.diag(np.concatenate([zeta * sig, zeta * sig])), project=W.T @ Pu)
 
-    def eq1(w, y, yd):
-        return rotational_equations(model, State(dcm, w, gamma_nominal + E @ y, E @ yd), 0.0)
 
-    def jvp(w, t):  # Eq. (1) and its derivative along the small angles and rates t = (y, y')
-        return jax.jvp(lambda v: eq1(w, v[:nu], v[nu:]), (jnp.zeros(2 * nu, dtype),), (t,))
+def _zeta(damping, k, kind):
+    zeta = np.zeros(k) if damping is None else np.broadcast_to(np.asarray(damping, float), (k,)).copy()
+    if damping is not None:
+        if np.any(zeta < 0) or not np.all(np.isfinite(zeta)):
+            raise ValueError(f"hybrid_model: modal damping ratios must be finite and >= 0, got {zeta.tolist()}")
+        if kind == "general":
+            raise ModalError("hybrid_model: modal damping (Sec. III E) applies to undamped real or gyroscopic "
+                             "modes; the modes of this set A already have a general J")
+    return zeta
 
-    # one trace of Eq. (1): vmapped over the 2 nu unit tangents and the sample rates
-    (A, c), (dA, g) = jax.vmap(lambda w: jax.vmap(lambda t: jvp(w, t))(jnp.eye(2 * nu, dtype=dtype)))(
-        jnp.asarray(_W_POINTS, dtype))
-    return dict(A=A[0, 0], dA0=jnp.moveaxis(dA[0, :nu, :, :3], 0, -1), c=c[:, 0], g=jnp.moveaxis(g, 1, -1))
+
+def _assemble(blocks, nu, form):
+    """Global modal matrices from per-group blocks ``(rows of the set A, sigma, parts)``: the modes
+    of all groups ordered by frequency; returns the matrices, the order ``(group, local index)``
+    and each group's global modal coordinates and rows."""
+    order = sorted(((float(sig[j]), g, j) for g, (_, sig, _) in enumerate(blocks) for j in range(len(sig))))
+    k = len(order)
+    u = k if form == "real" else 2 * k
+    pos = {(g, j): q for q, (_, g, j) in enumerate(order)}
+    out = dict(positions=np.zeros((nu, 2 * k)), rates=np.zeros((nu, 2 * k)), accel=np.zeros((nu, u)),
+               rows=np.zeros((nu, u)), kin=np.zeros((u, u)), kin_rhs=np.zeros((u, 2 * k)), project=np.zeros((2 * k, 2 * nu)))
+    mmaps, umaps = [], []
+    for g, (rows, sig, p) in enumerate(blocks):
+        kg = len(sig)
+        q = np.asarray([pos[(g, j)] for j in range(kg)], np.int64)
+        mm_ = np.concatenate([q, k + q])
+        um = q if form == "real" else mm_
+        r = np.asarray(rows, np.int64)
+        out["positions"][np.ix_(r, mm_)] = p["positions"]
+        out["rates"][np.ix_(r, mm_)] = p["rates"]
+        out["accel"][np.ix_(r, um)] = p["accel"]
+        out["rows"][np.ix_(r, um)] = p["rows"]
+        out["kin"][np.ix_(um, um)] = p["kin"]
+        out["kin_rhs"][np.ix_(um, mm_)] = p["kin_rhs"]
+        out["project"][np.ix_(mm_, np.concatenate([r, nu + r]))] = p["project"]
+        mmaps.append(mm_), umaps.append(um)
+    return out, [(g, j) for _, g, j in order], mmaps, umaps
 
 
-def _build_poly(model, gamma_nominal, small, dcm, hm_parts):
-    ph = {k: np.asarray(v) for k, v in _poly_physical(model, gamma_nominal, small, dcm).items()}
-    ph["c0"], ph["c1"], ph["c2"] = _quadratic(ph["c"])
-    ph["g0"], ph["g1"], ph["g2"] = _quadratic(ph["g"])
-    accel, rows, kin, kin_rhs, positions, rates = (np.asarray(hm_parts[k]) for k in
-                                                   ("accel", "rows", "kin", "kin_rhs", "positions", "rates"))
-    S = np.asarray(small, dtype=np.int64) + 2
-    X = np.arange(3)
+def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u, m):
+    """The precomputed substructure terms (:class:`_Precomputed`), projected on the modes."""
+    ms, us = max(len(x) for x in mmaps), max(len(x) for x in umaps)
+    keys = ("aa0", "aa1", "wa0", "wa1", "aw0", "g0a", "g1a", "g2a", "g0w", "g1w", "g2w", "w0", "w1")
+    acc = {k: [] for k in keys}
+    ww0 = np.zeros((u, u))
+    sprung = np.zeros(model.n)
+    sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
+    stiff = np.asarray(model.stiffness) * sprung
+    damp = np.asarray(model.damping) * sprung
+    for grp, tm, mc, uc in zip(groups, tms, mmaps, umaps):
+        idx = np.asarray([small.index(k) for k in grp.hinges], np.int64)
+        P = parts["positions"][np.ix_(idx, mc)]
+        Q = parts["rates"][np.ix_(idx, mc)]
+        Acc = parts["accel"][np.ix_(idx, uc)]
+        Rw = parts["rows"][np.ix_(idx, uc)]
+        A0, A1, G0, G1, G2 = (np.asarray(x) for x in (tm.A0, tm.A1, tm.G0, tm.G1, tm.G2))
+        h = np.asarray(grp.hinges, np.int64) - 1
+        gbar = np.asarray(gamma_nominal)[h]
+        pad_m = lambda x: np.concatenate([x, np.zeros(x.shape[:-1] + (ms - x.shape[-1],))], -1)
 
-    def rowp(M):  # rows: omega0, then rows^T @ (small rows); M has leading axis n+3
-        top = M[X]
-        bot = np.tensordot(rows.T, M[S], axes=(1, 0))
-        return np.concatenate([top, bot], 0)
+        def pad_u(x, axis=0):
+            width = [(0, 0)] * x.ndim
+            width[axis] = (0, us - x.shape[axis])
+            return np.pad(x, width)
 
-    A = ph["A"]
-    mat0 = np.concatenate([rowp(A[:, X]), rowp(A[:, S] @ accel)], 1)
-    mat0[3:, 3:] += kin
-    Pm = np.concatenate([positions, rates], 0)  # (2nu, m): [y; y'] = Pm s
-    dmat = rowp(np.einsum("iaj,jm->iam", ph["dA0"], positions))
-    g0 = rowp(ph["g0"] @ Pm)
-    g0[3:] += kin_rhs
-    g1 = rowp(np.einsum("ija,jm->ima", ph["g1"], Pm))
-    g2 = rowp(np.einsum("ijab,jm->imab", ph["g2"], Pm))
-    f = lambda x: jnp.asarray(x, gamma_nominal.dtype)
-    u = accel.shape[1]
-    return _Poly(mat0=f(mat0), dmat=f(dmat), c0=f(rowp(ph["c0"])), c1=f(rowp(ph["c1"])), c2=f(rowp(ph["c2"])),
-                 g0=f(g0), g1=f(g1), g2=f(g2), xh=f(np.zeros((3, u))))
+        acc["aa0"].append(A0[:6, :6])
+        acc["aa1"].append(pad_m(A1[:6, :6] @ P))
+        acc["wa0"].append(pad_u(Rw.T @ A0[6:, :6]))
+        acc["wa1"].append(pad_u(pad_m(np.einsum("ju,jak,km->uam", Rw, A1[6:, :6], P))))
+        acc["aw0"].append(pad_u(A0[:6, 6:] @ Acc, 1))
+        acc["g0a"].append(G0[:6])
+        acc["g1a"].append(pad_m(G1[:6] @ P))
+        acc["g2a"].append(pad_m(G2[:6] @ Q))
+        acc["g0w"].append(pad_u(np.einsum("ju,jbc->ubc", Rw, G0[6:])))
+        acc["g1w"].append(pad_u(pad_m(np.einsum("ju,jbck,km->ubcm", Rw, G1[6:], P))))
+        acc["g2w"].append(pad_u(pad_m(np.einsum("ju,jbk,km->ubm", Rw, G2[6:], Q))))
+        acc["w0"].append(pad_u(Rw.T @ (stiff[h] * gbar)))  # -tau_S at y = 0 (a spring preload)
+        acc["w1"].append(pad_u(pad_m(Rw.T @ (stiff[h][:, None] * P + damp[h][:, None] * Q))))
+        ww0[np.ix_(uc, uc)] += Rw.T @ A0[6:, 6:] @ Acc
+    dtype = jnp.result_type(model.mass)
+    f = lambda x: jnp.asarray(np.stack(x), dtype)
+    pad_idx = lambda x, n, width: tuple(tuple(int(i) for i in c) + (n,) * (width - len(c)) for c in x)
+    return _Precomputed(**{k: f(v) for k, v in acc.items()}, ww0=jnp.asarray(ww0, dtype),
+                        mcols=pad_idx(mmaps, m, ms), ucols=pad_idx(umaps, u, us),
+                        bases=tuple(g.base for g in groups))
+
+
+def _nominal_motion(model, omega0, gamma, dcm):
+    dtype = jnp.result_type(model.mass)
+    w = jnp.zeros(3, dtype) if omega0 is None else jnp.asarray(omega0, dtype)
+    g = jnp.zeros(model.n, dtype) if gamma is None else jnp.asarray(gamma, dtype)
+    C = jnp.eye(3, dtype=dtype) if dcm is None else jnp.asarray(dcm, dtype)
+    return w, g, C
 
 
 @full_precision
 def hybrid_model(
     model: Model,
     small,
-    n_modes: int | None = None,
+    n_modes=None,
     *,
     cutoff: float | None = None,
     omega0=None,
@@ -547,6 +812,7 @@ def hybrid_model(
     precompute: bool | None = None,
     attitude: str | AbstractAttitude = "quaternion",
     rtol: float = 1e-9,
+    basis: str | None = None,
 ) -> HybridModel:
     """The hybrid-coordinate equations of `model` with the hinges of `small` (the set A) in
     truncated large-deformation modal coordinates (Eqs. 105-123).
@@ -554,19 +820,24 @@ def hybrid_model(
     **Arguments:**
 
     - `small`: the set A (hinge indices 1..n or body names), see :func:`jaxtree.linearize`;
-    - `n_modes`: number of retained modes (pairs in the first-order form), the lowest
-      frequencies first; default all; `cutoff`: retain only modes with ``sigma <= cutoff``
-      (both may be given);
-    - `omega0`, `gamma`, `dcm`: the nominal motion on which ``I, J, K`` and the modes are
-      computed (:func:`jaxtree.linearize`: ``omega0`` constant, the other hinges held at
-      `gamma`); the small hinges' entries of `gamma` are the expansion point of Eq. (29);
+      it is split into substructures (connected groups of small hinges, e.g. one wing);
+    - `basis`: ``"substructure"`` (default when every substructure is terminal): each
+      substructure's own modes on its held base; ``"set"`` (default otherwise): the modes of the
+      whole set A with the large variables held (Eq. 42 for A);
+    - `n_modes`: modes retained, the lowest frequencies first: a number per substructure (an
+      int for each, or a sequence with one entry per substructure) with the substructure basis,
+      the total with the set basis; default all; `cutoff`: retain only modes with
+      ``sigma <= cutoff``. A repeated frequency is kept whole;
+    - `omega0`, `gamma`, `dcm`: the nominal motion on which the modes are computed (``omega0``
+      constant, the other hinges held at `gamma`, a steady spin about the system mass center);
+      the small hinges' entries of `gamma` are the expansion point of Eq. (29);
     - `damping`: modal damping ratios ``zeta`` (scalar or one per retained mode), added after
       the transformation as in Sec. III E;
     - `form`: ``"real"`` (Eq. 121, needs real modes) or ``"first_order"`` (Eq. 118); default
-      real when :func:`jaxtree.modes` finds real modes, else first order;
-    - `precompute`: evaluate the constant-coefficient polynomial form once (only possible when
-      the large variables are omega0 alone: no large or prescribed hinge, no external loads);
-      default: whenever possible;
+      real when every substructure's modes are real, else first order;
+    - `precompute`: evaluate Eq. (30) from the precomputed substructure terms (a right side's
+      cost independent of the number of small hinges); possible when every substructure is
+      terminal and no external load acts on a small body; default: whenever possible;
     - `attitude`: attitude variables of b_0 in the state (``"quaternion"``, ``"dcm"``,
       ``"euler123"``).
 
@@ -578,88 +849,150 @@ def hybrid_model(
     S = resolve_hinges(model, small)
     L = tuple(k for k in model.unknown_hinges if k not in S)
     dtype = jnp.result_type(model.mass)
-    lin = linearize(model, S, omega0=omega0, gamma=gamma, dcm=dcm)
-    md = _modes(lin, rtol=rtol)
-    nu = len(S)
-    if form is None:
-        form = "real" if md.kind == "real" else "first_order"
-    if form not in ("real", "first_order"):
-        raise ValueError(f"hybrid_model: form must be 'real' or 'first_order', got {form!r}")
-    if form == "real" and md.kind != "real":
-        raise ModalError(f"hybrid_model: form='real' needs real modes (J = 0, K symmetric); the modes of the set A "
-                         f"are {md.kind!r}. Use form='first_order' (Eq. 118).")
-    sigma = np.asarray(md.frequencies)
-    rigid = np.asarray(md.rigid)
-    cand = list(range(nu)) if form == "real" else [j for j in range(nu) if not rigid[j]]
-    if cutoff is not None:
-        cand = [j for j in cand if sigma[j] <= float(cutoff)]
-    if n_modes is not None:
-        n_modes = int(n_modes)
-        if n_modes < 1:
-            raise ValueError(f"hybrid_model: n_modes must be >= 1, got {n_modes}")
-        if n_modes > len(cand):
-            raise ValueError(f"hybrid_model: {n_modes} modes asked for, only {len(cand)} available "
-                             f"({nu} small hinges" + (", rigid modes left out of the first-order form" if
-                                                      form == "first_order" and rigid.any() else "")
-                             + (f", cutoff {cutoff}" if cutoff is not None else "") + ")")
-        cand = cand[:n_modes]
-    if not cand:
-        raise ValueError("hybrid_model: no mode retained (check cutoff)")
-    k = len(cand)
-    sig = sigma[cand]
-    zeta = np.zeros(k) if damping is None else np.broadcast_to(np.asarray(damping, float), (k,)).copy()
-    if damping is not None:
-        if np.any(zeta < 0) or not np.all(np.isfinite(zeta)):
-            raise ValueError(f"hybrid_model: modal damping ratios must be finite and >= 0, got {zeta.tolist()}")
-        if md.kind == "general":
-            raise ModalError("hybrid_model: modal damping (Sec. III E) applies to undamped real or gyroscopic "
-                             "modes; the modes of this set A already have a general J")
-    I = np.asarray(lin.I)
-    Kmat = np.asarray(lin.K)
-    Z = np.zeros((nu, k))
-    if form == "real":
-        phi = np.asarray(md.shapes).real[:, cand]  # Eq. (119), phi^T I phi = U
-        positions = np.concatenate([phi, Z], 1)
-        rates = np.concatenate([Z, phi], 1)
-        accel = rows = phi  # Eq. (121)
-        kin = np.zeros((k, k))
-        kin_rhs = np.concatenate([np.zeros((k, k)), -np.diag(2.0 * zeta * sig)], 1)  # Eq. (104)
-        Ip = phi.T @ I
-        project = np.block([[Ip, np.zeros_like(Ip)], [np.zeros_like(Ip), Ip]])
-    else:
-        scale = max(float(np.abs(np.asarray(md.eigenvalues)).max()), 1e-300)
-        T, V = _real_pairs(md, cand, 1e-9 * scale)
-        W = np.concatenate([Kmat.T @ V[:nu], V[nu:]], 0)  # left vectors of the unscaled rows (30d)
-        Pu = np.block([[np.eye(nu), np.zeros((nu, nu))], [np.zeros((nu, nu)), I]])
-        G = W.T @ Pu @ T
-        W = W @ np.linalg.inv(G).T  # W^T diag(U, I) T = U (Eqs. 116-117)
-        positions, rates = T[:nu], T[nu:]
-        accel = rates  # y'' = Gamma_2 Phi_r Y_r'
-        rows = W[nu:]
-        kin = W[:nu].T @ positions  # kinematic rows of (30d): U y' = y'
-        kin_rhs = W[:nu].T @ rates - np.diag(np.concatenate([zeta * sig, zeta * sig]))
-        project = W.T @ Pu
-    eps = np.asarray(model.topology.path_elements)
-    terminal = not any(eps[s - 1, l] for s in S for l in L + tuple(model.prescribed))  # Sec. III A
+    groups = _sub.substructures(model, S)
+    terminal = all(g.terminal for g in groups)
+    small_bodies = set(S)
+    loads_small = model.loads is not None and any(int(b) in small_bodies for b in model.loads.bodies)
+    if basis is None:
+        basis = "substructure" if terminal else "set"
+    if basis not in ("substructure", "set"):
+        raise ValueError(f"hybrid_model: basis must be 'substructure' or 'set', got {basis!r}")
+    if basis == "substructure" and not terminal:
+        raise ValueError("hybrid_model: basis='substructure' needs every substructure terminal (no large or "
+                         "prescribed hinge outboard of a small one); use basis='set'")
+    possible = terminal and not loads_small
     if precompute is None:
-        precompute = not L and not model.prescribed and model.loads is None
-    if precompute and (L or model.prescribed or model.loads is not None):
-        raise ValueError("hybrid_model: precompute=True needs omega0 as the only large variable (no large or "
-                         "prescribed hinge, no external loads); the coefficients then are polynomials in omega0")
+        precompute = possible
+    if precompute and not possible:
+        raise ValueError("hybrid_model: precompute=True needs every substructure terminal (no large or prescribed "
+                         "hinge outboard of a small one) and no external load on a small body"
+                         + ("; the loads act on small bodies" if loads_small else ""))
+    if form not in (None, "real", "first_order"):
+        raise ValueError(f"hybrid_model: form must be 'real' or 'first_order', got {form!r}")
+    w_nom, g_nom, C_nom = _nominal_motion(model, omega0, gamma, dcm)
+    nu = len(S)
+    tms = [_sub.terms(model, g, g_nom) for g in groups] if (precompute or basis == "substructure") else None
+
+    if basis == "set":
+        lin = linearize(model, S, omega0=omega0, gamma=gamma, dcm=dcm)
+        systems = [(tuple(range(nu)), np.asarray(lin.I), np.asarray(lin.J), np.asarray(lin.K), lin.coordinates)]
+    else:
+        systems = []
+        cfg = configuration(model, g_nom)
+        r_cm = -cfg.rho[0]  # the system mass center from b_0's: the nominal spins about it
+        skeleton = HybridModel(
+            model=model, gamma_nominal=g_nom, omega0_nominal=w_nom, inertia=jnp.zeros((0, 0)), frequencies=jnp.zeros(0),
+            damping_ratios=jnp.zeros(0), positions=jnp.zeros((nu, 0)), rates=jnp.zeros((nu, 0)), accel=jnp.zeros((nu, 0)),
+            rows=jnp.zeros((nu, 0)), kin=jnp.zeros((0, 0)), kin_rhs=jnp.zeros((0, 0)), project=jnp.zeros((0, 2 * nu)),
+            keep=jnp.zeros(0), modal_inverse=None, pre=None, attitude=get_attitude(attitude), small=S, large=L,
+            form="real", kind="real", mode_index=(), groups=groups, basis=basis)
+        gL = g_nom[np.asarray(L, np.int64) - 1]
+        v0 = jnp.concatenate([w_nom, cross(r_cm, w_nom)])  # b_0's velocity in the spin about the mass center
+        held = _held_prescription(skeleton)
+        _, _, _, vb, _, _ = _large_frame(held, tuple(g.base for g in groups), jnp.asarray(0.0, dtype), C_nom, w_nom,
+                                         gL, jnp.zeros_like(gL), v0=v0)
+        sprung = np.zeros(model.n)
+        sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
+        for grp, tm, vg in zip(groups, tms, vb):
+            h = np.asarray(grp.hinges, np.int64) - 1
+            k_s = jnp.asarray(np.asarray(model.stiffness) * sprung)[h]
+            d_s = jnp.asarray(np.asarray(model.damping) * sprung)[h]
+            I, J, K = _sub.held_base(tm, vg, jnp.zeros(6, dtype), k_s, d_s)  # steady spin: no base acceleration
+            rows = tuple(S.index(k) for k in grp.hinges)
+            systems.append((rows, np.asarray(I), np.asarray(J), np.asarray(K),
+                            tuple(model.names[k] for k in grp.hinges)))
+    mds = [_modes(I, J, K, labels=lab, rtol=rtol) for (_, I, J, K, lab) in systems]
+    kinds = [md.kind for md in mds]
+    if form is None:
+        form = "real" if all(kd == "real" for kd in kinds) else "first_order"
+    if form == "real" and any(kd != "real" for kd in kinds):
+        bad = next(kd for kd in kinds if kd != "real")
+        raise ModalError(f"hybrid_model: form='real' needs real modes (J = 0, K symmetric); the modes of the set A "
+                         f"are {bad!r}. Use form='first_order' (Eq. 118).")
+    if basis == "substructure" and n_modes is not None and not isinstance(n_modes, (int, np.integer)):
+        per = list(n_modes)
+        if len(per) != len(groups):
+            raise ValueError(f"hybrid_model: n_modes has {len(per)} entries for {len(groups)} substructures")
+    else:
+        per = [n_modes] * len(mds)
+    blocks, picked = [], []
+    for gi, ((rows, I, J, K, _), md, n) in enumerate(zip(systems, mds, per)):
+        sigma = np.asarray(md.frequencies)
+        rigid = np.asarray(md.rigid)
+        cands = list(range(len(sigma))) if form == "real" else [j for j in range(len(sigma)) if not rigid[j]]
+        where = "" if basis == "set" else f" for substructure {gi} (from hinge {model.names[groups[gi].hinges[0]]!r})"
+        if form == "first_order" and rigid.any():
+            where += " (rigid modes left out of the first-order form)"
+        cand = _select(sigma, cands, n, cutoff, where)
+        if not cand:
+            continue
+        picked.append((gi, cand))
+        blocks.append((rows, sigma[cand], cand, md, I, K))
+    if not blocks:
+        raise ValueError("hybrid_model: no mode retained (check cutoff)")
+    k = sum(len(b[1]) for b in blocks)
+    zeta = _zeta(damping, k, kinds[0] if len(set(kinds)) == 1 else "general" if "general" in kinds else kinds[0])
+    # modal damping follows the global (frequency) order of the modes: split it by group afterwards
+    order = sorted(((float(sig[j]), g, j) for g, (_, sig, *_r) in enumerate(blocks) for j in range(len(sig))))
+    zg = [np.zeros(len(b[1])) for b in blocks]
+    for q, (_, g, j) in enumerate(order):
+        zg[g][j] = zeta[q]
+    parts_g = [(rows, sig, _basis(md, I, K, cand, form, zg[g])) for g, (rows, sig, cand, md, I, K) in enumerate(blocks)]
+    parts, mode_order, mmaps, umaps = _assemble(parts_g, nu, form)
+    sig_all = np.asarray([blocks[g][1][j] for g, j in mode_order])
+    zeta_all = np.asarray([zg[g][j] for g, j in mode_order])
+    mode_index = tuple(int(blocks[g][2][j]) for g, j in mode_order)
+    group_of = [picked[g][0] for g in range(len(blocks))]
+    mode_group = tuple(int(group_of[g]) for g, _ in mode_order)
     f = lambda x: jnp.asarray(x, dtype)
-    parts = dict(positions=positions, rates=rates, accel=accel, rows=rows, kin=kin, kin_rhs=kin_rhs)
-    w_nom = jnp.zeros(3, dtype) if omega0 is None else jnp.asarray(omega0, dtype)
-    g_nom = jnp.zeros(model.n, dtype) if gamma is None else jnp.asarray(gamma, dtype)
-    C_nom = jnp.eye(3, dtype=dtype) if dcm is None else jnp.asarray(dcm, dtype)
-    poly = _build_poly(model, g_nom, S, C_nom, parts) if precompute else None
+    u, m = parts["accel"].shape[1], parts["positions"].shape[1]
+    pre = None
+    if precompute:
+        # every substructure, also one with no retained mode (its mass still moves with its base)
+        gm, gu = [], []
+        for gi in range(len(groups)):
+            if gi in group_of:
+                gm.append(mmaps[group_of.index(gi)]), gu.append(umaps[group_of.index(gi)])
+            else:
+                gm.append(np.zeros(0, np.int64)), gu.append(np.zeros(0, np.int64))
+        if basis == "set":  # the set's modes span every substructure
+            gm = [np.arange(m)] * len(groups)
+            gu = [np.arange(u)] * len(groups)
+        pre = _build_pre(model, groups, tms, S, g_nom, parts, gm, gu, u, m)
+    one_base = len({g.base for g in groups}) == 1
+    inertia = mass_matrix(model, g_nom)[np.ix_(np.asarray(S) + 2, np.asarray(S) + 2)]
     hm = HybridModel(
-        model=model, gamma_nominal=g_nom, omega0_nominal=w_nom, inertia=f(I), frequencies=f(sig),
-        damping_ratios=f(zeta), positions=f(positions), rates=f(rates), accel=f(accel), rows=f(rows),
-        kin=f(kin), kin_rhs=f(kin_rhs), project=f(project), keep=jnp.ones(k, dtype),
-        modal_inverse=f(np.eye(accel.shape[1])) if terminal else None, poly=poly,
-        attitude=get_attitude(attitude), small=S, large=L, form=form, kind=md.kind, mode_index=tuple(cand),
+        model=model, gamma_nominal=g_nom, omega0_nominal=w_nom, inertia=f(inertia), frequencies=f(sig_all),
+        damping_ratios=f(zeta_all), positions=f(parts["positions"]), rates=f(parts["rates"]),
+        accel=f(parts["accel"]), rows=f(parts["rows"]), kin=f(parts["kin"]), kin_rhs=f(parts["kin_rhs"]),
+        project=f(parts["project"]), keep=jnp.ones(len(mode_index), dtype),
+        modal_inverse=f(np.eye(u)) if (terminal and one_base) else None, pre=pre,
+        attitude=get_attitude(attitude), small=S, large=L, form=form, kind=kinds[0], mode_index=mode_index,
+        mode_group=mode_group, groups=groups, basis=basis,
     )
     return _with_inverse(hm)
+
+
+class _HeldPrescription(eqx.Module):
+    """A prescription that holds its hinges at fixed angles (rates and accelerations zero)."""
+
+    hinges: tuple = eqx.field(static=True)
+    value: jax.Array
+
+    def derivatives(self, t):
+        z = jnp.zeros_like(self.value)
+        return self.value, z, z
+
+
+def _held_prescription(hm: HybridModel) -> HybridModel:
+    """The same hybrid model with its prescribed hinges held at their nominal angles, as
+    :func:`jaxtree.linearize` holds them for the modes."""
+    model = hm.model
+    if model.prescription is None:
+        return hm
+    values = hm.gamma_nominal[np.asarray(model.prescribed, np.int64) - 1]
+    held = eqx.tree_at(lambda m: m.prescription, model, _HeldPrescription(model.prescribed, values))
+    return eqx.tree_at(lambda h: h.model, hm, held)
 
 
 # ----------------------------------------------------------------------------- simulation
@@ -672,6 +1005,14 @@ class HybridSolution(eqx.Module):
     `t_final` (where the run stopped: `t1` unless it failed), `result` (:class:`diffrax.RESULTS`),
     `stats` (diffrax's step counts), `hybrid`, and at `t_final` the physical
     :class:`~jaxtree.State` `final` and the modal coordinates `final_modal`.
+
+    For drift checks, at the saved times: `energy` (T,), the kinetic energy relative to the
+    system mass center of the physical state plus the potential energy of the hinge springs, and
+    `angular_momentum` (T, 3) about the system mass center in inertial components (both of the
+    full vehicle rebuilt from the modal coordinates: constant for a free vehicle without damping
+    up to the linearization and truncation errors). `projection_residual`: the part of the
+    initial small motion outside the retained modes, ``|[y; y'] - [positions; rates] s| /
+    |[y; y']|`` (0 when the start lies in the retained modes; NaN for a flat start).
     """
 
     ts: jax.Array
@@ -687,10 +1028,24 @@ class HybridSolution(eqx.Module):
     hybrid: HybridModel
     final: State | None = None
     final_modal: jax.Array | None = None
+    energy: jax.Array | None = None
+    angular_momentum: jax.Array | None = None
+    projection_residual: jax.Array | None = None
 
     @property
     def ok(self) -> bool:
         return bool(np.all(np.asarray(self.result == dfx.RESULTS.successful)))
+
+    def energy_drift(self):
+        """``max |E - E_0| / |E_0|`` over the saved times."""
+        e = jnp.asarray(self.energy)
+        return jnp.max(jnp.abs(e - e[0])) / jnp.maximum(jnp.abs(e[0]), jnp.finfo(e.dtype).tiny)
+
+    def momentum_drift(self):
+        """``max |H - H_0| / |H_0|`` over the saved times."""
+        h = jnp.asarray(self.angular_momentum)
+        norm = lambda x: jnp.sqrt(jnp.sum(x * x, -1))
+        return jnp.max(norm(h - h[0])) / jnp.maximum(norm(h[0]), jnp.finfo(h.dtype).tiny)
 
 
 def _failure_code(result):
@@ -720,7 +1075,18 @@ def _hybrid_failure_message(code, t, state, modal):
 
 
 @eqx.filter_jit
-def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, max_steps, report):
+def _energy_and_momentum(model, state):
+    """Kinetic energy plus the hinge springs' potential energy, and the angular momentum."""
+    from .dynamics import _energy_and_momentum as em
+
+    T, H = em(model, state)
+    if model.sprung:
+        k = np.asarray(model.sprung, np.int64) - 1
+        T = T + 0.5 * jnp.sum(model.stiffness[k] * state.gamma[k] ** 2)
+    return T, H
+
+
+def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, max_steps, report, residual):
     if controller is None:
         controller = dfx.PIDController(rtol=rtol, atol=atol, pcoeff=0.3, icoeff=0.3,
                                        dtmin=1e-12 * jnp.abs(t1 - t0), force_dtmin=False)
@@ -736,10 +1102,12 @@ def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, m
     t_final, y_final = ts_f[i], ys_f[i]
     states = jax.vmap(hybrid.state)(ts_h, ys_h)
     final = hybrid.state(t_final, y_final)
+    energy, momentum = jax.vmap(lambda st: _energy_and_momentum(hybrid.model, st))(states)
     out = HybridSolution(
         ts=ts_h, omega0=states.omega0, dcm=states.dcm, gamma=states.gamma, gamma_dot=states.gamma_dot,
         modal=jax.vmap(hybrid.modal)(ys_h), ys=ys_h, t_final=t_final, result=sol.result,
         stats=dict(sol.stats), hybrid=hybrid, final=final, final_modal=hybrid.modal(y_final),
+        energy=energy, angular_momentum=momentum, projection_residual=residual,
     )
     if report:
         # Under a caller's jit/vmap: report failures from one host callback (for a whole batch).
@@ -797,6 +1165,7 @@ def simulate_hybrid(
     if isinstance(y0, State):
         _check_state("simulate_hybrid", hybrid.model, y0)
     y = hybrid.pack(y0) if isinstance(y0, State) else jnp.asarray(y0, dtype)
+    residual = hybrid.projection_residual(y0) if isinstance(y0, State) else jnp.asarray(np.nan, dtype)
     if y.shape != (hybrid.size,):
         raise ValueError(f"simulate_hybrid: flat state of size {hybrid.size} expected, got {y.shape}")
     if isinstance(saveat, (int, np.integer)) and not isinstance(saveat, bool):
@@ -809,7 +1178,7 @@ def simulate_hybrid(
     solver = dfx.Dopri8() if solver is None else solver
     traced = _is_traced((hybrid, y, t0a, t1a, ts, rtol, atol, dt0, solver, stepsize_controller))
     sol = _solve_hybrid(hybrid, y, t0a, t1a, ts, jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), dt0,
-                        solver, stepsize_controller, int(max_steps), bool(throw and traced))
+                        solver, stepsize_controller, int(max_steps), bool(throw and traced), residual)
     if throw and not traced:
         message = _hybrid_failure_message(_failure_code(sol.result), sol.t_final, sol.final, sol.final_modal)
         if message is not None:

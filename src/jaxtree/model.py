@@ -9,6 +9,7 @@ not need is never traced.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable, NamedTuple
 
 import equinox as eqx
@@ -104,7 +105,13 @@ class Model(eqx.Module):
 
     Static fields: `topology`, `joints` (joint kind per hinge), `sprung` (hinges
     whose spring law is traced), `massive` (bodies whose mass or inertia is not
-    structurally zero), `prescription`, `loads`.
+    structurally zero), `prescription`, `loads`, and `method`, how Eq. (1) is solved:
+    ``"dense"`` (its matrix assembled and factored, :mod:`jaxtree.dynamics`),
+    ``"articulated"`` (a blocked articulated-body recursion over the tree's substructures,
+    :mod:`jaxtree.articulated`: linear in n for deep chains, one level for a hub with
+    appendages) or ``"auto"`` (a static rule on the topology and the backend,
+    :func:`jaxtree.articulated.resolve_method`), with `block_size` the most hinges per block
+    of the articulated method (0: its default). All give the same accelerations to round-off.
 
     Build models with :func:`jaxtree.build_model` or :func:`jaxtree.load_scene`,
     which validate the input before anything is traced.
@@ -125,6 +132,14 @@ class Model(eqx.Module):
     sprung: tuple[int, ...] = eqx.field(static=True)
     massive: tuple[int, ...] = eqx.field(static=True)
     name: str = eqx.field(static=True, default="")
+    method: str = eqx.field(static=True, default="auto")
+    block_size: int = eqx.field(static=True, default=0)
+
+    def __check_init__(self):
+        if self.method not in ("auto", "dense", "articulated"):
+            raise ValueError(f"Model: field 'method' must be 'auto', 'dense' or 'articulated', got {self.method!r}")
+        if not isinstance(self.block_size, int) or self.block_size < 0:
+            raise ValueError(f"Model: field 'block_size' must be an int >= 0, got {self.block_size!r}")
 
     @property
     def n(self) -> int:
@@ -165,6 +180,13 @@ class Model(eqx.Module):
         if not 0 <= k <= self.n:
             raise IndexError(f"body index {k} outside 0..{self.n}")
         return k
+
+    def with_method(self, method: str, block_size: int | None = None) -> "Model":
+        """A copy of the model that solves Eq. (1) by `method` (``"auto"``, ``"dense"`` or
+        ``"articulated"``; see the class docstring). `block_size`: the most hinges per block of
+        the articulated method (0: its default, :data:`jaxtree.articulated.DEFAULT_BLOCK`)."""
+        block_size = self.block_size if block_size is None else int(block_size)
+        return dataclasses.replace(self, method=method, block_size=block_size)
 
     def with_loads(self, loads: BodyLoads | None) -> "Model":
         """A copy of the model with other external loads (or none)."""

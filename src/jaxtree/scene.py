@@ -244,6 +244,7 @@ def build_model(
     *,
     loads: BodyLoads | None = None,
     name: str = "",
+    method: str = "auto",
 ) -> Model:
     """Validate a list of bodies and build a :class:`~jaxtree.Model`.
 
@@ -254,6 +255,8 @@ def build_model(
     - `initial`: dict with `gamma`, `gamma_dot`, `omega0`, `dcm` (or
       `attitude_dcm`), or a :class:`~jaxtree.State`; missing entries are zero / identity.
     - `loads`: optional external loads (:class:`~jaxtree.BodyLoads`).
+    - `method`: how Eq. (1) is solved, ``"auto"`` (default), ``"dense"`` or ``"articulated"``
+      (:class:`~jaxtree.Model`).
 
     Raises :class:`SceneError` naming the body and field of any invalid input.
     """
@@ -370,7 +373,14 @@ def build_model(
         sprung=tuple(sprung),
         massive=massive,
         name=name,
+        method=_method(method),
     )
+
+
+def _method(method):
+    if method not in ("auto", "dense", "articulated"):
+        raise SceneError(f"method: must be 'auto', 'dense' or 'articulated', got {method!r}")
+    return method
 
 
 def validate_model(model: Model) -> Model:

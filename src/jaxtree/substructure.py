@@ -1,0 +1,200 @@
+"""Substructures of the small set and their share of Eq. (30), precomputed once in the frame of
+the body they hang from (Sec. III E of Likins 1972; the design note notes/hybrid_invariants.md).
+
+A *substructure* is a connected group of small hinges (Sec. III A: a flexible appendage, e.g. one
+wing): its bodies form a subtree hanging from one large body ``b``, its *base*. When no large or
+prescribed hinge lies outboard of it (a *terminal* appendage), everything about it, seen from its
+base, depends on its own small angles ``y`` and rates ``y'`` and on the motion of ``b`` only.
+
+**Its share of the equations.** Take ``b``'s frame and its mass center as reference (spatial
+vectors ``(angular, linear)`` about that point, in {b} components). With ``a_b`` the spatial
+acceleration of ``b`` and ``v_b`` its spatial velocity, Gauss's function of the substructure's
+bodies (see :mod:`jaxtree.articulated`) is a quadratic in ``(a_b, y'')``:
+
+    Z_S = 1/2 [a_b; y'']^T A(y) [a_b; y''] + [a_b; y'']^T b(y, y', v_b) - tau_S . y''
+
+- ``A(y)`` ((6 + nu) square): the substructure's spatial inertia about ``b``'s mass center
+  (block ``aa``), the momenta of its hinge motions (``a y''`` blocks: the "participation
+  factors") and its joint-space matrix (``y'' y''``: ``a_bar`` of Eq. 36d, constant at ``y = 0``);
+- ``b(y, y', v_b)``: the velocity-product (gyroscopic, centripetal, Coriolis) terms of Def. 41,
+  quadratic in ``(v_b, y')``.
+
+Eq. (30) keeps the coefficients of the large accelerations to first order in ``y``, those of
+``y''`` at ``y = 0`` and the right side to first order in ``(y, y')``. So the substructure is
+summarized by the Taylor coefficients (exact, by forward-mode automatic differentiation of the
+function above at the nominal angles):
+
+    A(y) = A0 + A1 . y,      b = 1/2 G0 : v v + 1/2 (G1 . y) : v v + (G2 . y') . v,
+
+``A0`` ((6+nu)^2), ``A1`` ((6+nu)^2 nu), ``G0`` ((6+nu) 6 6), ``G1`` ((6+nu) 6 6 nu), ``G2``
+((6+nu) 6 nu); the hinge springs and dampers ``tau_S = -k (y_bar + y) - d y'`` are linear. The
+terms that are second order in the small variables (``y' y'``, ``y y'``, ``y y`` products) are the
+ones Eq. (30) drops. Projected on the retained modes (``y = positions s``, ``y' = rates s``), every
+stored array has the size of the modes, not of the substructure: :mod:`jaxtree.hybrid` then
+evaluates Eq. (1) over the large bodies only, each substructure entering through its base's
+acceleration and velocity.
+
+**Held-base modes.** With ``b`` moving on the nominal motion (``a_b`` its steady centripetal
+acceleration), the small rows give ``I y'' + J y' + K y`` with ``I = A0[y'' y'']`` and ``J``,
+``K`` from ``G1, G2, A1`` and the springs (:func:`held_base`): the substructure's modes on its own
+held base (cantilever modes, with centrifugal stiffening and Coriolis coupling when the nominal
+spins), the default basis of :func:`jaxtree.hybrid_model`.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .articulated import _force_cross, _inertia_apply, _inertia_matrix, _motion_cross
+from .kinematics import ancestor_sum, body_rotations, cross, mm, mv
+from .topology import Topology
+
+__all__ = ["Substructure", "substructures", "Terms", "terms", "held_base"]
+
+
+class Substructure(NamedTuple):
+    """A connected group of small hinges: `hinges` (ascending, 1..n), the `base` body it hangs
+    from, and whether it is `terminal` (no large or prescribed hinge outboard of it)."""
+
+    hinges: tuple
+    base: int
+    terminal: bool
+
+
+def substructures(model, small) -> tuple[Substructure, ...]:
+    """Split the set A (hinge indices) into its substructures: two small hinges belong together
+    when one's body is the other's parent."""
+    small = tuple(sorted(small))
+    in_small = set(small)
+    parents = model.topology.parents
+    root = {}
+    for k in small:  # ascending: a parent hinge is seen before its children
+        p = parents[k - 1]
+        root[k] = root[p] if p in in_small else k
+    groups = {}
+    for k in small:
+        groups.setdefault(root[k], []).append(k)
+    eps = model.topology.path_elements
+    others = [k for k in range(1, model.n + 1) if k not in in_small and k not in model.inert]
+    out = []
+    for r, hs in sorted(groups.items()):
+        terminal = not any(eps[s - 1, o] for s in hs for o in others)
+        out.append(Substructure(tuple(hs), parents[r - 1], terminal))
+    return tuple(out)
+
+
+def _local_topology(model, sub: Substructure) -> Topology:
+    pos = {k: i + 1 for i, k in enumerate(sub.hinges)}
+    parents = [pos.get(model.topology.parents[k - 1], 0) for k in sub.hinges]
+    return Topology(parents, (model.names[sub.base],) + tuple(model.names[k] for k in sub.hinges))
+
+
+class _Bodies(NamedTuple):
+    """The substructure's data (its bodies in ascending order, the base first with no mass)."""
+
+    mass: jax.Array  # (nu+1,)
+    inertia: jax.Array  # (nu+1, 3, 3)
+    axis: jax.Array  # (nu, 3)
+    hinge_on_parent: jax.Array  # (nu, 3)
+    hinge_on_body: jax.Array  # (nu, 3)
+
+
+def _bodies(model, sub: Substructure) -> _Bodies:
+    h = np.asarray(sub.hinges, np.int64) - 1
+    bodies = np.concatenate([[0], h + 1])
+    return _Bodies(model.mass[bodies].at[0].set(0.0), model.inertia[bodies].at[0].set(0.0), model.axis[h],
+                   model.hinge_on_parent[h], model.hinge_on_body[h])
+
+
+def _gauss(topo, d: _Bodies, gamma, yd, v):
+    """``(A (6+nu, 6+nu), b (6+nu,))`` of the substructure's Gauss function at its angles `gamma`,
+    rates `yd` and base velocity `v` (6: angular, linear at the base's mass center, {b} comps)."""
+    nu = gamma.shape[0]
+    dtype = gamma.dtype
+    axis = d.axis.astype(dtype)
+    R = body_rotations(topo, axis, gamma)  # body i -> {b} components; R[0] = U
+    par = np.asarray(topo.parents, np.int64)
+    to_hinge = mv(R[par], d.hinge_on_parent.astype(dtype))  # the root's: from b's mass center, {b}
+    from_hinge = -mv(R[1:], d.hinge_on_body.astype(dtype))
+    zero = jnp.zeros((1, 3), dtype)
+    r = ancestor_sum(topo, jnp.concatenate([zero, to_hinge + from_hinge], 0))  # mass centers from b's
+    hp = r[par] + to_hinge
+    g = mv(R[par], axis)
+    Sw, Su = g, cross(hp, g)
+    # bodies of the substructure: inertia about b's mass center, velocities, bias accelerations
+    mass = d.mass.astype(dtype)
+    Jc = mm(mm(R, d.inertia.astype(dtype)), jnp.swapaxes(R, -1, -2))
+    eye = jnp.eye(3, dtype=dtype)
+    J = Jc + mass[:, None, None] * (jnp.sum(r * r, -1)[:, None, None] * eye - r[:, :, None] * r[:, None, :])
+    hm = mass[:, None] * r
+    rates = jnp.concatenate([v[None, :], jnp.concatenate([Sw, Su], 1) * yd[:, None]], 0)
+    vel = ancestor_sum(topo, rates)  # (nu+1, 6)
+    cw, cu = _motion_cross(vel[par, :3], vel[par, 3:], Sw * yd[:, None], Su * yd[:, None])
+    cbar = ancestor_sum(topo, jnp.concatenate([jnp.zeros((1, 6), dtype), jnp.concatenate([cw, cu], 1)], 0))
+    Lw, Lu = _inertia_apply(J, hm, mass, vel[:, :3], vel[:, 3:])
+    bw, bu = _force_cross(vel[:, :3], vel[:, 3:], Lw, Lu)
+    Mcw, Mcu = _inertia_apply(J, hm, mass, cbar[:, :3], cbar[:, 3:])
+    wrench = jnp.concatenate([Mcw + bw, Mcu + bu], 1)  # M_i c_i + v_i x* M_i v_i
+    # J_i = [U | S_k on the path to body i]
+    E = jnp.asarray(topo.path_elements, dtype)  # (nu, nu+1): hinge k on the path to body i
+    S = jnp.concatenate([Sw, Su], 1)  # (nu, 6)
+    Jac = jnp.concatenate([jnp.broadcast_to(jnp.eye(6, dtype=dtype), (nu + 1, 6, 6)),
+                           jnp.einsum("ka,ki->iak", S, E)], -1)  # (nu+1, 6, 6+nu)
+    M6 = _inertia_matrix(J, hm, mass)
+    A = jnp.einsum("iak,iab,ibl->kl", Jac, M6, Jac)
+    b = jnp.einsum("iak,ia->k", Jac, wrench)
+    return A, b
+
+
+class Terms(eqx.Module):
+    """Taylor coefficients of one substructure's Gauss function (module docstring), in its base's
+    frame about the base's mass center. Rows and columns: the base's acceleration (6), then the
+    substructure's hinges (nu)."""
+
+    A0: jax.Array
+    A1: jax.Array
+    G0: jax.Array
+    G1: jax.Array
+    G2: jax.Array
+    mass: jax.Array
+
+
+@eqx.filter_jit
+def _terms(topo, d: _Bodies, gamma_bar):
+    # one compilation per substructure shape: identical wings share it
+    nu = gamma_bar.shape[0]
+    dtype = gamma_bar.dtype
+    zn, z6 = jnp.zeros(nu, dtype), jnp.zeros(6, dtype)
+    A = lambda y: _gauss(topo, d, gamma_bar + y, zn, z6)[0]
+    b = lambda y, yd, v: _gauss(topo, d, gamma_bar + y, yd, v)[1]
+    A0 = A(zn)
+    A1 = jax.jacfwd(A)(zn)
+    hess_v = lambda y: jax.hessian(lambda v: b(y, zn, v))(z6)
+    G0 = hess_v(zn)
+    G1 = jax.jacfwd(hess_v)(zn)
+    G2 = jax.jacfwd(lambda yd: jax.jacfwd(lambda v: b(zn, yd, v))(z6))(zn)
+    return Terms(A0, A1, G0, G1, G2, jnp.sum(d.mass.astype(dtype)))
+
+
+def terms(model, sub: Substructure, gamma_nominal) -> Terms:
+    """The Taylor coefficients of `sub` at the nominal angles (all n; its own entries are used)."""
+    h = np.asarray(sub.hinges, np.int64) - 1
+    topo = Topology(_local_topology(model, sub).parents)  # unnamed: equal shapes share a compilation
+    return _terms(topo, _bodies(model, sub), jnp.asarray(gamma_nominal)[h])
+
+
+def held_base(t: Terms, v, c, stiffness, damping):
+    """``(I, J, K)`` of the substructure with its base moving at spatial velocity `v` and
+    acceleration `c` (6 each, {b} components about the base's mass center): the small rows of
+    ``A(y) [c; y''] + b(y, y', v) - tau_S = 0`` to first order (Eq. 40 for one substructure)."""
+    nu = t.A0.shape[0] - 6
+    I = t.A0[6:, 6:]
+    K = jnp.einsum("iaj,a->ij", t.A1[6:, :6], c) + 0.5 * jnp.einsum("iabj,a,b->ij", t.G1[6:], v, v) \
+        + jnp.diag(stiffness)
+    J = jnp.einsum("iaj,a->ij", t.G2[6:], v) + jnp.diag(damping)
+    return I, J, K

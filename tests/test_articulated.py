@@ -1,0 +1,200 @@
+"""Eq. (1) by the blocked articulated-body recursion (jaxtree.articulated) against independent
+references: the Lagrange oracle of tests/oracle.py (kinetic energy by autodiff), central finite
+differences for gradients, and the dense solve only where that is itself checked against the
+oracle (test_dynamics.py). Small block sizes force several block levels, ports and padding."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxtree
+from jaxtree import articulated
+
+from conftest import random_state
+from oracle import oracle_eom
+from trees import chain, deep_and_wide, gimbal_model, random_tree, star
+
+
+class ConstantLoads(jaxtree.BodyLoads):
+    """Forces and torques (body frames) on a static set of bodies, as array leaves."""
+
+    bodies: tuple = jaxtree.model.eqx.field(static=True)
+    force: jax.Array
+    torque: jax.Array
+
+    def __call__(self, t, state):
+        return self.force, self.torque
+
+
+def rel(a, b):
+    a, b = np.asarray(a), np.asarray(b)
+    return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-300))
+
+
+accelerations = jax.jit(jaxtree.solve_accelerations)
+
+
+def with_loads(model, rng, bodies):
+    bodies = tuple(sorted(int(b) for b in bodies))
+    F = rng.normal(size=(len(bodies), 3)) * 20
+    T = rng.normal(size=(len(bodies), 3)) * 5
+    Ff, Tf = np.zeros((model.n + 1, 3)), np.zeros((model.n + 1, 3))
+    Ff[list(bodies)], Tf[list(bodies)] = F, T
+    return model.with_loads(ConstantLoads(bodies, jnp.asarray(F), jnp.asarray(T))), Ff, Tf
+
+
+def against_oracle(model, state, rng, loads=True):
+    """The articulated accelerations in the oracle's equations: backward error at round-off,
+    forward error within the conditioning of Eq. (1)."""
+    tau = rng.normal(size=model.n)
+    F = T = None
+    if loads:
+        model, F, T = with_loads(model, rng, rng.choice(model.n + 1, size=min(3, model.n + 1), replace=False))
+    acc = accelerations(model, state, 0.0, jnp.asarray(tau))
+    spring = np.asarray(jaxtree.hinge_torques(model, state.gamma, state.gamma_dot))
+    ref = oracle_eom(model.topology.parents, np.asarray(model.mass), np.asarray(model.inertia),
+                     np.asarray(model.axis), np.asarray(model.hinge_on_parent), np.asarray(model.hinge_on_body),
+                     np.asarray(state.omega0), np.asarray(state.gamma), np.asarray(state.gamma_dot),
+                     tau=tau + spring, F=F, T=T, dcm=np.asarray(state.dcm))
+    x = np.concatenate([acc.omega0_dot, acc.gamma_ddot])
+    A, b = np.asarray(ref["mass_matrix"]), np.asarray(ref["rhs"])
+    assert np.abs(A @ x - b).max() <= 1e-12 * np.abs(A).max() * np.abs(x).max()
+    kappa = np.linalg.cond(A)
+    assert rel(x, np.concatenate([ref["omega0_dot"], ref["gamma_ddot"]])) < max(1e-10, 20 * kappa * 2.2e-16)
+
+
+TREES = {
+    "chain": lambda rng: random_tree(rng, chain(9)),
+    "star": lambda rng: random_tree(rng, star(6)),
+    "deep_and_wide": lambda rng: random_tree(rng, deep_and_wide(rng, 12)),
+    "massless_frames": lambda rng: random_tree(rng, [0, 1, 2, 0, 4, 1, 6, 7], gimbals=(1, 4, 7), spring=False),
+    "gimbals": gimbal_model,
+}
+
+
+@pytest.mark.parametrize("kind,block", [(kind, 2) for kind in sorted(TREES)] + [("deep_and_wide", 1)])
+def test_random_trees_against_the_oracle(kind, block):
+    """block = 1 is the classical articulated-body recursion, one body per level."""
+    rng = np.random.default_rng(99 + sorted(TREES).index(kind) + 10 * block)
+    model = TREES[kind](rng).with_method("articulated", block)
+    bp = articulated.plan(model)
+    if kind in ("chain", "deep_and_wide"):
+        assert len(bp.levels) > 1  # the case is not trivial: ports and several levels
+    for _ in range(2):
+        against_oracle(model, random_state(model, rng), rng)
+
+
+@pytest.mark.parametrize("name,block", [("fig4", 2), ("panels95", 0), ("chain50", 7)])
+def test_scenes_against_the_oracle(scenes, name, block):
+    rng = np.random.default_rng(5)
+    model = scenes[name].with_method("articulated", block)
+    if model.prescribed:  # the oracle has no prescriptions: compare the free vehicle
+        d = jaxtree.scene_to_dict(model)
+        for k in model.prescribed:
+            d["bodies"][k]["joint"] = {"kind": "free"}
+        model = jaxtree.scene_from_dict(d).with_method("articulated", block)
+    against_oracle(model, random_state(model, rng), rng)
+
+
+@pytest.mark.parametrize("name,block", [("fig4", 3), ("wings", 0), ("panels95", 0), ("chain200", 0)])
+def test_scenes_equal_the_dense_solve(scenes, name, block):
+    """Same accelerations and holding torques as the dense solve (itself checked against the
+    oracle), with loads, hinge torques and prescriptions."""
+    rng = np.random.default_rng(11)
+    base, _, _ = with_loads(scenes[name], rng, (0, scenes[name].n))
+    s = random_state(base, rng)
+    tau = jnp.asarray(rng.normal(size=base.n))
+    ref = accelerations(base.with_method("dense"), s, 0.9, tau)
+    A = np.asarray(jaxtree.mass_matrix(base, s.gamma))
+    bound = max(1e-10, 20 * np.linalg.cond(A) * 2.2e-16)
+    acc = accelerations(base.with_method("articulated", block), s, 0.9, tau)
+    assert rel(acc.omega0_dot, ref.omega0_dot) < bound
+    assert rel(acc.gamma_ddot, ref.gamma_ddot) < bound
+    if base.prescribed:
+        assert rel(acc.hold_torque, ref.hold_torque) < 1e-10
+
+
+def test_plan_partitions_the_tree(scenes):
+    """Blocks cover each hinge that is not inert exactly once, are connected, hang from one body,
+    and their child blocks hang from their port; chains are cut into blocks of the given size."""
+    for name in ("fig4", "panels95", "chain200"):
+        model = scenes[name]
+        for block in (0, 5):
+            bp = articulated.plan(model.with_method("articulated", block))
+            hinges = bp.hinge[bp.hinge < model.n]
+            assert sorted(hinges.tolist()) == [k - 1 for k in range(1, model.n + 1) if k not in model.inert]
+            for j in range(len(bp.parent)):
+                members = [h + 1 for h in bp.hinge[j] if h < model.n]
+                for k in members:  # connected: each member's parent is in the block or is the block's parent
+                    p = model.topology.parents[k - 1]
+                    assert p in members or p == bp.parent[j]
+                for c in bp.children[j]:
+                    assert bp.parent[c] == bp.port[j]
+    bp = articulated.plan(scenes["chain200"].with_method("articulated", 16))
+    assert len(bp.parent) == 13 and len(bp.levels) == 13 and bp.size == 16
+    bp = articulated.plan(scenes["panels95"])
+    assert len(bp.levels) == 1 and len(bp.parent) == 7  # the platform chain and six wings on the bus
+
+
+def test_a_massless_branch_body_is_never_a_port():
+    """A massless body with two children would leave its block's matrix singular as a port: the
+    plan takes its subtree into the block instead, and the solve stays exact."""
+    rng = np.random.default_rng(3)
+    parents = [0, 1, 2, 3, 3, 4, 5]  # body 3 massless with children 4 and 5
+    model = random_tree(rng, parents, gimbals=(3,), spring=False).with_method("articulated", 3)
+    bp = articulated.plan(model)
+    assert 3 not in bp.port.tolist()
+    against_oracle(model, random_state(model, rng), rng)
+
+
+def test_method_rule_and_override(scenes):
+    if jax.default_backend() == "cpu":
+        assert articulated.resolve_method(scenes["fig4"]) == "dense"
+        assert articulated.resolve_method(scenes["chain200"]) == "articulated"
+        assert articulated.resolve_method(scenes["panels95"]) == "articulated"
+    assert articulated.resolve_method(scenes["chain200"].with_method("dense")) == "dense"
+    with pytest.raises(ValueError, match="method"):
+        scenes["fig4"].with_method("fastest")
+    with pytest.raises(jaxtree.SceneError, match="method"):
+        jaxtree.build_model([jaxtree.Body("b", 1.0, np.eye(3))], method="fastest")
+
+
+def test_vmap_and_gradients(scenes):
+    """vmapped calls equal single calls; gradients with respect to mass, geometry and stiffness
+    equal central finite differences."""
+    model = scenes["wings"].with_method("articulated", 2)
+    rng = np.random.default_rng(8)
+    states = [random_state(model, rng) for _ in range(3)]
+    batch = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *states)
+    w, g = jax.jit(jax.vmap(jaxtree.forward_dynamics, (None, 0, 0, 0, 0)))(
+        model, batch.dcm, batch.omega0, batch.gamma, batch.gamma_dot)
+    for i, s in enumerate(states):
+        a = accelerations(model, s, 0.0, None)
+        assert rel(w[i], a.omega0_dot) < 1e-13 and rel(g[i], a.gamma_ddot) < 1e-13
+    s = states[0]
+
+    def objective(m):
+        w, g = jaxtree.forward_dynamics(m, s.dcm, s.omega0, s.gamma, s.gamma_dot)
+        return jnp.sum(w * jnp.arange(1.0, 4.0)) + jnp.sum(g * jnp.linspace(-1, 1, m.n))
+
+    grads = jax.jit(jax.grad(objective))(model)
+    f = jax.jit(objective)
+    for field, index in [("mass", 3), ("hinge_on_parent", (4, 0)), ("stiffness", 2), ("inertia", (6, 1, 1)),
+                         ("axis", (1, 2))]:
+        h = 1e-6 * max(1.0, abs(float(getattr(model, field)[index])))
+        bump = lambda d: jaxtree.model.eqx.tree_at(lambda m: getattr(m, field), model,
+                                                    getattr(model, field).at[index].add(d))
+        fd = (f(bump(h)) - f(bump(-h))) / (2 * h)
+        assert abs(float(getattr(grads, field)[index] - fd)) <= 1e-6 * max(1.0, abs(float(fd))), field
+
+
+def test_float32(scenes):
+    model = scenes["panels95"].with_method("articulated")
+    s = random_state(model, np.random.default_rng(2))
+    ref = accelerations(model, s, 0.0, None)
+    m32 = model.astype(jnp.float32)
+    s32 = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), s)
+    acc = accelerations(m32, s32, 0.0, None)
+    assert acc.gamma_ddot.dtype == jnp.float32
+    assert rel(acc.gamma_ddot, ref.gamma_ddot) < 1e-3
