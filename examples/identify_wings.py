@@ -1,14 +1,17 @@
-"""Identify the hinge stiffness and damping of two solar wings from a gyro and hinge-angle record.
+"""Identify the hinge stiffness and damping of two solar wings, and a panel's mass and inertia, from a
+gyro and hinge-angle record.
 
 Gradient-based parameter identification through the simulation. The bundled `wings` scene is a
 500 kg hub with two wings of four hinged panels each (spring-damper hinges, 100 N m/rad and
 0.5 N m s/rad in the scene). Here the "flight" wings differ from the nominal ones: each wing has
-its own stiffness and damping (all four hinges of a wing alike). A record of 20 s is simulated
+its own stiffness and damping (all four hinges of a wing alike), and the tip panel of wing + is
+heavier than built (its mass and its moment of inertia about its hinge axis, the y axis, differ
+from the scene's). A record of 20 s is simulated
 with those true values -- the hub's angular rate (a gyro, 10 Hz, noise 2e-6 rad/s) and the two
-root hinge angles (potentiometers, noise 2e-5 rad) -- and the four parameters are then estimated
+root hinge angles (potentiometers, noise 2e-5 rad) -- and the six parameters are then estimated
 from the nominal ones by Levenberg-Marquardt (optimistix) on the weighted residuals. The
 Jacobian of the residuals is taken by forward-mode differentiation through diffrax
-(``adjoint=diffrax.ForwardMode()``: four parameters, one tangent each). The estimates are
+(``adjoint=diffrax.ForwardMode()``: six parameters, one tangent each). The estimates are
 printed with their standard errors from the Gauss-Newton covariance ``(J^T J)^-1`` at the
 solution, and how many standard errors each lies from the truth.
 
@@ -34,7 +37,10 @@ import jaxtree
 SCENE = "wings"
 DURATION, RATE = 20.0, 10.0  # s, Hz
 SIGMA_GYRO, SIGMA_ANGLE = 2e-6, 2e-5  # rad/s, rad
-TRUTH = {"stiffness": (115.0, 85.0), "damping": (0.65, 0.40)}  # (wing +, wing -)
+TRUTH = {"stiffness": (115.0, 85.0), "damping": (0.65, 0.40),  # (wing +, wing -)
+         "tip": (5.6, 0.47)}  # mass (kg) and I_yy (kg m^2) of the tip panel of wing +
+NAMES = ("stiffness wing +", "stiffness wing -", "damping wing +", "damping wing -", "tip panel mass",
+         "tip panel I_yy")
 TOL = 1e-10  # integration tolerance of the record and of the fit
 
 
@@ -47,13 +53,30 @@ def wing_hinges(model) -> tuple[np.ndarray, np.ndarray]:
     return tuple(np.flatnonzero(eps[r - 1, 1:]) for r in roots)
 
 
+def tip_body(model) -> int:
+    """The outermost panel of wing + (the body of its last hinge)."""
+    plus, _ = wing_hinges(model)
+    return int(plus[-1]) + 1
+
+
 def with_parameters(model, theta):
-    """`model` with per-wing stiffness and damping ``exp(theta)``: theta = log [k+, k-, c+, c-]."""
+    """`model` with ``exp(theta)``: theta = log [k+, k-, c+, c-, m_tip, I_yy tip] (per-wing
+    stiffness and damping, the mass and the moment of inertia about its hinge axis of wing +'s tip
+    panel)."""
     plus, minus = wing_hinges(model)
-    k, c = jnp.exp(theta[:2]), jnp.exp(theta[2:])
+    k, c, tip = jnp.exp(theta[:2]), jnp.exp(theta[2:4]), jnp.exp(theta[4:6])
     stiffness = model.stiffness.at[plus].set(k[0]).at[minus].set(k[1])
     damping = model.damping.at[plus].set(c[0]).at[minus].set(c[1])
-    return eqx.tree_at(lambda m: (m.stiffness, m.damping), model, (stiffness, damping))
+    b = tip_body(model)
+    mass = model.mass.at[b].set(tip[0])
+    inertia = model.inertia.at[b, 1, 1].set(tip[1])
+    return eqx.tree_at(lambda m: (m.stiffness, m.damping, m.mass, m.inertia), model,
+                       (stiffness, damping, mass, inertia))
+
+
+def truth():
+    """The true log-parameters."""
+    return jnp.log(jnp.asarray(TRUTH["stiffness"] + TRUTH["damping"] + TRUTH["tip"]))
 
 
 def measure(model, ts):
@@ -66,8 +89,7 @@ def measure(model, ts):
 
 def record(model, ts, noise: bool, seed: int = 0):
     """The flight record of the true wings, with sensor noise (in units of its sigma) or without."""
-    theta = jnp.log(jnp.asarray(TRUTH["stiffness"] + TRUTH["damping"]))
-    clean = measure(with_parameters(model, theta), ts)
+    clean = measure(with_parameters(model, truth()), ts)
     if not noise:
         return clean
     return clean + np.random.default_rng(seed).standard_normal(clean.shape)
@@ -93,7 +115,9 @@ def fit(model, ts, data, theta0, *, max_steps: int = 50):
 def nominal(model):
     """Log-parameters of the scene's own wings (the starting guess): all hinges alike there."""
     plus, _ = wing_hinges(model)
-    return jnp.log(jnp.stack([model.stiffness[plus[0]]] * 2 + [model.damping[plus[0]]] * 2))
+    b = tip_body(model)
+    return jnp.log(jnp.stack([model.stiffness[plus[0]]] * 2 + [model.damping[plus[0]]] * 2
+                             + [model.mass[b], model.inertia[b, 1, 1]]))
 
 
 def main():
@@ -110,15 +134,15 @@ def main():
     theta, stderr_log, steps = fit(model, ts, data, theta0)
     wall = time.perf_counter() - t
 
-    names = ("stiffness wing +", "stiffness wing -", "damping wing +", "damping wing -")
-    truth = np.asarray(TRUTH["stiffness"] + TRUTH["damping"])
+    names = NAMES
+    truth_ = np.exp(np.asarray(truth()))
     start, est = np.exp(np.asarray(theta0)), np.exp(np.asarray(theta))
     stderr = est * np.asarray(stderr_log)  # first order: d exp(theta) = exp(theta) d theta
     print(f"{SCENE}: {model.n} hinges; record {DURATION:g} s at {RATE:g} Hz, "
           f"{'no noise' if args.noise_free else f'noise {SIGMA_GYRO:g} rad/s (gyro), {SIGMA_ANGLE:g} rad (angles)'}")
     print(f"Levenberg-Marquardt: {int(steps)} steps, {wall:.1f} s (compile included)")
     print(f"{'parameter':18s} {'start':>10s} {'estimate':>12s} {'std error':>10s} {'truth':>10s} {'off (sigma)':>11s}")
-    for name, s0, e, se, tr in zip(names, start, est, stderr, truth):
+    for name, s0, e, se, tr in zip(names, start, est, stderr, truth_):
         print(f"{name:18s} {s0:10.4g} {e:12.8g} {se:10.2g} {tr:10.4g} {(e - tr) / se:11.2f}")
 
 

@@ -120,4 +120,7 @@ from .hybrid import (
     hybrid_equations as hybrid_equations,
     simulate_hybrid as simulate_hybrid,
 )
+from .campaign import (
+    monte_carlo as monte_carlo,
+)
 from . import viewer as viewer

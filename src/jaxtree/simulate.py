@@ -495,19 +495,34 @@ class Solution(eqx.Module):
         return self.problem.state(t, self.raw.evaluate(t))
 
     def energy_drift(self):
-        """``max |E(t) - E(t0)| / |E(t0)|`` over the saved times."""
+        """``max |E(t) - E(t0)| / |E(t0)|`` over the saved times (the absolute drift when E(t0) = 0,
+        e.g. a vehicle at rest: finite, with finite derivatives)."""
         e = self.energy
-        return jnp.nanmax(jnp.abs(e - e[0])) / jnp.abs(e[0])
+        return jnp.nanmax(jnp.abs(e - e[0])) / _nonzero(jnp.abs(e[0]))
 
     def momentum_drift(self):
-        """``max |H(t) - H(t0)| / |H(t0)|`` over the saved times (H about the mass center)."""
+        """``max |H(t) - H(t0)| / |H(t0)|`` over the saved times (H about the mass center; the
+        absolute drift when H(t0) = 0: finite, with finite derivatives)."""
         H = self.angular_momentum
-        return jnp.nanmax(jnp.linalg.norm(H - H[0], axis=-1)) / jnp.linalg.norm(H[0])
+        return jnp.nanmax(_safe_norm(H - H[0])) / _nonzero(_safe_norm(H[0]))
 
     def check(self) -> "Solution":
         """Raise :class:`SimulationError` (time, state, diagnosis) if the run failed; else return self."""
         check_solution(self)
         return self
+
+
+def _safe_norm(x):
+    """Euclidean norm over the last axis whose derivative at zero is zero, not NaN (the norm of a
+    zero vector, e.g. the angular momentum of a vehicle at rest, has an undefined gradient)."""
+    sq = jnp.sum(x * x, axis=-1)
+    pos = sq > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0)
+
+
+def _nonzero(x):
+    """`x`, or 1 where it is zero (a relative measure falls back to an absolute one)."""
+    return jnp.where(x > 0, x, jnp.ones_like(x))
 
 
 def _history(problem: Problem, ts, ys):
@@ -636,10 +651,17 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
             force_dtmin=False,
         )
         if dt0 is None:
-            dt0 = _initial_step(problem, y, t0, t1)
+            # a choice of the discretization, not a function to differentiate (BacksolveAdjoint
+            # refuses a first step that carries a tangent)
+            dt0 = jax.lax.stop_gradient(_initial_step(problem, y, t0, t1))
+    # BacksolveAdjoint takes one SaveAt(ts=...) only: the final state is then saved as one more time
+    single = isinstance(adjoint, dfx.BacksolveAdjoint) and not opts.user_saveat
     if not opts.user_saveat:
         ts = jnp.linspace(t0, t1, opts.grid, dtype=dtype) if opts.grid is not None else saveat
-        saveat = dfx.SaveAt(subs=(dfx.SubSaveAt(ts=ts), dfx.SubSaveAt(t1=True)))
+        if single:
+            saveat = dfx.SaveAt(ts=jnp.concatenate([ts, jnp.reshape(t1, (1,)).astype(ts.dtype)]))
+        else:
+            saveat = dfx.SaveAt(subs=(dfx.SubSaveAt(ts=ts), dfx.SubSaveAt(t1=True)))
     sol = dfx.diffeqsolve(
         dfx.ODETerm(_vector_field), solver, t0, t1, dt0, y, args=problem, saveat=saveat,
         stepsize_controller=controller, adjoint=adjoint, event=event, max_steps=opts.max_steps,
@@ -648,6 +670,9 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     if isinstance(saveat.subs, (tuple, list)):
         ts_h, ys_h = sol.ts[0], sol.ys[0]
         ts_f, ys_f = sol.ts[-1], sol.ys[-1]
+    elif single:
+        ts_h, ys_h = sol.ts[:-1], sol.ys[:-1]
+        ts_f, ys_f = sol.ts, sol.ys
     else:
         ts_h, ys_h = sol.ts, sol.ys
         ts_f, ys_f = sol.ts, sol.ys

@@ -1,0 +1,617 @@
+"""Monte Carlo campaigns: many dispersed runs of Eq. (1) (:func:`jaxtree.simulate`) as one dataset.
+
+:func:`monte_carlo` draws `n` dispersed vehicles from a user's ``sample(key, model) -> model``
+(any array leaf: mass properties, hinge geometry, joint laws, load parameters, the initial
+state), runs them in chunks (one ``jax.vmap`` per chunk, compiled once), and returns an
+``xarray.Dataset`` with dimensions ``run``, ``time``, ``hinge``, ``axis`` (and ``quaternion``):
+omega0, gamma, gamma_dot, the attitude of b_0 (Euler parameters), energy and angular momentum (the conserved
+quantities of a vehicle without loads or damping: a check on every run), the dispersed
+parameters themselves, and per run the integrator's named result, a diagnosis of failures and
+the step count.
+
+Failures do not raise. A member that fails (a singular Eq. 1 matrix such as gimbal lock, the
+step limit, a non-finite state) gets its status and NaN histories; its chunk-mates are computed
+by the same vmapped program and are untouched (a vmapped diffrax loop masks finished members).
+
+Where the chunks run:
+
+- in this process (default): each chunk is split over all local JAX devices with
+  ``jax.shard_map`` (each device runs its own integration loop, so a device does not wait for
+  the other's slowest member);
+- on a Dask cluster (``client=distributed.Client(...)``): one task per chunk; every worker
+  compiles the chunk program once and keeps it for the next chunks;
+- ``out=`` a Zarr store (``*.zarr``) or a NetCDF file (``*.nc``): each finished chunk is written
+  as it completes, and a rerun with the same `out` skips the chunks already there (a killed
+  campaign resumes).
+
+The cost of a vmapped chunk is its slowest member's: every member steps until the last one is
+done. :func:`monte_carlo` reports the efficiency of each chunk (useful steps over the steps paid
+for, ``sum(steps) / (size * max(steps))``) in the dataset's attributes and offers two
+mitigations: ``order="pilot"`` runs every member over a short first part of the flight,
+sorts the members by its step count and fills the chunks in that order (members of alike
+cost run together), and ``dt=`` integrates with fixed steps (no waiting at all, at an error
+the user then owns).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import time as _time
+from typing import Any, Callable, NamedTuple
+
+import diffrax as dfx
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .attitude import dcm_to_quaternion
+from .dynamics import SINGULAR_CONDITION
+from .model import Model
+
+__all__ = ["monte_carlo", "FAILURES"]
+
+# jaxtree's diagnosis of a failed member ("" for a run that reached t1)
+FAILURES = ("", "max_steps", "dt_min", "singular_attitude", "other", "nonfinite_start", "singular_matrix",
+            "nonfinite_state")
+
+_RESULT_NAMES = None
+
+
+def _result_names() -> tuple[str, ...]:
+    """diffrax's result names by index (``RESULTS.max_steps_reached._value`` -> its name)."""
+    global _RESULT_NAMES
+    if _RESULT_NAMES is None:
+        items = dfx.RESULTS._name_to_item  # noqa: SLF001 (diffrax keeps the names there only)
+        names = {int(item._value): name for name, item in items.items()}  # noqa: SLF001
+        _RESULT_NAMES = tuple(names.get(i, f"result_{i}") for i in range(max(names) + 1))
+    return _RESULT_NAMES
+
+
+# ----------------------------------------------------------------------------- one chunk
+class _Config(NamedTuple):
+    """Static choices of a campaign (hashable: part of the compilation key)."""
+
+    n_save: int
+    max_steps: int
+    attitude: str
+    dt: float | None  # fixed step, or None for the adaptive default of simulate
+    t_pilot: float | None  # the pilot run's end (order="pilot"), or None
+
+
+def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
+    """One member: its histories and per-run figures (a dict of arrays)."""
+    from .simulate import simulate
+
+    kw = {}
+    if cfg.dt is not None:
+        kw = dict(stepsize_controller=dfx.ConstantStepSize(), dt0=jnp.asarray(cfg.dt, ts.dtype))
+    sol = simulate(model, t1, y0=model.initial, saveat=ts, rtol=rtol, atol=atol, max_steps=cfg.max_steps,
+                   attitude=cfg.attitude, throw=False, **kw)
+    hist = dict(omega0=sol.omega0, gamma=sol.gamma, gamma_dot=sol.gamma_dot,
+                attitude=dcm_to_quaternion(sol.dcm), energy=sol.energy, angular_momentum=sol.angular_momentum)
+    if model.prescribed:
+        hist["hold_torque"] = sol.hold_torque
+    finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in hist.values()]))
+    code = sol.failure  # 0 ok, else 1 + index in simulate's _KINDS (the first five of FAILURES)
+    state_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in sol.final]))
+    diagnosis = jnp.where(
+        code > 0,
+        jnp.where((code == FAILURES.index("nonfinite_start")) | state_ok, code, FAILURES.index("nonfinite_state")),
+        jnp.where(finite, 0, FAILURES.index("nonfinite_state")))
+    ok = diagnosis == 0
+    hist = {k: jnp.where(ok, v, jnp.nan) for k, v in hist.items()}
+    # (whether a failed run's Eq. (1) matrix is singular where it stopped is decided on the host,
+    # for the failed members only: see _diagnose_failures)
+    return dict(hist, result=sol.result._value, diagnosis=diagnosis,  # noqa: SLF001
+                steps=sol.stats["num_steps"], rejected=sol.stats["num_rejected_steps"],
+                rhs_evaluations=sol.stats["rhs_evaluations"], t_final=sol.t_final,
+                final=tuple(sol.final))
+
+
+def _diagnose_failures(out: dict, models, model: Model) -> None:
+    """Failed members that stopped at a finite state (step limit, step-size collapse): 'singular_matrix'
+    when Eq. (1)'s matrix is singular or nearly so there (gimbal lock, a vanishing mass). One
+    eager evaluation per failed member, on the host (batched LAPACK calls in the vmapped chunk
+    would cost every member a decomposition, and can deadlock on the CPU, see _sharded)."""
+    from .model import State
+    from .simulate import _condition_jit
+
+    code = out["diagnosis"]
+    suspects = np.flatnonzero(np.isin(code, [FAILURES.index(k) for k in ("max_steps", "dt_min", "other")]))
+    for i in suspects:
+        member = _take(models, i)
+        state = State(*(np.asarray(x)[i] for x in out["final"]))
+        cond, _ = _condition_jit(member, state, np.asarray(out["t_final"])[i])
+        cond = float(cond)
+        if not np.isfinite(cond) or cond > SINGULAR_CONDITION:
+            code[i] = FAILURES.index("singular_matrix")
+
+
+def _pilot_member(model: Model, ts, t1, rtol, atol, cfg: _Config):
+    """The pilot: steps of the first part of the flight (to order members by cost)."""
+    from .simulate import simulate
+
+    sol = simulate(model, cfg.t_pilot, y0=model.initial, saveat=2, rtol=rtol, atol=atol, max_steps=cfg.max_steps,
+                   attitude=cfg.attitude, throw=False)
+    return dict(steps=sol.stats["num_steps"])
+
+
+# jaxlib's CPU LAPACK kernels (potrf, trsm, syevd, ...) split a batch of matrices over XLA's
+# intra-op thread pool when it is worth more than about 2e5 flops (jax::ParallelBatchMap), and
+# block the calling pool thread until the parts are done. The executions of a program's device
+# shards run on that same pool: two shards that both split a batch can hold every pool thread
+# while their parts wait behind each other, and the process hangs (benchmarks/README.md has the
+# reproduction). Below that size the kernel runs inline. So on the CPU each shard runs its
+# members in vmapped groups small enough for Eq. (1)'s factorization to stay inline.
+_LAPACK_INLINE_FLOPS = 2e5
+
+
+def _cpu_group(model: Model) -> int:
+    """Members per vmapped group on a CPU shard: the batched Cholesky of Eq. (1) (order n + 4
+    with its border) stays under jaxlib's threshold for splitting a batch over the pool."""
+    order = model.n + 4
+    return max(1, int(_LAPACK_INLINE_FLOPS / (order**3 / 3.0)) - 1)
+
+
+def _sharded(fn, n_devices, group):
+    """`fn` over a batch (vmapped), split over the first `n_devices` local devices when more than
+    one (``shard_map``: each device runs its own integration loop, so a device does not wait for
+    the other's slowest member); `group` members at a time per device (None: all at once)."""
+    one = lambda m, ts, t1, rtol, atol, cfg: fn(m, ts, t1, rtol, atol, cfg)  # noqa: E731
+
+    def batched(models, ts, t1, rtol, atol, cfg):
+        size = jax.tree_util.tree_leaves(models)[0].shape[0]
+        if group is None or group >= size:
+            return jax.vmap(one, in_axes=(0, None, None, None, None, None))(models, ts, t1, rtol, atol, cfg)
+        return jax.lax.map(lambda m: one(m, ts, t1, rtol, atol, cfg), models, batch_size=group)
+
+    if n_devices <= 1:
+        return batched
+    from jax.sharding import Mesh, PartitionSpec as P
+
+    mesh = Mesh(np.asarray(jax.local_devices()[:n_devices]), ("run",))
+
+    def run(models, ts, t1, rtol, atol, cfg):
+        dynamic, static = eqx.partition(models, eqx.is_array)
+        inner = lambda d, ts, t1, rtol, atol: batched(eqx.combine(d, static), ts, t1, rtol, atol, cfg)  # noqa: E731
+        return jax.shard_map(inner, mesh=mesh, in_specs=(P("run"), P(), P(), P(), P()), out_specs=P("run"),
+                             check_vma=False)(dynamic, ts, t1, rtol, atol)
+
+    return run
+
+
+@eqx.filter_jit
+def _run_chunk_jit(models, ts, t1, rtol, atol, cfg: _Config, n_devices: int, group, pilot: bool):
+    return _sharded(_pilot_member if pilot else _member, n_devices, group)(models, ts, t1, rtol, atol, cfg)
+
+
+def run_chunk(models, ts, t1, rtol, atol, cfg: _Config, pilot: bool = False, devices: int | None = None):
+    """Run one chunk (a batch of models with a leading run axis) in this process: numpy outputs.
+
+    Public for Dask workers (:func:`monte_carlo` submits it). The chunk is split over `devices`
+    local devices (default all of them; fewer if the chunk does not divide evenly)."""
+    leaves = [x for x in jax.tree_util.tree_leaves(models) if eqx.is_array(x)]
+    size = leaves[0].shape[0]
+    devices = len(jax.local_devices()) if devices is None else int(devices)
+    devices = max(1, min(devices, len(jax.local_devices())))
+    while size % devices:
+        devices -= 1
+    group = None
+    if devices > 1 and jax.default_backend() == "cpu":
+        group = _cpu_group(models)
+    dtype = jnp.result_type(models.mass)
+    out = _run_chunk_jit(models, jnp.asarray(ts, dtype), jnp.asarray(t1, dtype), jnp.asarray(rtol, dtype),
+                         jnp.asarray(atol, dtype), cfg, devices, group, pilot)
+    return jax.tree_util.tree_map(np.asarray, out)
+
+
+# ----------------------------------------------------------------------------- the dataset
+_LEAF_DIMS = {
+    "mass": ("body",), "inertia": ("body", "axis", "axis_j"), "axis": ("hinge", "axis"),
+    "hinge_on_parent": ("hinge", "axis"), "hinge_on_body": ("hinge", "axis"), "stiffness": ("hinge",),
+    "damping": ("hinge",), "initial.dcm": ("axis", "axis_j"), "initial.omega0": ("axis",),
+    "initial.gamma": ("hinge",), "initial.gamma_dot": ("hinge",),
+}
+_HISTORY_DIMS = {
+    "omega0": ("time", "axis"), "gamma": ("time", "hinge"), "gamma_dot": ("time", "hinge"),
+    "attitude": ("time", "quaternion"), "energy": ("time",), "angular_momentum": ("time", "axis"),
+    "hold_torque": ("time", "prescribed"),
+}
+_ATTRS = {
+    "omega0": ("rad/s", "angular velocity of b_0 in {b^0} components"),
+    "gamma": ("rad", "hinge angles"),
+    "gamma_dot": ("rad/s", "hinge rates"),
+    "attitude": ("", "Euler parameters (q0 >= 0) of C, {b^0} = C {i} (Def. 9)"),
+    "energy": ("J", "kinetic energy about the system mass center plus hinge-spring energy"),
+    "angular_momentum": ("N m s", "angular momentum about the system mass center, inertial components"),
+    "hold_torque": ("N m", "torque holding each prescribed hinge (Sec. II B)"),
+    "status": ("", "diffrax's result of the run, named"),
+    "failure": ("", "jaxtree's diagnosis of a failed run ('' when it reached t1)"),
+    "steps": ("", "solver steps (accepted and rejected)"),
+    "rejected": ("", "rejected solver steps"),
+    "rhs_evaluations": ("", "evaluations of Eq. (1)"),
+    "t_final": ("s", "where the run ended (t1, or the time of a failure)"),
+}
+
+
+def _leaf_name(path) -> str:
+    parts = []
+    for p in path:
+        name = getattr(p, "name", None) or getattr(p, "key", None)
+        parts.append(str(name if name is not None else getattr(p, "idx", p)))
+    return ".".join(parts)
+
+
+def _dispersed(models, n) -> dict[str, np.ndarray]:
+    """The array leaves of the batch of models that differ between runs, by dotted name."""
+    out = {}
+    for path, leaf in jax.tree_util.tree_leaves_with_path(models):
+        if not eqx.is_array(leaf) or not jnp.issubdtype(leaf.dtype, jnp.number):
+            continue
+        x = np.asarray(leaf)
+        if x.shape[:1] == (n,) and n > 1 and np.any(x != x[:1]):
+            out[_leaf_name(path)] = x
+    return out
+
+
+def _chunk_dataset(out: dict, runs: np.ndarray, params: dict, ts, model: Model):
+    """An xarray Dataset of one chunk's outputs (runs `runs`)."""
+    import xarray as xr
+
+    names = _result_names()
+    data = {}
+    for k, dims in _HISTORY_DIMS.items():
+        if k in out:
+            data[k] = (("run",) + dims, out[k])
+    data["status"] = (("run",), np.asarray([names[int(i)] for i in out["result"]], dtype="U32"))
+    data["failure"] = (("run",), np.asarray([FAILURES[int(i)] for i in out["diagnosis"]], dtype="U32"))
+    for k in ("steps", "rejected", "rhs_evaluations"):
+        data[k] = (("run",), np.asarray(out[k], np.int64))
+    data["t_final"] = (("run",), np.asarray(out["t_final"], float))
+    for name, x in params.items():
+        dims = _LEAF_DIMS.get(name, tuple(f"{name}_{i}" for i in range(x.ndim - 1)))
+        data[f"param.{name}"] = (("run",) + dims, x)
+    coords = {"run": runs, "time": np.asarray(ts, float), "hinge": np.arange(1, model.n + 1),
+              "axis": np.arange(1, 4), "quaternion": np.arange(4), "body": np.arange(model.n + 1)}
+    if model.prescribed:
+        coords["prescribed"] = np.asarray(model.prescribed)
+    ds = xr.Dataset(data, coords=coords)
+    for k, (unit, text) in _ATTRS.items():
+        if k in ds:
+            ds[k].attrs.update(units=unit, long_name=text)
+    return ds
+
+
+# ----------------------------------------------------------------------------- stores
+class _Store:
+    """Where finished chunks go: a Zarr store (one region per chunk, a ``done`` flag per chunk
+    written after its data) or a NetCDF file (one part file per chunk, written atomically, and
+    the whole file assembled atomically at the end). `fingerprint` identifies the campaign: a
+    store made by a different one is refused."""
+
+    def __init__(self, path, fingerprint: str, n_chunks: int):
+        self.path = os.fspath(path)
+        self.zarr = self.path.rstrip("/").endswith(".zarr")
+        self.fingerprint = fingerprint
+        self.n_chunks = n_chunks
+        self.parts = self.path + ".parts"
+        if not self.zarr and not self.path.endswith((".nc", ".nc4", ".netcdf")):
+            raise ValueError(f"out: expected a Zarr store (*.zarr) or a NetCDF file (*.nc), got {self.path!r}")
+
+    def _check(self, attrs):
+        got = attrs.get("jaxtree_campaign")
+        if got is not None and got != self.fingerprint:
+            raise ValueError(f"out: {self.path!r} holds a different campaign (another model, sample, n, key, times, "
+                             f"tolerances or chunk size); remove it or choose another path")
+
+    def done(self) -> set[int]:
+        if self.zarr:
+            if not os.path.exists(self.path):
+                return set()
+            import zarr
+
+            group = zarr.open_group(self.path, mode="r")
+            self._check(dict(group.attrs))
+            if "chunk_done" not in group:
+                return set()
+            return {int(i) for i in np.flatnonzero(np.asarray(group["chunk_done"][:]))}
+        if os.path.exists(self.path):
+            import xarray as xr
+
+            with xr.open_dataset(self.path) as ds:
+                self._check(ds.attrs)
+            return set(range(self.n_chunks))
+        if not os.path.isdir(self.parts):
+            return set()
+        meta = os.path.join(self.parts, "campaign.json")
+        if os.path.exists(meta):
+            with open(meta) as fh:
+                self._check(json.load(fh))
+        return {int(f[6:12]) for f in os.listdir(self.parts) if f.startswith("chunk_") and f.endswith(".nc")}
+
+    def write(self, index: int, ds, template) -> None:
+        if self.zarr:
+            import zarr
+
+            if not os.path.exists(self.path):
+                tmp = self.path + f".tmp{os.getpid()}"
+                shutil.rmtree(tmp, ignore_errors=True)
+                template = template.assign(chunk_done=(("chunk",), np.zeros(self.n_chunks, bool)))
+                template.attrs["jaxtree_campaign"] = self.fingerprint
+                template.to_zarr(tmp, mode="w", compute=False, consolidated=False, zarr_format=2)
+                os.replace(tmp, self.path)
+            region = {"run": slice(int(ds.run[0]), int(ds.run[-1]) + 1)}
+            ds.drop_vars([v for v in ds.coords if "run" not in ds[v].dims]).to_zarr(
+                self.path, region=region, consolidated=False)
+            group = zarr.open_group(self.path, mode="r+")
+            group["chunk_done"][index] = True
+            return
+        from .output import atomic_write
+
+        os.makedirs(self.parts, exist_ok=True)
+        meta = os.path.join(self.parts, "campaign.json")
+        if not os.path.exists(meta):
+            with atomic_write(meta, "w") as fh:
+                json.dump({"jaxtree_campaign": self.fingerprint}, fh)
+        final = os.path.join(self.parts, f"chunk_{index:06d}.nc")
+        tmp = final + f".tmp{os.getpid()}"
+        ds.to_netcdf(tmp)
+        os.replace(tmp, final)
+
+    def read(self):
+        import xarray as xr
+
+        if self.zarr:
+            ds = xr.open_zarr(self.path, consolidated=False).load()
+            return ds.drop_vars("chunk_done")
+        if os.path.exists(self.path):
+            return xr.load_dataset(self.path)
+        files = sorted(os.path.join(self.parts, f) for f in os.listdir(self.parts)
+                       if f.startswith("chunk_") and f.endswith(".nc"))
+        ds = xr.concat([xr.load_dataset(f) for f in files], dim="run", data_vars="minimal", coords="minimal",
+                       compat="override", join="override")
+        tmp = self.path + f".tmp{os.getpid()}"
+        ds.attrs["jaxtree_campaign"] = self.fingerprint
+        ds.to_netcdf(tmp)
+        os.replace(tmp, self.path)
+        shutil.rmtree(self.parts, ignore_errors=True)
+        return ds
+
+
+def _fingerprint(models, ts, t1, rtol, atol, cfg, chunk_size) -> str:
+    h = hashlib.sha256()
+    for leaf in jax.tree_util.tree_leaves(models):
+        if eqx.is_array(leaf):
+            h.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
+    h.update(repr((np.asarray(ts).tolist(), float(t1), float(rtol), float(atol), tuple(cfg), chunk_size,
+                   str(jax.tree_util.tree_structure(models)))).encode())
+    return h.hexdigest()[:32]
+
+
+# ----------------------------------------------------------------------------- the campaign
+def _take(models, idx):
+    return jax.tree_util.tree_map(lambda x: np.asarray(x)[idx] if eqx.is_array(x) else x, models)
+
+
+def monte_carlo(
+    model: Model,
+    sample: Callable[[jax.Array, Model], Model],
+    n: int,
+    t1,
+    *,
+    key: jax.Array,
+    saveat=101,
+    rtol: float | None = None,
+    atol: float | None = None,
+    chunk_size: int | None = None,
+    client: Any = None,
+    out: str | os.PathLike | None = None,
+    order: str | None = None,
+    pilot_fraction: float = 0.1,
+    dt: float | None = None,
+    max_steps: int | None = None,
+    attitude: str = "quaternion",
+    devices: int | None = None,
+    progress: bool = False,
+):
+    """Run `n` dispersed copies of `model` from t = 0 to `t1` and collect them in a dataset.
+
+    **Arguments:**
+
+    - `model`: the nominal vehicle.
+    - `sample`: ``sample(key, model) -> model``, one dispersed vehicle: any array leaf may
+      change (mass properties, hinge axes and points, stiffness, damping, load parameters,
+      ``model.initial``, the initial state of the run), the structure may not. It is vmapped
+      over the members' keys, so it must be written in JAX (``jax.random``).
+    - `n`: number of runs; `t1`: end time of every run.
+    - `key`: a ``jax.random`` key; member i gets ``jax.random.split(key, n)[i]``, so its
+      vehicle does not depend on the chunking, the ordering or where it runs.
+    - `saveat`: a number of evenly spaced save times from 0 to t1 (default 101) or an array
+      of times.
+    - `rtol`, `atol`: tolerances of :func:`jaxtree.simulate` (default
+      :func:`jaxtree.default_tolerance` of the model's dtype).
+    - `chunk_size`: members per vmapped chunk (default ``min(n, 128)``); a chunk is compiled once
+      and every chunk has this size (the last one is padded).
+    - `client`: a Dask ``distributed.Client``: the chunks run as tasks on its workers (each
+      worker compiles once). None (default): in this process.
+    - `out`: a Zarr store (``*.zarr``) or NetCDF file (``*.nc``) written chunk by chunk as they
+      finish; a rerun with the same `out` skips the finished chunks (a different campaign in
+      that place is refused).
+    - `order`: None (members in index order) or ``"pilot"``: a pilot run over the first
+      `pilot_fraction` of the flight counts each member's steps, and the chunks are filled in
+      that order, so that members of alike cost wait for each other.
+    - `dt`: integrate with this fixed step (diffrax's ``ConstantStepSize``; tolerances unused):
+      every member takes the same steps, so nobody waits.
+    - `max_steps`: step limit per run (simulate's default; ``ceil(t1 / dt) + 1`` with `dt`).
+    - `attitude`: the attitude variables integrated (see :func:`jaxtree.simulate`).
+    - `devices`: local devices a chunk is split over (default all; several CPU devices come from
+      ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` set before JAX starts). On the CPU
+      each device runs its members in vmapped groups small enough that jaxlib's batched
+      LAPACK calls stay on the calling thread (larger batches are split over XLA's thread
+      pool, and two device shards doing that at once can deadlock; see benchmarks/README.md).
+    - `progress`: print one line per finished chunk.
+
+    **Returns:** an ``xarray.Dataset`` with dimensions ``run`` (member index), ``time``,
+    ``hinge`` (1..n), ``axis`` (1..3), ``quaternion`` (0..3) and ``body``: ``omega0``,
+    ``gamma``, ``gamma_dot``, ``attitude`` (Euler parameters of b_0), ``energy``,
+    ``angular_momentum`` (and ``hold_torque`` with prescribed hinges), NaN for failed runs;
+    per run ``status`` (diffrax's result, named: ``"successful"``, ``"max_steps_reached"``,
+    ``"dt_min_reached"``, ...), ``failure`` (jaxtree's diagnosis, one of :data:`FAILURES`:
+    ``"singular_matrix"``, ``"nonfinite_state"``, ``"max_steps"``, ...; ``""`` for a success),
+    ``steps``, ``rejected``, ``rhs_evaluations``, ``t_final``; ``param.<leaf>`` for every
+    leaf that the dispersion changed (e.g. ``param.inertia``, ``param.initial.omega0``).
+    Attributes: the settings, the wall time, and the chunks' efficiencies
+    (``sum(steps) / (size * max(steps))``: the share of the vmapped work that was not spent
+    waiting for a chunk's slowest member).
+    """
+    import xarray as xr
+
+    from .simulate import DEFAULT_MAX_STEPS, default_tolerance
+
+    start = _time.perf_counter()
+    n = int(n)
+    if n < 1:
+        raise ValueError(f"monte_carlo: n must be at least 1, got {n}")
+    if not callable(sample):
+        raise TypeError(f"monte_carlo: sample must be a function (key, model) -> model, got {sample!r}")
+    if order not in (None, "pilot"):
+        raise ValueError(f"monte_carlo: order must be None or 'pilot', got {order!r}")
+    dtype = jnp.result_type(model.mass)
+    rtol = default_tolerance(dtype) if rtol is None else float(rtol)
+    atol = default_tolerance(dtype) if atol is None else float(atol)
+    t1 = float(t1)
+    if not np.isfinite(t1) or t1 <= 0:
+        raise ValueError(f"monte_carlo: t1 must be finite and positive, got {t1}")
+    if isinstance(saveat, (int, np.integer)) and not isinstance(saveat, bool):
+        if saveat < 2:
+            raise ValueError(f"monte_carlo: saveat needs at least 2 save points, got {saveat}")
+        ts = np.linspace(0.0, t1, int(saveat))
+    else:
+        ts = np.asarray(saveat, float)
+        if ts.ndim != 1 or ts.size < 1 or np.any(np.diff(ts) < 0) or ts[0] < 0 or ts[-1] > t1:
+            raise ValueError("monte_carlo: saveat must be a count or increasing times within [0, t1]")
+    if dt is not None:
+        dt = float(dt)
+        if not dt > 0:
+            raise ValueError(f"monte_carlo: dt must be positive, got {dt}")
+        max_steps = int(math.ceil(t1 / dt)) + 1 if max_steps is None else int(max_steps)
+    max_steps = DEFAULT_MAX_STEPS if max_steps is None else int(max_steps)
+    chunk_size = min(n, 128) if chunk_size is None else int(chunk_size)
+    if chunk_size < 1:
+        raise ValueError(f"monte_carlo: chunk_size must be at least 1, got {chunk_size}")
+    if isinstance(attitude, str) is False:
+        raise TypeError("monte_carlo: attitude must be a name ('quaternion', 'dcm', 'euler123')")
+
+    keys = jax.random.split(key, n)
+    models = eqx.filter_vmap(sample, in_axes=(0, None))(keys, model)
+    if jax.tree_util.tree_structure(jax.tree_util.tree_map(lambda x: None, models)) != \
+            jax.tree_util.tree_structure(jax.tree_util.tree_map(lambda x: None, model)):
+        raise ValueError("monte_carlo: sample(key, model) must return a model of the same structure (same tree, "
+                         "joints, prescription and loads); only array values may change")
+    models = jax.tree_util.tree_map(lambda x: np.asarray(x) if eqx.is_array(x) else x, models)
+    models = jax.tree_util.tree_map(
+        lambda x: np.broadcast_to(x, (n,) + x.shape).copy() if eqx.is_array(x) and x.shape[:1] != (n,) else x, models)
+    params = _dispersed(models, n)
+
+    t_pilot = t1 * float(pilot_fraction) if order == "pilot" else None
+    cfg = _Config(len(ts), max_steps, attitude, dt, t_pilot)
+    n_chunks = -(-n // chunk_size)
+    store = None if out is None else _Store(out, _fingerprint(models, ts, t1, rtol, atol, cfg, chunk_size), n_chunks)
+    finished = set() if store is None else store.done()
+
+    def submit(chunk_models, pilot=False):
+        args = (chunk_models, ts, t1, rtol, atol, cfg, pilot, devices)
+        if client is None:
+            return run_chunk(*args)
+        return client.submit(run_chunk, *args, pure=False)
+
+    def chunk_members(k, order_):
+        idx = order_[k * chunk_size:(k + 1) * chunk_size]
+        padded = np.concatenate([idx, np.full(chunk_size - len(idx), idx[0])])
+        return idx, padded
+
+    # the order of the members (pilot: by the steps of the first part of the flight)
+    order_ = np.arange(n)
+    pilot_s = 0.0
+    if order == "pilot" and len(finished) < n_chunks:
+        t = _time.perf_counter()
+        jobs = [submit(_take(models, chunk_members(k, order_)[1]), pilot=True) for k in range(n_chunks)]
+        if client is not None:
+            jobs = client.gather(jobs)
+        steps = np.concatenate([np.asarray(j["steps"])[:len(chunk_members(k, order_)[0])]
+                                for k, j in enumerate(jobs)])
+        order_ = np.argsort(steps, kind="stable")
+        pilot_s = _time.perf_counter() - t
+
+    template = None
+    results: dict[int, Any] = {}
+    stats: dict[int, dict] = {}
+
+    def finish(k, res, wall):
+        idx, _ = chunk_members(k, order_)
+        res = jax.tree_util.tree_map(lambda v: np.array(v)[:len(idx)], res)
+        _diagnose_failures(res, _take(models, idx), model)
+        ds = _chunk_dataset(res, np.arange(k * chunk_size, k * chunk_size + len(idx)),
+                            {name: x[idx] for name, x in params.items()}, ts, model)
+        ds = ds.assign(member=(("run",), idx.astype(np.int64)))
+        steps = res["steps"].astype(float)
+        stats[k] = dict(efficiency=float(steps.sum() / (chunk_size * max(steps.max(), 1))), wall_s=wall)
+        if store is not None:
+            nonlocal template
+            if template is None:
+                template = _template(ds, n)
+            store.write(k, ds, template)
+        results[k] = ds
+        if progress:
+            print(f"monte_carlo: chunk {k + 1}/{n_chunks} done ({wall:.2f} s, efficiency "
+                  f"{stats[k]['efficiency']:.2f})", flush=True)
+
+    todo = [k for k in range(n_chunks) if k not in finished]
+    if client is None:
+        for k in todo:
+            t = _time.perf_counter()
+            res = submit(_take(models, chunk_members(k, order_)[1]))
+            finish(k, res, _time.perf_counter() - t)
+    else:
+        from distributed import as_completed
+
+        t = _time.perf_counter()
+        futures = {submit(_take(models, chunk_members(k, order_)[1])): k for k in todo}
+        for future in as_completed(list(futures)):
+            finish(futures[future], future.result(), _time.perf_counter() - t)
+
+    if store is not None:
+        ds = store.read()
+    else:
+        ds = xr.concat([results[k] for k in sorted(results)], dim="run", data_vars="minimal", coords="minimal",
+                       compat="override", join="override")
+    ds = ds.assign_coords(run=np.asarray(ds["member"].values, np.int64)).drop_vars("member").sortby("run")
+    ds = ds.drop_vars([v for v in list(ds.data_vars) if v == "chunk_done"])
+    done_stats = [stats[k] for k in sorted(stats)]
+    eff = [s["efficiency"] for s in done_stats]
+    ds.attrs.update({
+        "model": model.name, "t1": t1, "rtol": rtol, "atol": atol, "n": n, "chunk_size": chunk_size,
+        "chunks": n_chunks, "chunks_run": len(done_stats), "order": order or "index",
+        "fixed_step": dt if dt is not None else "none", "dtype": jnp.dtype(dtype).name,
+        "where": "dask" if client is not None else f"in-process ({jax.default_backend()})",
+        "chunk_efficiency": eff, "chunk_wall_s": [s["wall_s"] for s in done_stats],
+        "pilot_s": pilot_s, "wall_s": _time.perf_counter() - start,
+    })
+    ds.attrs.pop("jaxtree_campaign", None)
+    return ds
+
+
+def _template(ds, n):
+    """A lazily filled dataset of the whole campaign's shape (for the Zarr store's layout)."""
+    import xarray as xr
+
+    size = ds.sizes["run"]
+    reps = -(-n // size)
+    full = xr.concat([ds] * reps, dim="run", data_vars="minimal", coords="minimal", compat="override",
+                     join="override").isel(run=slice(0, n))
+    return full.assign_coords(run=np.arange(n)).chunk({"run": size})

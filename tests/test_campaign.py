@@ -1,0 +1,157 @@
+"""jaxtree.monte_carlo: the dataset, failed members, stores and resuming, several host devices
+and a Dask cluster. Every campaign here has the same shape (fig4_free, 6 runs of 1 s in chunks
+of 4, 11 save times) so that the in-process runs share one compiled chunk."""
+
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxtree
+from jaxtree.campaign import monte_carlo
+
+N, CHUNK, T1, SAVES, TOL, MAX_STEPS = 6, 4, 1.0, 11, 1e-8, 3000
+KEY = 7
+LOCK = 0.3  # share of members whose inner gimbal starts at 90 deg: gimbal lock
+
+
+def sample(key, model):
+    """Dispersed bus mass, platform inertia, panel stiffness and bus rate; some members start
+    in gimbal lock (hinge 3 at 90 deg puts the rotor's axis on the outer gimbal's)."""
+    k = jax.random.split(key, 5)
+    s = model.initial
+    lock = jax.random.uniform(k[0]) < LOCK
+    gamma = s.gamma.at[2].set(jnp.where(lock, jnp.pi / 2, s.gamma[2]))
+    omega0 = s.omega0 + 1e-2 * jax.random.normal(k[1], (3,))
+    mass = model.mass.at[0].multiply(1 + 0.02 * jax.random.normal(k[2]))
+    inertia = model.inertia.at[1].multiply(1 + 0.05 * jax.random.normal(k[3]))
+    stiffness = model.stiffness * (1 + 0.1 * jax.random.normal(k[4], model.stiffness.shape))
+    return eqx.tree_at(lambda m: (m.mass, m.inertia, m.stiffness, m.initial), model,
+                       (mass, inertia, stiffness, s._replace(omega0=omega0, gamma=gamma)))
+
+
+def run(**kw):
+    model = jaxtree.load_scene("fig4_free")
+    return monte_carlo(model, sample, N, T1, key=jax.random.key(KEY), saveat=SAVES, rtol=TOL, atol=TOL,
+                       chunk_size=CHUNK, max_steps=MAX_STEPS, **kw)
+
+
+def locked_members():
+    keys = jax.random.split(jax.random.key(KEY), N)
+    return np.asarray([bool(jax.random.uniform(jax.random.split(k, 5)[0]) < LOCK) for k in keys])
+
+
+@pytest.fixture(scope="module")
+def campaign():
+    return run()
+
+
+def test_dataset_holds_each_member_as_run_alone_and_failed_members_apart(campaign):
+    ds = campaign
+    model = jaxtree.load_scene("fig4_free")
+    assert dict(ds.sizes) == {"run": N, "time": SAVES, "hinge": 10, "axis": 3, "quaternion": 4, "body": 11,
+                             "axis_j": 3}  # param.inertia (run, body, axis, axis_j)
+    locked = locked_members()
+    assert 0 < locked.sum() < N  # the seed gives both kinds
+    # members in gimbal lock fail with a named status and NaN outputs; nothing raised
+    assert set(ds.failure.values[locked]) == {"singular_matrix"}
+    assert all(s != "successful" for s in ds.status.values[locked])
+    assert np.all(np.isnan(ds.omega0.values[locked])) and np.all(np.isnan(ds.energy.values[locked]))
+    ok = ~locked
+    assert set(ds.status.values[ok]) == {"successful"} and set(ds.failure.values[ok]) == {""}
+    assert np.all(ds.steps.values > 0) and np.all(ds.t_final.values[ok] == T1)
+    # the dispersed parameters are recorded: they are sample(key_i, model)
+    keys = jax.random.split(jax.random.key(KEY), N)
+    for i in range(N):
+        m = sample(keys[i], model)
+        np.testing.assert_array_equal(ds["param.mass"].values[i], np.asarray(m.mass))
+        np.testing.assert_array_equal(ds["param.initial.omega0"].values[i], np.asarray(m.initial.omega0))
+    # a successful member equals the run of its vehicle alone (one lone simulate, independent of the batch)
+    i = int(np.flatnonzero(ok)[-1])
+    alone = jaxtree.simulate(sample(keys[i], model), T1, saveat=SAVES, rtol=TOL, atol=TOL)
+    np.testing.assert_allclose(ds.omega0.values[i], np.asarray(alone.omega0), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(ds.gamma.values[i], np.asarray(alone.gamma), rtol=1e-9, atol=1e-12)
+    C = np.asarray(alone.dcm)  # the stored Euler parameters give back C (Def. 9)
+    q = ds.attitude.values[i]
+    q0, v = q[:, :1, None], q[:, 1:]
+    vx = np.cross(np.eye(3)[None], v[:, None, :])
+    Cq = (q0**2 - np.sum(v * v, -1)[:, None, None]) * np.eye(3) + 2 * v[:, :, None] * v[:, None, :] - 2 * q0 * vx
+    np.testing.assert_allclose(Cq, C, atol=1e-12)
+    # no loads, no damping: every successful run conserves energy and angular momentum
+    E, H = ds.energy.values[ok], ds.angular_momentum.values[ok]
+    assert np.abs(E - E[:, :1]).max() / np.abs(E).max() < 1e-6
+    assert np.abs(H - H[:, :1]).max() / np.abs(H).max() < 1e-6
+    eff = ds.attrs["chunk_efficiency"]
+    assert len(eff) == 2 and all(0 < e <= 1 for e in eff)
+
+
+@pytest.mark.parametrize("suffix", [".zarr", ".nc"])
+def test_store_is_written_chunk_by_chunk_and_a_rerun_resumes(campaign, tmp_path, monkeypatch, suffix):
+    """A campaign killed after its first chunk leaves that chunk in the store; the rerun computes
+    only the second and returns the numbers of an uninterrupted in-memory run."""
+    pytest.importorskip("zarr" if suffix == ".zarr" else "scipy")
+    import jaxtree.campaign as C
+
+    out = tmp_path / f"mc{suffix}"
+    real, calls = C.run_chunk, []
+
+    def dies_on_the_second(*args, **kw):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt("killed")
+        return real(*args, **kw)
+
+    monkeypatch.setattr(C, "run_chunk", dies_on_the_second)
+    with pytest.raises(KeyboardInterrupt):
+        run(out=out)
+    monkeypatch.setattr(C, "run_chunk", real)
+    ds = run(out=out)
+    assert ds.attrs["chunks_run"] == 1
+    for v in campaign.data_vars:
+        np.testing.assert_array_equal(ds[v].values, campaign[v].values, err_msg=v)
+    again = run(out=out)  # all done: nothing runs
+    assert again.attrs["chunks_run"] == 0 and again.omega0.equals(campaign.omega0)
+    model = jaxtree.load_scene("fig4_free")
+    with pytest.raises(ValueError, match="different campaign"):
+        monte_carlo(model, sample, N, 2 * T1, key=jax.random.key(KEY), saveat=SAVES, rtol=TOL, atol=TOL,
+                    chunk_size=CHUNK, max_steps=MAX_STEPS, out=out)
+
+
+def test_chunks_split_over_two_forced_host_devices_give_the_same_numbers(campaign, tmp_path):
+    """In a fresh process with two host devices (XLA_FLAGS is read when JAX starts), each chunk is
+    sharded over both and the campaign returns the numbers of the one-device run."""
+    script = f"""
+import os, sys, json
+os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
+sys.path.insert(0, {str(pathlib.Path(__file__).parent)!r})
+import jax, numpy as np
+from test_campaign import run
+assert len(jax.local_devices()) == 2
+ds = run(devices=2)
+np.savez({str(tmp_path / "two.npz")!r}, omega0=ds.omega0.values, gamma=ds.gamma.values, steps=ds.steps.values,
+         failure=ds.failure.values)
+"""
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    two = np.load(tmp_path / "two.npz")
+    np.testing.assert_array_equal(two["omega0"], campaign.omega0.values)
+    np.testing.assert_array_equal(two["gamma"], campaign.gamma.values)
+    np.testing.assert_array_equal(two["steps"], campaign.steps.values)
+    assert list(two["failure"]) == list(campaign.failure.values)
+
+
+def test_a_dask_local_cluster_of_two_processes_gives_the_same_numbers(campaign):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cl, \
+            distributed.Client(cl) as client:
+        ds = run(client=client)
+    assert ds.attrs["where"] == "dask"
+    for v in campaign.data_vars:
+        np.testing.assert_array_equal(ds[v].values, campaign[v].values, err_msg=v)
