@@ -75,9 +75,12 @@ def test_dataset_holds_each_member_as_run_alone_and_failed_members_apart(campaig
         np.testing.assert_array_equal(ds["param.initial.omega0"].values[i], np.asarray(m.initial.omega0))
     # a successful member equals the run of its vehicle alone (one lone simulate, independent of the batch)
     i = int(np.flatnonzero(ok)[-1])
+    # The batched member and the lone run are two integrations at TOL: batched and single kernels
+    # round differently, which can flip an accept/reject decision and give another step sequence,
+    # so they agree to the integration error (a few TOL), not to round-off.
     alone = jaxtree.simulate(sample(keys[i], model), T1, saveat=SAVES, rtol=TOL, atol=TOL)
-    np.testing.assert_allclose(ds.omega0.values[i], np.asarray(alone.omega0), rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(ds.gamma.values[i], np.asarray(alone.gamma), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(ds.omega0.values[i], np.asarray(alone.omega0), rtol=0, atol=10 * TOL)
+    np.testing.assert_allclose(ds.gamma.values[i], np.asarray(alone.gamma), rtol=0, atol=10 * TOL)
     C = np.asarray(alone.dcm)  # the stored Euler parameters give back C (Def. 9)
     q = ds.attitude.values[i]
     q0, v = q[:, :1, None], q[:, 1:]

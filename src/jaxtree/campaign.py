@@ -107,7 +107,12 @@ def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     hist = {k: jnp.where(ok, v, jnp.nan) for k, v in hist.items()}
     # (whether a failed run's Eq. (1) matrix is singular where it stopped is decided on the host,
     # for the failed members only: see _diagnose_failures)
-    return dict(hist, result=sol.result._value, diagnosis=diagnosis,  # noqa: SLF001
+    # a start that cannot be integrated (not finite, or Eq. 1 singular there) never ran: its
+    # integrator result is that of the vehicle at rest simulate integrated in its place
+    from .simulate import _KINDS
+
+    started = (code != _KINDS.index("nonfinite_start") + 1) & (code != _KINDS.index("singular_start") + 1)
+    return dict(hist, result=jnp.where(started, sol.result._value, -1), diagnosis=diagnosis,  # noqa: SLF001
                 steps=sol.stats["num_steps"], rejected=sol.stats["num_rejected_steps"],
                 rhs_evaluations=sol.stats["rhs_evaluations"], t_final=sol.t_final,
                 final=tuple(sol.final))
@@ -268,7 +273,8 @@ def _chunk_dataset(out: dict, runs: np.ndarray, params: dict, ts, model: Model):
     for k, dims in _HISTORY_DIMS.items():
         if k in out:
             data[k] = (("run",) + dims, out[k])
-    data["status"] = (("run",), np.asarray([names[int(i)] for i in out["result"]], dtype="U32"))
+    data["status"] = (("run",), np.asarray([names[int(i)] if i >= 0 else "not_started" for i in out["result"]],
+                                           dtype="U32"))
     data["failure"] = (("run",), np.asarray([FAILURES[int(i)] for i in out["diagnosis"]], dtype="U32"))
     for k in ("steps", "rejected", "rhs_evaluations"):
         data[k] = (("run",), np.asarray(out[k], np.int64))
@@ -461,7 +467,7 @@ def monte_carlo(
     ``gamma``, ``gamma_dot``, ``attitude`` (Euler parameters of b_0), ``energy``,
     ``angular_momentum`` (and ``hold_torque`` with prescribed hinges), NaN for failed runs;
     per run ``status`` (diffrax's result, named: ``"successful"``, ``"max_steps_reached"``,
-    ``"dt_min_reached"``, ...), ``failure`` (jaxtree's diagnosis, one of :data:`FAILURES`:
+    ``"dt_min_reached"``, ..., or ``"not_started"`` for a start that cannot be integrated), ``failure`` (jaxtree's diagnosis, one of :data:`FAILURES`:
     ``"singular_matrix"``, ``"nonfinite_state"``, ``"max_steps"``, ...; ``""`` for a success),
     ``steps``, ``rejected``, ``rhs_evaluations``, ``t_final``; ``param.<leaf>`` for every
     leaf that the dispersion changed (e.g. ``param.inertia``, ``param.initial.omega0``).

@@ -1133,7 +1133,7 @@ def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, m
             if message is not None:
                 raise SimulationError(message)
 
-        _report(host, jax.lax.stop_gradient((code, t_final, final, out.final_modal)))
+        _report(host, code != 0, jax.lax.stop_gradient((code, t_final, final, out.final_modal)))
     return out
 
 

@@ -710,38 +710,55 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     if opts.report_in_callback:
         # Under a caller's jit/vmap the values are not known until run time: report failures
         # from a host callback, which raises with the time and state of every failed member.
-        condition, direction = _condition(problem.model, final_state, t_final)
         attitude_name, labels = problem.attitude.name, _unknown_labels(problem.model)
 
-        def host(code, t, state, condition, margin, direction):
+        def host(code, t, state, margin, model, condition, direction):
             _raise_from_callback(code, t, state, condition, margin, attitude_name, direction, labels)
 
-        _report(host, jax.lax.stop_gradient((failure, t_final, final_state, condition, out.margin, direction)))
+        def diagnose(code, t, state, margin, model):  # only when a run failed: an eigendecomposition
+            return _condition(model, state, t)
+
+        _report(host, failure != 0,
+                jax.lax.stop_gradient((failure, t_final, final_state, out.margin, problem.model)), diagnose)
     return out
 
 
-def _report(host, args):
-    """Call ``host(*args)`` on the host at run time: one call for a whole ``jax.vmap`` batch.
+def _report(host, failed, args, extra=None):
+    """Call ``host(*args, *extra(args))`` on the host at run time when a run `failed`: one call
+    for a whole ``jax.vmap`` batch, none when every run succeeded.
 
     ``jax.debug.callback`` alone is unrolled by vmap into one callback per batch member (a
     campaign of 4096 runs: 4096 host calls, and compile and run times that grow with the
     batch); this custom batching rule hands the batch to a single callback instead (`host`
-    takes arrays with leading batch axes, as a batch of solutions has). `args` carry no
-    gradient (`stop_gradient`): reporting does not enter derivatives."""
+    takes arrays with leading batch axes, as a batch of solutions has). The call, and `extra`
+    (diagnostics that cost a decomposition, computed per run), sit behind a ``lax.cond`` on
+    "some run failed", so a successful run pays neither (simulate's fixed cost per call). `args`
+    carry no gradient (`stop_gradient`): reporting does not enter derivatives."""
+
+    def call(failed, args):
+        more = ()
+        if extra is not None:
+            fn = extra
+            for _ in range(jnp.ndim(failed)):  # one vmap per batch axis
+                fn = jax.vmap(fn)
+            more = tuple(fn(*args))
+        jax.debug.callback(host, *args, *more)
 
     @jax.custom_batching.custom_vmap
-    def report(args):
-        jax.debug.callback(host, *args)
+    def report(failed, args):
+        jax.lax.cond(jnp.any(failed), call, lambda f, a: None, failed, args)
         return jnp.zeros((), jnp.int32)
 
     @report.def_vmap
-    def _batched(axis_size, in_batched, args):
+    def _batched(axis_size, in_batched, failed, args):
+        bf, ba = in_batched
+        failed = failed if bf else jnp.broadcast_to(failed, (axis_size,) + jnp.shape(failed))
         args = jax.tree_util.tree_map(
-            lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x)), args, in_batched[0])
-        report(args)
+            lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x)), args, ba)
+        report(failed, args)
         return jnp.zeros((axis_size,), jnp.int32), True
 
-    report(args)
+    report(failed, args)
 
 
 # ----------------------------------------------------------------------------- failures
