@@ -151,13 +151,14 @@ def _base_coords(model: Model, T_times):
 
 def simulation_dataset(model: Model, ts, gamma, gamma_dot, omega0, dcm, *, energy=None, angular_momentum=None,
                        attitude=None, attitude_name: str | None = None, hold_torque=None, orthogonality=None,
-                       modal=None, positions: bool = True, attrs: dict | None = None):
+                       modal=None, positions=True, attrs: dict | None = None):
     """The :class:`xarray.Dataset` of a simulation's histories (see the module docstring).
 
     `ts` (T,); `gamma`, `gamma_dot` (T, n); `omega0` (T, 3); `dcm` (T, 3, 3); optional `energy`
     (T,), `angular_momentum` (T, 3), `attitude` (T, size) with its `attitude_name`,
     `hold_torque` (T, len(model.prescribed)), `orthogonality` (T,), `modal` (T, m) hybrid modal
-    coordinates; `positions` adds the mass centers and hinge points of every body; `attrs`
+    coordinates; `positions` adds the mass centers and hinge points of every body
+    (:func:`body_positions`, or given as that function's pair of arrays); `attrs`
     are stored as global attributes (with the format, the scene JSON and :func:`versions`).
     """
     xr = _xr()
@@ -199,8 +200,11 @@ def simulation_dataset(model: Model, ts, gamma, gamma_dot, omega0, dcm, *, energ
     if modal is not None:
         v["modal"] = _var(("time", "modal_coordinate"), pick(modal), "1",
                           "modal coordinates of the hybrid equations (Eqs. 111-112)")
-    if positions and len(ts):
+    if isinstance(positions, tuple):
+        rho, hinge = (np.asarray(x)[keep] for x in positions)
+    elif positions and len(ts):
         rho, hinge = body_positions(model, gamma)
+    if positions is not False and len(ts):
         v["body_position"] = _var(("time", "body", "axis"), rho, "m",
                                   "mass center of each body from the system mass center, {b0} components")
         v["hinge_position"] = _var(("time", "hinge", "axis"), hinge, "m",
@@ -373,10 +377,11 @@ class ChunkedResult:
             return None
         return _xr().load_dataset(parts[-1], engine=ENGINE, decode_timedelta=False, decode_times=False)
 
-    def merged(self, complete: bool = False, attrs: dict | None = None):
-        """The parts joined along ``time`` (resume variables dropped), or None without parts."""
+    def merged(self, complete: bool = False, attrs: dict | None = None, parts=None):
+        """The parts joined along ``time`` (resume variables dropped), or None without parts.
+        `parts`: the part datasets when the caller holds them (default: read from disk)."""
         xr = _xr()
-        parts = self.load_parts()
+        parts = self.load_parts() if parts is None else list(parts)
         if not parts:
             return None
         drop = lambda d: d.drop_vars([k for k in d.data_vars if str(k).startswith("resume_")])  # noqa: E731
@@ -406,9 +411,9 @@ class ChunkedResult:
             ds.attrs["momentum_drift"] = float(np.nanmax(np.linalg.norm(H - H[0], axis=1)) / h0) if h0 else 0.0
         return ds
 
-    def merge(self, complete: bool = True, attrs: dict | None = None):
+    def merge(self, complete: bool = True, attrs: dict | None = None, parts=None):
         """Write the merged parts to `path` (atomically); remove the parts when `complete`."""
-        ds = self.merged(complete, attrs)
+        ds = self.merged(complete, attrs, parts)
         if ds is None:
             return None
         write_netcdf(ds, self.path)
