@@ -587,12 +587,12 @@ def cmd_simulate(args) -> int:
     from .results import ChunkedResult, command_line
 
     if args.t1 == args.t0:
-        raise UserError("simulate: --t1 equals --t0: nothing to integrate")
+        raise UserError("--t1 equals --t0: nothing to integrate")
     if args.hybrid_small is None:
         for opt, val in (("--modes", args.modes), ("--cutoff", args.cutoff), ("--spin", args.spin),
                          ("--modal-damping", args.modal_damping)):
             if val is not None:
-                raise UserError(f"simulate: {opt} needs --hybrid-small (the hinges in modal coordinates)")
+                raise UserError(f"{opt} needs --hybrid-small (the hinges in modal coordinates)")
     start_wall = time.perf_counter()
     model = _load_scene(args.scene)
     out = pathlib.Path(args.out if args.out else f"{model.name or pathlib.Path(args.scene).stem}.nc")
@@ -694,9 +694,8 @@ def cmd_simulate(args) -> int:
     if failed is None and not args.no_error_estimate:
         extra = _error_estimate(runner, writer.merged(parts=parts), bounds, rows_per_part, grid, cfg)
     ds = writer.merge(complete=failed is None, attrs=extra, parts=parts)
-    if failed is None:
-        _exports(args, out, ds)
-    print(_summary(model, cfg, ds, out, runner, failed, time.perf_counter() - start_wall, compile_time))
+    written = [str(out)] + (_exports(args, out, ds) if failed is None else [])
+    print(_summary(model, cfg, ds, written, runner, failed, time.perf_counter() - start_wall, compile_time))
     if failed is not None:
         _say(failed.message or "the run failed")
         return EXIT_FAILED
@@ -739,24 +738,28 @@ def _error_estimate(runner, ds, bounds, rows_per_part, grid, cfg):
 
 
 def _exports(args, out, ds):
+    """The CSV export and the plots of a finished run; returns the files written."""
+    written = []
     if args.csv:
         from .output import save_csv
         from .results import _to_solution
 
         save_csv(args.csv, _to_solution(ds))
+        written.append(args.csv)
     if not args.no_plot:
         if not _matplotlib():
             _say("matplotlib is not installed: no plots (pip install 'jaxtree[plot]')")
-            return
+            return written
         from . import plots
 
         prefix = args.plot if args.plot else str(out.with_suffix("")) if out.suffix == ".nc" else str(out)
         plots.plot_histories(ds, f"{prefix}_histories.png")
         plots.plot_drift(ds, f"{prefix}_drift.png")
-        args._plots = [f"{prefix}_histories.png", f"{prefix}_drift.png"]
+        written += [f"{prefix}_histories.png", f"{prefix}_drift.png"]
+    return written
 
 
-def _summary(model, cfg, ds, out, runner, failed, wall, compile_time):
+def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
     import numpy as np
 
     a = ds.attrs
@@ -789,8 +792,7 @@ def _summary(model, cfg, ds, out, runner, failed, wall, compile_time):
     last = ds.isel(time=-1)
     lines.append(f"  final gamma  = {np.array2string(last['gamma'].values, **opts)}")
     lines.append(f"  final omega0 = {np.array2string(last['omega0'].values, **opts)}")
-    wrote = [str(out)] + ([] if not getattr(runner, "_csv", None) else [])
-    lines.append(f"  wrote {', '.join(wrote)}" + (" (partial: complete = 0)" if failed is not None else ""))
+    lines.append(f"  wrote {', '.join(written)}" + (" (partial: complete = 0)" if failed is not None else ""))
     t = f"  wall time {wall:.1f} s"
     if compile_time is not None:
         t += f" (first part, compile included: {compile_time:.1f} s)"
@@ -853,7 +855,7 @@ def _viewer():
     try:
         from . import viewer
     except ImportError:
-        raise UserError("animate: the 3D viewer (jaxtree.viewer) is not available in this installation") from None
+        raise UserError("the 3D viewer (jaxtree.viewer) is not available in this installation") from None
     return viewer
 
 
@@ -880,7 +882,7 @@ def cmd_animate(args) -> int:
                                     amplitude=args.amplitude, title=title)
     else:
         if args.mode is not None or args.amplitude is not None:
-            raise UserError("animate: --mode and --amplitude apply to a modes result (jaxtree modes), "
+            raise UserError("--mode and --amplitude apply to a modes result (jaxtree modes), "
                             f"{args.result} is a simulation")
         if title is None:
             title = f"{model.name}: t = {float(ds['time'][0]):g} .. {float(ds['time'][-1]):g} s" + (
@@ -894,7 +896,7 @@ def cmd_animate(args) -> int:
 def cmd_plot(args) -> int:
     ds = _load_result(args.result)
     if not _matplotlib():
-        raise UserError("plot: matplotlib is not installed (pip install 'jaxtree[plot]')")
+        raise UserError("matplotlib is not installed (pip install 'jaxtree[plot]')")
     from . import plots
 
     res = pathlib.Path(args.result)
