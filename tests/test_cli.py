@@ -267,3 +267,21 @@ def test_plot_command_writes_the_plots_of_a_result(run, modes_run, tmp_path, cap
     for name in ("r_histories.png", "r_drift.png", "m_shapes.png"):
         assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
     capsys.readouterr()
+
+
+def test_a_failed_run_keeps_what_it_computed_and_reports_where_it_stopped(tmp_path, capsys):
+    """A step limit stops the run in its first part: exit status 1, the diagnosis (time and state)
+    on stderr, and a result file with the rows before the stop and the result code."""
+    out = tmp_path / "f.nc"
+    rc = cli.main(_args(out, "--max-steps", "3", "--no-plot"))
+    captured = capsys.readouterr()
+    assert rc == cli.EXIT_FAILED
+    assert "maximum number of solver steps" in captured.err and "stopped at t =" in captured.err
+    ds = jaxtree.load_result(out, as_dataset=True)
+    assert ds.attrs["result"] == "max_steps" and ds.attrs["complete"] == 1
+    t_final = ds.attrs["t_final"]
+    assert 0 < t_final < float(T1) and ds["time"].values[-1] <= t_final
+    sol = jaxtree.load_result(out)
+    assert not sol.ok
+    with pytest.raises(jaxtree.SimulationError, match="maximum number of solver steps"):
+        sol.check()

@@ -674,6 +674,15 @@ def cmd_simulate(args) -> int:
                 bar.update(float(grid[b] - grid[a]))
             if delay:
                 time.sleep(delay)
+        if bar is not None:
+            bar.close()
+            bar = None
+        extra = {}
+        if failed is None and not args.no_error_estimate:
+            _say("jaxtree simulate: error estimate (the run again at 10x the tolerances)")
+            extra = _error_estimate(runner, writer.merged(parts=parts), bounds, rows_per_part, grid, cfg)
+        # complete: the command ran to its end (a failed run too: its result code says how it ended)
+        ds = writer.merge(complete=True, attrs=extra, parts=parts)
     except KeyboardInterrupt:
         if bar is not None:
             bar.close()
@@ -690,10 +699,6 @@ def cmd_simulate(args) -> int:
             bar.close()
         signal.signal(signal.SIGTERM, old)
 
-    extra = {}
-    if failed is None and not args.no_error_estimate:
-        extra = _error_estimate(runner, writer.merged(parts=parts), bounds, rows_per_part, grid, cfg)
-    ds = writer.merge(complete=failed is None, attrs=extra, parts=parts)
     written = [str(out)] + (_exports(args, out, ds) if failed is None else [])
     print(_summary(model, cfg, ds, written, runner, failed, time.perf_counter() - start_wall, compile_time))
     if failed is not None:
@@ -773,7 +778,7 @@ def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
                  + (" (the run stopped early)" if failed is not None else ""))
     rhs = int(a.get("rhs_evaluations", -1))
     lines.append(f"  steps: {int(a.get('steps_accepted'))} accepted, {int(a.get('steps_rejected'))} rejected"
-                 + (f", {rhs} right-hand sides" if rhs >= 0 else "") + f", in {int(a.get('parts'))} parts")
+                 + (f", {rhs} right-hand sides" if rhs >= 0 else "") + f", in {int(a.get('parts'))} part{'s' if int(a.get('parts')) > 1 else ''}")
     if "error_estimate_gamma" in a:
         lines.append(f"  error estimate (difference from a run at 10x the tolerances): angles "
                      f"{float(a['error_estimate_gamma']):.2e} rad, rates {float(a['error_estimate_rates']):.2e} rad/s, "
@@ -790,9 +795,10 @@ def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
                      + (f" (not conserved: {', '.join(why)})" if why else ""))
         lines.append(f"  angular-momentum drift: max |H - H0| / |H0| = {float(a['momentum_drift']):.3e}")
     last = ds.isel(time=-1)
-    lines.append(f"  final gamma  = {np.array2string(last['gamma'].values, **opts)}")
-    lines.append(f"  final omega0 = {np.array2string(last['omega0'].values, **opts)}")
-    lines.append(f"  wrote {', '.join(written)}" + (" (partial: complete = 0)" if failed is not None else ""))
+    lines.append(f"  at the last saved time, t = {float(last['time']):.6g} s:")
+    lines.append(f"    gamma  = {np.array2string(last['gamma'].values, **opts)}")
+    lines.append(f"    omega0 = {np.array2string(last['omega0'].values, **opts)}")
+    lines.append(f"  wrote {', '.join(written)}")
     t = f"  wall time {wall:.1f} s"
     if compile_time is not None:
         t += f" (first part, compile included: {compile_time:.1f} s)"
