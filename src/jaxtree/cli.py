@@ -74,7 +74,7 @@ def _say(*args):
 
 
 # ----------------------------------------------------------------------------- argument types
-def _positive(name):
+def _positive():
     def parse(text):
         try:
             x = float(text)
@@ -86,7 +86,7 @@ def _positive(name):
     return parse
 
 
-def _finite(name):
+def _finite():
     def parse(text):
         try:
             x = float(text)
@@ -98,7 +98,7 @@ def _finite(name):
     return parse
 
 
-def _count(name, least=1):
+def _count(least=1):
     def parse(text):
         try:
             x = int(text)
@@ -110,7 +110,7 @@ def _count(name, least=1):
     return parse
 
 
-def _vector3(name):
+def _vector3():
     def parse(text):
         parts = [p for p in text.replace(" ", ",").split(",") if p]
         try:
@@ -230,29 +230,29 @@ def _parser():
                                    "and write the time histories to a NetCDF result file, in parts as the run "
                                    "goes (an interrupted run is readable and --resume continues it).")
     s.add_argument("scene", metavar="SCENE", help="scene JSON file (jaxtree-scene/1) or a bundled scene name")
-    s.add_argument("--t1", type=_finite("--t1"), required=True, help="end time (s)")
-    s.add_argument("--t0", type=_finite("--t0"), default=0.0, help="start time (s; default 0)")
-    s.add_argument("--points", type=_count("--points", 2), default=101,
+    s.add_argument("--t1", type=_finite(), required=True, help="end time (s)")
+    s.add_argument("--t0", type=_finite(), default=0.0, help="start time (s; default 0)")
+    s.add_argument("--points", type=_count(2), default=101,
                    help="number of evenly spaced save times (default 101)")
-    s.add_argument("--rtol", type=_positive("--rtol"), default=None, help="relative tolerance (default 1e-9)")
-    s.add_argument("--atol", type=_positive("--atol"), default=None, help="absolute tolerance (default 1e-9)")
+    s.add_argument("--rtol", type=_positive(), default=None, help="relative tolerance (default 1e-9)")
+    s.add_argument("--atol", type=_positive(), default=None, help="absolute tolerance (default 1e-9)")
     s.add_argument("--solver", default="dopri8", type=str.lower, choices=sorted(SOLVERS),
                    help="diffrax solver (default dopri8; kvaerno3/4/5 are implicit, for stiff scenes)")
     s.add_argument("--attitude", default="quaternion", type=str.lower, choices=ATTITUDES,
                    help="attitude variables of b0 (default quaternion)")
-    s.add_argument("--max-steps", type=_count("--max-steps"), default=200_000,
+    s.add_argument("--max-steps", type=_count(), default=200_000,
                    help="step limit of each part (default 200000)")
     s.add_argument("--hybrid-small", metavar="HINGES", default=None,
                    help="hybrid coordinates (Eqs. 105-123): the small hinges (indices, names, ranges a-b, or 'all') "
                         "replaced by truncated modal coordinates")
-    s.add_argument("--modes", type=_count("--modes"), default=None, metavar="K",
+    s.add_argument("--modes", type=_count(), default=None, metavar="K",
                    help="with --hybrid-small: number of retained modes (default all)")
-    s.add_argument("--cutoff", type=_positive("--cutoff"), default=None,
+    s.add_argument("--cutoff", type=_positive(), default=None,
                    help="with --hybrid-small: retain modes up to this frequency (rad/s)")
-    s.add_argument("--spin", type=_vector3("--spin"), default=None,
+    s.add_argument("--spin", type=_vector3(), default=None,
                    help="with --hybrid-small: nominal omega0 of the modes, wx,wy,wz in {b0} (rad/s; default the "
                         "scene's initial omega0)")
-    s.add_argument("--modal-damping", type=_finite("--modal-damping"), default=None, metavar="ZETA",
+    s.add_argument("--modal-damping", type=_finite(), default=None, metavar="ZETA",
                    help="with --hybrid-small: modal damping ratio of the retained modes")
     s.add_argument("--out", "-o", default=None, metavar="RESULT",
                    help="result file (NetCDF; default SCENENAME.nc in the current folder)")
@@ -260,7 +260,7 @@ def _parser():
     s.add_argument("--plot", default=None, metavar="PREFIX",
                    help="plots PREFIX_histories.png and PREFIX_drift.png (default: the result's name without .nc)")
     s.add_argument("--no-plot", action="store_true", help="write no plots")
-    s.add_argument("--chunks", type=_count("--chunks"), default=10,
+    s.add_argument("--chunks", type=_count(), default=10,
                    help="number of parts the run is written in (default 10)")
     s.add_argument("--resume", action="store_true",
                    help="continue an interrupted run of the same command from its last written part")
@@ -276,23 +276,23 @@ def _parser():
     m.add_argument("--small", default="all", metavar="HINGES",
                    help="the small hinges: indices, names, ranges a-b, or 'all' (default: every hinge that is not "
                         "prescribed or inert)")
-    m.add_argument("--spin", type=_vector3("--spin"), default=None,
+    m.add_argument("--spin", type=_vector3(), default=None,
                    help="nominal omega0, one number (about b0's axis 3) or wx,wy,wz in {b0} (rad/s; default 0)")
-    m.add_argument("--damping", type=_finite("--damping"), default=None, metavar="ZETA",
+    m.add_argument("--damping", type=_finite(), default=None, metavar="ZETA",
                    help="modal damping ratio added to every mode (Eq. 104)")
     m.add_argument("--out", "-o", default=None, metavar="RESULT",
                    help="modes result file (default SCENENAME_modes.nc)")
     m.add_argument("--plot", default=None, metavar="PNG", help="mode-shape plot (default: the result's name, .png)")
     m.add_argument("--no-plot", action="store_true", help="write no plot")
-    m.add_argument("--show", type=_count("--show"), default=6, metavar="K", help="modes drawn in the plot (default 6)")
+    m.add_argument("--show", type=_count(), default=6, metavar="K", help="modes drawn in the plot (default 6)")
 
     a = sub.add_parser("animate", help="an HTML page animating a result",
                        description="Write an HTML page animating a simulation result, or one mode of a modes result.")
     a.add_argument("result", metavar="RESULT", help="result file of 'jaxtree simulate' or 'jaxtree modes'")
     a.add_argument("-o", "--out", required=True, metavar="PAGE", help="HTML file to write")
-    a.add_argument("--mode", type=_count("--mode"), default=None, metavar="K",
+    a.add_argument("--mode", type=_count(), default=None, metavar="K",
                    help="with a modes result: the mode to animate (1 = lowest; default 1)")
-    a.add_argument("--amplitude", type=_positive("--amplitude"), default=None,
+    a.add_argument("--amplitude", type=_positive(), default=None,
                    help="with --mode: largest hinge angle of the oscillation (rad)")
     a.add_argument("--title", default=None, help="page title")
 
@@ -348,10 +348,11 @@ def main(argv=None) -> int:
 def cmd_check(args) -> int:
     from .diagnostics import check_scene
 
+    import dataclasses
+
     model = _load_scene(args.scene)
-    report = check_scene(model)
     src = pathlib.Path(args.scene)
-    report = report.__class__(**{**report.__dict__, "source": str(src) if src.exists() else f"bundled scene {args.scene!r}"})
+    report = dataclasses.replace(check_scene(model), source=str(src) if src.exists() else f"bundled scene {args.scene!r}")
     print(report.format(tables=True if args.tables else None))
     return 0
 
@@ -391,12 +392,10 @@ class _Runner:
     def __init__(self, args, model, cfg):
         import diffrax
         import jax.numpy as jnp
-        import numpy as np
 
         self.model, self.cfg = model, cfg
         self.solver = getattr(diffrax, cfg["solver"])()
         self.hybrid = None
-        self.np = np
         self.dtype = jnp.result_type(model.mass)
         if "hybrid_small" in cfg:
             from .hybrid import hybrid_model
@@ -496,7 +495,6 @@ class _HybridPart:
         import numpy as np
 
         from .model import State
-        from .simulate import _KINDS
 
         self.sol, self.hybrid = sol, hybrid
         result = sol.result
@@ -518,7 +516,6 @@ class _HybridPart:
             self.message = (f"jaxtree.simulate_hybrid: {_MESSAGES[self.kind]}.\n  stopped at t = {self.t_final:.9g}\n"
                             f"  omega0 = {np.asarray(f.omega0)}\n  gamma = {np.asarray(f.gamma)}\n"
                             f"  modal coordinates = {np.asarray(sol.final_modal)}")
-        assert self.kind is None or self.kind in _KINDS
         st = sol.stats
         acc, rej = int(np.asarray(st["num_accepted_steps"])), int(np.asarray(st["num_rejected_steps"]))
         self.steps = (acc, rej, -1)
@@ -631,7 +628,7 @@ def cmd_simulate(args) -> int:
 
     runner = _Runner(args, model, cfg)
     y0 = runner.initial() if start == 0 else _state_from_part(parts[-1], runner)
-    attrs = {**cfg, "command": command_line(), "chunks": len(bounds), "complete": 0}
+    attrs = {**cfg, "command": command_line(), "complete": 0}
     attrs.pop("scene")  # simulation_dataset stores the scene
     delay = float(os.environ.get(CHUNK_DELAY_ENV, "0") or 0)
 
@@ -646,7 +643,7 @@ def cmd_simulate(args) -> int:
     failed = None
     compile_time = None
     try:
-        bar = _progress(args, cfg["t1"] - cfg["t0"], grid[bounds[start - 1][1]] - cfg["t0"] if start else 0.0)
+        bar = _progress(args, abs(cfg["t1"] - cfg["t0"]), abs(grid[bounds[start - 1][1]] - cfg["t0"]) if start else 0.0)
         for c in range(start, len(bounds)):
             a, b = bounds[c]
             ts = np.concatenate([grid[a:b + 1], np.full(rows_per_part - (b - a + 1), grid[b])])
@@ -671,7 +668,7 @@ def cmd_simulate(args) -> int:
             # resumed run does
             y0 = _state_from_part(ds, runner)
             if bar is not None:
-                bar.update(float(grid[b] - grid[a]))
+                bar.update(abs(float(grid[b] - grid[a])))
             if delay:
                 time.sleep(delay)
         if bar is not None:

@@ -72,7 +72,8 @@ class Condition(eqx.Module):
         if not np.isfinite(c):
             return f"condition number of Eq. (1): infinite (singular matrix); near-null direction: {parts}"
         digits = max(0.0, 16.0 - np.log10(max(c, 1.0)))
-        text = f"condition number of Eq. (1): {c:.3g} (float64 keeps about {digits:.0f} digits)"
+        text = f"condition number of Eq. (1): {c:.3g} " + (
+            "(singular to float64 working accuracy)" if self.singular else f"(float64 keeps about {digits:.0f} digits)")
         return text + f"; direction of its smallest eigenvalue: {parts}"
 
     def __str__(self) -> str:
