@@ -20,12 +20,15 @@ from .model import Model
 __all__ = ["plot_histories", "plot_drift", "plot_mode_shapes", "plot_work_precision", "tree_segments"]
 
 
-def _plt():
+def _figure(**kw):
+    """A new figure outside pyplot's state (a plot made here never becomes pyplot's current
+    figure, and nothing is left open in pyplot)."""
     try:
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure
+        import mpl_toolkits.mplot3d  # noqa: F401  (registers the 3d projection)
     except ImportError as e:
         raise ImportError("plots need matplotlib (pip install 'jaxtree[plot]')") from e
-    return plt
+    return Figure(**kw)
 
 
 def _save(fig, path):
@@ -39,6 +42,17 @@ def _save(fig, path):
         fh.write(buf.getvalue())
 
 
+def _scene_has_dampers(text: str) -> bool:
+    """Whether the scene JSON stored in a result gives any hinge a damper."""
+    import json
+
+    try:
+        bodies = json.loads(text)["bodies"] if text else []
+    except (ValueError, KeyError, TypeError):
+        return False
+    return any(float((b.get("joint") or {}).get("damping", 0.0) or 0.0) != 0.0 for b in bodies)
+
+
 def _series(result) -> dict:
     """Arrays of a Solution or a result Dataset: t, gamma, gamma_dot, omega0, dcm, energy, H, names."""
     if hasattr(result, "data_vars"):
@@ -49,8 +63,7 @@ def _series(result) -> dict:
                    dcm=get("dcm"), energy=get("energy"), H=get("angular_momentum"), names=names,
                    title=str(ds.attrs.get("scene_name", "")), prescribed=tuple(ds["prescribed_hinge"].values)
                    if "prescribed_hinge" in ds.coords else ())
-        scene = ds.attrs.get("scene", "")
-        out["damped"] = '"damping": 0.0' not in scene and '"damping"' in scene
+        out["damped"] = _scene_has_dampers(ds.attrs.get("scene", ""))
         return out
     sol = result
     ts = np.asarray(sol.ts)
@@ -73,11 +86,11 @@ def plot_histories(result, path=None, *, title: str | None = None):
     Hinges that spin (|gamma| beyond 2 pi, e.g. a rotor) are left out of the angle panel and
     appear among the rates. Legends are drawn for up to 12 curves.
     """
-    plt = _plt()
     s = _series(result)
     t, n = s["t"], s["gamma"].shape[1]
     names = s["names"] or [f"{k}" for k in range(1, n + 1)]
-    fig, axes = plt.subplots(2, 2, figsize=(12, 8), sharex=True)
+    fig = _figure(figsize=(12, 8))
+    axes = fig.subplots(2, 2, sharex=True)
     spinning = [k for k in range(n) if np.nanmax(np.abs(s["gamma"][:, k]), initial=0.0) > 2 * np.pi]
     shown = [k for k in range(n) if k not in spinning]
     for k in shown:
@@ -109,12 +122,12 @@ def plot_drift(result, path=None, *, title: str | None = None):
 
     Without external loads the angular momentum about the mass center is conserved; the energy is
     too unless prescribed hinges do work or dampers dissipate (the panel title says so)."""
-    plt = _plt()
     s = _series(result)
     if s["energy"] is None or s["H"] is None:
         raise ValueError("plot_drift: the result has no energy or angular momentum")
     t, E, H = s["t"], s["energy"], s["H"]
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2), sharex=True)
+    fig = _figure(figsize=(12, 4.2))
+    axes = fig.subplots(1, 2, sharex=True)
     e0 = abs(E[0]) if E[0] else 1.0
     h0 = np.linalg.norm(H[0]) or 1.0
     axes[0].plot(t, (E - E[0]) / e0, lw=1)
@@ -179,7 +192,6 @@ def plot_mode_shapes(model: Model, shapes, frequencies=None, path=None, *, gamma
     Each panel shows the nominal tree in grey and ``gamma + amplitude * shape / max|shape|``
     and ``gamma - ...`` in colour (the two extremes of the oscillation).
     """
-    plt = _plt()
     if hasattr(shapes, "data_vars"):
         ds = shapes
         frequencies = ds["frequency"].values if frequencies is None else frequencies
@@ -194,7 +206,7 @@ def plot_mode_shapes(model: Model, shapes, frequencies=None, path=None, *, gamma
     modes = list(range(min(k, 6))) if modes is None else [int(j) for j in modes]
     cols = min(3, len(modes))
     rows = (len(modes) + cols - 1) // cols
-    fig = plt.figure(figsize=(4.6 * cols, 4.4 * rows))
+    fig = _figure(figsize=(4.6 * cols, 4.4 * rows))
     nominal = tree_segments(model, g0)
     for i, j in enumerate(modes):
         ax = fig.add_subplot(rows, cols, i + 1, projection="3d")
@@ -233,8 +245,8 @@ def plot_work_precision(methods: Mapping[str, object], path=None, *, title: str 
     length, e.g. one point per tolerance) or a mapping with keys ``"error"`` and ``"time"``.
     Points are joined in order of increasing time. Non-positive or non-finite points are skipped.
     """
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(7, 5))
+    fig = _figure(figsize=(7, 5))
+    ax = fig.subplots()
     markers = "osD^v<>ph*"
     for i, (name, pts) in enumerate(methods.items()):
         if isinstance(pts, Mapping):
