@@ -124,3 +124,14 @@ from .campaign import (
     monte_carlo as monte_carlo,
 )
 from . import viewer as viewer
+from .diagnostics import (
+    Condition as Condition,
+    condition as condition,
+    SceneReport as SceneReport,
+    check_scene as check_scene,
+)
+from .results import (
+    load_result as load_result,
+    save_result as save_result,
+)
+from . import plots as plots

@@ -1,5 +1,8 @@
 """``python -m jaxtree``: the sample problem of Sec. II E (Fig. 4) end to end.
 
+With a subcommand (``simulate``, ``modes``, ``animate``, ``check``, ``plot``) this is the
+``jaxtree`` command line of :mod:`jaxtree.cli`; with no subcommand it runs the sample problem.
+
 Runs ``fig4`` (gamma_1 = sin 0.5 t prescribed, rotor at 10 pi rad/s, sprung panels) for 100 s,
 once with the Euler angles of Eqs. (23)-(24) and once with quaternions, prints a summary (final
 state, energy and momentum drift, steps, wall time), and writes the time histories (``.npz`` and
@@ -8,7 +11,6 @@ one ``.csv`` per run) and a plot into the output folder.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import os
@@ -27,7 +29,9 @@ def _fast_cpu_compiler():
 
 
 def _parser():
-    p = argparse.ArgumentParser(prog="python -m jaxtree", description=__doc__.split("\n\n")[0])
+    from .cli import _Parser
+
+    p = _Parser(prog="python -m jaxtree", description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", default="fig4", help="bundled scene name or path to a scene JSON (default: fig4)")
     p.add_argument("--duration", type=float, default=100.0, help="simulated time in seconds (default: 100)")
     p.add_argument("--points", type=int, default=1001, help="number of saved times (default: 1001)")
@@ -42,6 +46,14 @@ def _parser():
 
 
 def main(argv=None) -> int:
+    """The ``jaxtree`` command: a subcommand of :mod:`jaxtree.cli`, else the sample problem."""
+    from .cli import main as cli_main
+
+    return cli_main(argv)
+
+
+def sample(argv=None) -> int:
+    """The sample problem (``python -m jaxtree`` with no subcommand, or ``jaxtree sample``)."""
     args = _parser().parse_args(argv)
     _fast_cpu_compiler()
     start = time.perf_counter()
@@ -52,7 +64,9 @@ def main(argv=None) -> int:
     import jaxtree
     from jaxtree import output
 
-    model = jaxtree.load_scene(args.scene)
+    from .cli import _load_scene
+
+    model = _load_scene(args.scene)
     attitudes = [a.strip() for a in args.attitudes.split(",") if a.strip()]
     out = os.path.abspath(args.out)
     print(f"jaxtree {jaxtree.__version__}: scene {model.name!r} ({model.n + 1} bodies, prescribed hinges "

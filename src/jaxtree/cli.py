@@ -1,0 +1,916 @@
+"""The ``jaxtree`` command line: from a scene file to results, plots and an animation.
+
+Subcommands (``jaxtree SUBCOMMAND --help`` for each):
+
+- ``simulate SCENE --t1 T``: integrate Eq. (1) (or the hybrid-coordinate equations with
+  ``--hybrid-small``) and write a NetCDF result, written in parts as the run goes (``--resume``
+  continues an interrupted run), with a summary: steps, an error estimate, energy and momentum
+  drift;
+- ``modes SCENE --small ...``: the modes of the linearized small hinges (Eqs. 40-104): a
+  frequency table with labels and damping, a modes result file and a mode-shape plot;
+- ``animate RESULT -o page.html``: an HTML page animating a simulation, or one mode (``--mode``)
+  of a modes result;
+- ``check SCENE``: validate a scene; its tree, the seed's Tables 1-2, masses and the condition
+  number of Eq. (1) at the initial state;
+- ``plot RESULT``: the plots of a result file;
+- ``sample`` (also: no subcommand at all): the seed's sample problem (``python -m jaxtree``).
+
+A user's mistake (a missing file, an invalid scene, a bad option) prints one line naming what
+is wrong and exits with status 2; a run that fails numerically prints its diagnosis (time,
+state) and exits with status 1; an interrupted run (Ctrl-C, SIGTERM) keeps what it computed and
+exits with status 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import pathlib
+import signal
+import sys
+import time
+
+__all__ = ["main"]
+
+SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "sample")
+EXIT_USAGE, EXIT_FAILED, EXIT_INTERRUPTED = 2, 1, 130
+# Seconds to sleep after each part of `simulate` is written: lets a test interrupt a run
+# between parts deterministically. Not for users.
+CHUNK_DELAY_ENV = "JAXTREE_CHUNK_DELAY"
+
+SOLVERS = {
+    "dopri8": "Dopri8", "dopri5": "Dopri5", "tsit5": "Tsit5", "bosh3": "Bosh3", "heun": "Heun",
+    "kvaerno3": "Kvaerno3", "kvaerno4": "Kvaerno4", "kvaerno5": "Kvaerno5",
+}
+ATTITUDES = ("quaternion", "dcm", "euler123")
+
+
+class UserError(Exception):
+    """A mistake in the command: printed as one line, exit status 2."""
+
+    def __init__(self, message, prog=None):
+        super().__init__(message)
+        self.prog = prog
+
+
+class _Interrupted(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        raise UserError(f"{message} (see '{self.prog} --help')", prog=self.prog)
+
+
+def _fast_cpu_compiler():
+    from .__main__ import _fast_cpu_compiler as f
+
+    f()
+
+
+def _say(*args):
+    print(*args, file=sys.stderr, flush=True)
+
+
+# ----------------------------------------------------------------------------- argument types
+def _positive():
+    def parse(text):
+        try:
+            x = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+        if not math.isfinite(x) or x <= 0:
+            raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+        return x
+    return parse
+
+
+def _finite():
+    def parse(text):
+        try:
+            x = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+        if not math.isfinite(x):
+            raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+        return x
+    return parse
+
+
+def _count(least=1):
+    def parse(text):
+        try:
+            x = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+        if x < least:
+            raise argparse.ArgumentTypeError(f"must be at least {least}, got {x}")
+        return x
+    return parse
+
+
+def _vector3():
+    def parse(text):
+        parts = [p for p in text.replace(" ", ",").split(",") if p]
+        try:
+            v = [float(p) for p in parts]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be numbers, got {text!r}") from None
+        if len(v) == 1:
+            v = [0.0, 0.0, v[0]]
+        if len(v) != 3 or not all(math.isfinite(x) for x in v):
+            raise argparse.ArgumentTypeError(f"must be one number (about b0's axis 3) or three "
+                                             f"finite numbers wx,wy,wz, got {text!r}")
+        return v
+    return parse
+
+
+def _hinges(model, text, option):
+    """Hinges named in `text`: 'all', or comma-separated indices 1..n, body names or ranges a-b."""
+    from .linearize import resolve_hinges
+
+    text = text.strip()
+    if text == "all":
+        items = list(model.unknown_hinges)
+        if not items:
+            raise UserError(f"{option}: the scene has no hinge that can be small")
+        return tuple(items)
+    items = []
+    for part in (p.strip() for p in text.split(",")):
+        if not part:
+            continue
+        if "-" in part and all(s.strip().isdigit() for s in part.split("-", 1)):
+            a, b = (int(s) for s in part.split("-", 1))
+            items += list(range(a, b + 1))
+        elif part.isdigit():
+            items.append(int(part))
+        else:
+            items.append(part)
+    if not items:
+        raise UserError(f"{option}: no hinge given")
+    try:
+        return resolve_hinges(model, items)
+    except (ValueError, KeyError, TypeError) as e:
+        msg = str(e.args[0]) if e.args else str(e)
+        raise UserError(f"{option}: {msg.removeprefix('linearize: ')}") from None
+
+
+def _load_scene(path):
+    from .scene import SceneError, load_scene
+
+    p = pathlib.Path(path)
+    try:
+        return load_scene(path)
+    except FileNotFoundError:
+        from .scene import list_scenes
+
+        if p.suffix == "" and p.parent == pathlib.Path("."):
+            raise UserError(f"scene {path!r}: no such file, and no bundled scene of that name "
+                            f"(bundled: {', '.join(list_scenes())})") from None
+        raise UserError(f"scene file {str(path)!r} does not exist") from None
+    except IsADirectoryError:
+        raise UserError(f"scene {str(path)!r} is a folder, not a scene file") from None
+    except PermissionError:
+        raise UserError(f"scene file {str(path)!r} cannot be read (permission denied)") from None
+    except UnicodeDecodeError:
+        raise UserError(f"scene file {str(path)!r} is not a text (JSON) file") from None
+    except SceneError as e:
+        text = str(e)
+        raise UserError(text if text.startswith(str(p)) else f"invalid scene {str(path)!r}: {text}") from None
+
+
+def _load_result(path):
+    from .results import load_result
+
+    try:
+        return load_result(path, as_dataset=True)
+    except FileNotFoundError:
+        raise UserError(f"result file {str(path)!r} does not exist") from None
+    except IsADirectoryError:
+        raise UserError(f"result {str(path)!r} is a folder, not a result file") from None
+    except ValueError as e:
+        raise UserError(str(e)) from None
+    except OSError as e:
+        raise UserError(f"result file {str(path)!r} cannot be read as NetCDF ({e.__class__.__name__}: {e})") from None
+
+
+def _model_of(ds, path):
+    from .results import _model_of
+
+    try:
+        return _model_of(ds)
+    except (ValueError, KeyError) as e:
+        raise UserError(f"{path}: {e}") from None
+
+
+def _matplotlib():
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        return True
+    except ImportError:
+        return False
+
+
+# ----------------------------------------------------------------------------- parser
+def _parser():
+    p = _Parser(
+        prog="jaxtree",
+        description="Dynamics of hinge-connected rigid-body trees (Likins, JPL TR 32-1565).",
+        epilog="With no subcommand (or with options only), runs the seed's sample problem: "
+               "see 'jaxtree sample --help'.",
+    )
+    p.add_argument("--version", action="store_true", help="print the versions and exit")
+    sub = p.add_subparsers(dest="command", metavar="SUBCOMMAND", parser_class=_Parser)
+
+    s = sub.add_parser("simulate", help="integrate a scene and write a NetCDF result",
+                       description="Integrate Eq. (1) (or the hybrid-coordinate equations with --hybrid-small) "
+                                   "and write the time histories to a NetCDF result file, in parts as the run "
+                                   "goes (an interrupted run is readable and --resume continues it).")
+    s.add_argument("scene", metavar="SCENE", help="scene JSON file (jaxtree-scene/1) or a bundled scene name")
+    s.add_argument("--t1", type=_finite(), required=True, help="end time (s)")
+    s.add_argument("--t0", type=_finite(), default=0.0, help="start time (s; default 0)")
+    s.add_argument("--points", type=_count(2), default=101,
+                   help="number of evenly spaced save times (default 101)")
+    s.add_argument("--rtol", type=_positive(), default=None, help="relative tolerance (default 1e-9)")
+    s.add_argument("--atol", type=_positive(), default=None, help="absolute tolerance (default 1e-9)")
+    s.add_argument("--solver", default="dopri8", type=str.lower, choices=sorted(SOLVERS),
+                   help="diffrax solver (default dopri8; kvaerno3/4/5 are implicit, for stiff scenes)")
+    s.add_argument("--attitude", default="quaternion", type=str.lower, choices=ATTITUDES,
+                   help="attitude variables of b0 (default quaternion)")
+    s.add_argument("--max-steps", type=_count(), default=200_000,
+                   help="step limit of each part (default 200000)")
+    s.add_argument("--hybrid-small", metavar="HINGES", default=None,
+                   help="hybrid coordinates (Eqs. 105-123): the small hinges (indices, names, ranges a-b, or 'all') "
+                        "replaced by truncated modal coordinates")
+    s.add_argument("--modes", type=_count(), default=None, metavar="K",
+                   help="with --hybrid-small: number of retained modes (default all)")
+    s.add_argument("--cutoff", type=_positive(), default=None,
+                   help="with --hybrid-small: retain modes up to this frequency (rad/s)")
+    s.add_argument("--spin", type=_vector3(), default=None,
+                   help="with --hybrid-small: nominal omega0 of the modes, wx,wy,wz in {b0} (rad/s; default the "
+                        "scene's initial omega0)")
+    s.add_argument("--modal-damping", type=_finite(), default=None, metavar="ZETA",
+                   help="with --hybrid-small: modal damping ratio of the retained modes")
+    s.add_argument("--out", "-o", default=None, metavar="RESULT",
+                   help="result file (NetCDF; default SCENENAME.nc in the current folder)")
+    s.add_argument("--csv", default=None, metavar="FILE", help="also export the histories as CSV")
+    s.add_argument("--plot", default=None, metavar="PREFIX",
+                   help="plots PREFIX_histories.png and PREFIX_drift.png (default: the result's name without .nc)")
+    s.add_argument("--no-plot", action="store_true", help="write no plots")
+    s.add_argument("--chunks", type=_count(), default=10,
+                   help="number of parts the run is written in (default 10)")
+    s.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run of the same command from its last written part")
+    s.add_argument("--no-error-estimate", action="store_true",
+                   help="skip the error estimate (a second run at 10x the tolerances)")
+    s.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    m = sub.add_parser("modes", help="modes of the linearized small hinges: table, result file, shape plot",
+                       description="Linearize the small hinges about a nominal motion (Eqs. 40-44) and print their "
+                                   "modes (Eqs. 70-104): frequencies, damping, the coordinates that dominate each; "
+                                   "write a modes result file and a plot of the mode shapes.")
+    m.add_argument("scene", metavar="SCENE", help="scene JSON file or a bundled scene name")
+    m.add_argument("--small", default="all", metavar="HINGES",
+                   help="the small hinges: indices, names, ranges a-b, or 'all' (default: every hinge that is not "
+                        "prescribed or inert)")
+    m.add_argument("--spin", type=_vector3(), default=None,
+                   help="nominal omega0, one number (about b0's axis 3) or wx,wy,wz in {b0} (rad/s; default 0)")
+    m.add_argument("--damping", type=_finite(), default=None, metavar="ZETA",
+                   help="modal damping ratio added to every mode (Eq. 104)")
+    m.add_argument("--out", "-o", default=None, metavar="RESULT",
+                   help="modes result file (default SCENENAME_modes.nc)")
+    m.add_argument("--plot", default=None, metavar="PNG", help="mode-shape plot (default: the result's name, .png)")
+    m.add_argument("--no-plot", action="store_true", help="write no plot")
+    m.add_argument("--show", type=_count(), default=6, metavar="K", help="modes drawn in the plot (default 6)")
+
+    a = sub.add_parser("animate", help="an HTML page animating a result",
+                       description="Write an HTML page animating a simulation result, or one mode of a modes result.")
+    a.add_argument("result", metavar="RESULT", help="result file of 'jaxtree simulate' or 'jaxtree modes'")
+    a.add_argument("-o", "--out", required=True, metavar="PAGE", help="HTML file to write")
+    a.add_argument("--mode", type=_count(), default=None, metavar="K",
+                   help="with a modes result: the mode to animate (1 = lowest; default 1)")
+    a.add_argument("--amplitude", type=_positive(), default=None,
+                   help="with --mode: largest hinge angle of the oscillation (rad)")
+    a.add_argument("--title", default=None, help="page title")
+
+    c = sub.add_parser("check", help="validate a scene and describe it",
+                       description="Validate a scene; print its tree, the seed's Tables 1-2 (network and path "
+                                   "elements), masses and the condition number of Eq. (1) at the initial state.")
+    c.add_argument("scene", metavar="SCENE", help="scene JSON file or a bundled scene name")
+    c.add_argument("--tables", action="store_true", help="print Tables 1-2 for any number of hinges")
+
+    pl = sub.add_parser("plot", help="plots of a result file",
+                        description="Plot a result: time histories and drift (simulation) or mode shapes (modes).")
+    pl.add_argument("result", metavar="RESULT", help="result file")
+    pl.add_argument("-o", "--out", default=None, metavar="PREFIX", help="file name prefix (default: RESULT without .nc)")
+
+    sub.add_parser("sample", help="the seed's sample problem (the default without a subcommand)", add_help=False)
+    return p
+
+
+# ----------------------------------------------------------------------------- main
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or (argv[0].startswith("-") and argv[0] not in ("-h", "--help", "--version")):
+        argv = ["sample"] + argv
+    if argv[0] == "sample":
+        from .__main__ import sample
+
+        try:
+            return sample(argv[1:])
+        except UserError as e:
+            _say(f"{e.prog or 'python -m jaxtree'}: error: {e}")
+            return EXIT_USAGE
+    command = f"jaxtree {argv[0]}" if argv[0] in SUBCOMMANDS else "jaxtree"
+    try:
+        args = _parser().parse_args(argv)
+        if args.version:
+            _fast_cpu_compiler()
+            from .results import versions
+
+            print(" ".join(f"{k.removesuffix('_version')} {v}" for k, v in versions().items() if k.endswith("_version")))
+            return 0
+        if args.command is None:
+            _parser().print_help()
+            return EXIT_USAGE
+        _fast_cpu_compiler()
+        return {"simulate": cmd_simulate, "modes": cmd_modes, "animate": cmd_animate, "check": cmd_check,
+                "plot": cmd_plot}[args.command](args)
+    except UserError as e:
+        _say(f"{e.prog or command}: error: {e}")
+        return EXIT_USAGE
+
+
+# ----------------------------------------------------------------------------- check
+def cmd_check(args) -> int:
+    from .diagnostics import check_scene
+
+    import dataclasses
+
+    model = _load_scene(args.scene)
+    src = pathlib.Path(args.scene)
+    report = dataclasses.replace(check_scene(model), source=str(src) if src.exists() else f"bundled scene {args.scene!r}")
+    print(report.format(tables=True if args.tables else None))
+    return 0
+
+
+# ----------------------------------------------------------------------------- simulate
+def _config(args, model):
+    """The run's configuration, stored in every part (a resumed run must match it)."""
+    from .results import _scene_json
+    from .simulate import default_tolerance
+    import jax.numpy as jnp
+
+    tol = default_tolerance(jnp.result_type(model.mass))
+    cfg = {
+        "scene": _scene_json(model), "t0": float(args.t0), "t1": float(args.t1), "points": int(args.points),
+        "chunks": int(args.chunks), "solver": SOLVERS[args.solver], "rtol": float(args.rtol or tol),
+        "atol": float(args.atol or tol), "attitude": args.attitude, "max_steps": int(args.max_steps),
+    }
+    if args.hybrid_small is not None:
+        cfg.update(hybrid_small=args.hybrid_small, n_modes=-1 if args.modes is None else int(args.modes),
+                   cutoff=-1.0 if args.cutoff is None else float(args.cutoff),
+                   modal_damping=-1.0 if args.modal_damping is None else float(args.modal_damping),
+                   spin=list(map(float, args.spin if args.spin is not None else model.initial.omega0)))
+    return cfg
+
+
+def _chunk_bounds(points, chunks):
+    """Save-grid index ranges [a, b] of the parts, and the rows of a padded part."""
+    intervals = points - 1
+    per = max(1, math.ceil(intervals / chunks))
+    bounds = [(a, min(a + per, intervals)) for a in range(0, intervals, per)]
+    return bounds, per + 1
+
+
+class _Runner:
+    """Runs the parts of one configuration: the full equations or the hybrid ones."""
+
+    def __init__(self, args, model, cfg):
+        import diffrax
+        import jax.numpy as jnp
+
+        self.model, self.cfg = model, cfg
+        self.solver = getattr(diffrax, cfg["solver"])()
+        self.hybrid = None
+        self.dtype = jnp.result_type(model.mass)
+        if "hybrid_small" in cfg:
+            from .hybrid import hybrid_model
+            from .modes import ModalError
+
+            small = _hinges(model, cfg["hybrid_small"], "--hybrid-small")
+            try:
+                self.hybrid = hybrid_model(
+                    model, small, None if cfg["n_modes"] < 0 else cfg["n_modes"],
+                    cutoff=None if cfg["cutoff"] < 0 else cfg["cutoff"], omega0=jnp.asarray(cfg["spin"], self.dtype),
+                    damping=None if cfg["modal_damping"] < 0 else cfg["modal_damping"], attitude=cfg["attitude"])
+            except ModalError as e:
+                raise UserError(f"--hybrid-small: {e}") from None
+            except ValueError as e:
+                raise UserError(f"--hybrid-small/--modes: {str(e).removeprefix('hybrid_model: ')}") from None
+            self._diag = _hybrid_diagnostics()
+
+    def initial(self):
+        return self.model.initial if self.hybrid is None else self.hybrid.pack(self.model.initial)
+
+    def run(self, ts, y0, rtol, atol):
+        """One part: integrate from ts[0] to ts[-1] saving at `ts` (padded: repeated end time)."""
+        import jax.numpy as jnp
+
+        from .simulate import simulate
+
+        ts = jnp.asarray(ts, self.dtype)
+        if self.hybrid is None:
+            sol = simulate(self.model, ts[-1], t0=ts[0], y0=y0, saveat=ts, solver=self.solver, rtol=rtol, atol=atol,
+                             attitude=self.cfg["attitude"], max_steps=self.cfg["max_steps"], throw=False)
+            return _FullPart(sol)
+        from .hybrid import simulate_hybrid
+
+        sol = simulate_hybrid(self.hybrid, ts[-1], t0=ts[0], y0=y0, saveat=ts, solver=self.solver, rtol=rtol,
+                              atol=atol, max_steps=self.cfg["max_steps"], throw=False)
+        return _HybridPart(sol, self.hybrid, self._diag)
+
+
+class _FullPart:
+    def __init__(self, sol):
+        import numpy as np
+
+        from .simulate import SimulationError, _failure_kind
+
+        self.sol = sol
+        self.kind = _failure_kind(sol)
+        self.message = None
+        if self.kind is not None:
+            try:
+                sol.check()
+            except SimulationError as e:
+                self.message = str(e)
+        st = sol.stats
+        self.steps = (int(np.asarray(st["num_accepted_steps"])), int(np.asarray(st["num_rejected_steps"])),
+                      int(np.asarray(st["rhs_evaluations"])))
+        self.t_final = float(np.asarray(sol.t_final))
+
+    def rows(self, count):
+        import numpy as np
+
+        s = self.sol
+        take = lambda x: np.asarray(x)[:count]  # noqa: E731
+        return dict(ts=take(s.ts), gamma=take(s.gamma), gamma_dot=take(s.gamma_dot), omega0=take(s.omega0),
+                    dcm=take(s.dcm), energy=take(s.energy), angular_momentum=take(s.angular_momentum),
+                    attitude=take(s.attitude), attitude_name=s.problem.attitude.name,
+                    hold_torque=take(s.hold_torque), orthogonality=take(s.orthogonality))
+
+    def end_state(self):
+        """The state the next part starts from (exactly as written to the part)."""
+        import numpy as np
+
+        f = self.sol.final
+        return {"resume_dcm": (("row", "column"), np.asarray(f.dcm)), "resume_omega0": (("axis",), np.asarray(f.omega0)),
+                "resume_gamma": (("hinge",), np.asarray(f.gamma)), "resume_gamma_dot": (("hinge",), np.asarray(f.gamma_dot))}
+
+
+def _hybrid_diagnostics():
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from .dynamics import angular_momentum, kinetic_energy
+
+    @eqx.filter_jit
+    def diag(model, states):
+        def row(s):
+            return (kinetic_energy(model, s) + 0.5 * jnp.sum(model.stiffness * s.gamma ** 2),
+                    angular_momentum(model, s))
+        return jax.vmap(row)(states)
+
+    return diag
+
+
+class _HybridPart:
+    def __init__(self, sol, hybrid, diag):
+        import diffrax
+        import numpy as np
+
+        from .model import State
+
+        self.sol, self.hybrid = sol, hybrid
+        result = sol.result
+        R = diffrax.RESULTS
+        if result == R.successful:
+            self.kind = None
+        elif result == R.max_steps_reached:
+            self.kind = "max_steps"
+        elif result == R.dt_min_reached:
+            self.kind = "dt_min"
+        else:
+            self.kind = "other"
+        self.t_final = float(np.asarray(sol.t_final))
+        self.message = None
+        if self.kind is not None:
+            from .simulate import _MESSAGES
+
+            f = sol.final
+            self.message = (f"jaxtree.simulate_hybrid: {_MESSAGES[self.kind]}.\n  stopped at t = {self.t_final:.9g}\n"
+                            f"  omega0 = {np.asarray(f.omega0)}\n  gamma = {np.asarray(f.gamma)}\n"
+                            f"  modal coordinates = {np.asarray(sol.final_modal)}")
+        st = sol.stats
+        acc, rej = int(np.asarray(st["num_accepted_steps"])), int(np.asarray(st["num_rejected_steps"]))
+        self.steps = (acc, rej, -1)
+        states = State(sol.dcm, sol.omega0, sol.gamma, sol.gamma_dot)
+        self.energy, self.H = diag(hybrid.model, states)
+
+    def rows(self, count):
+        import numpy as np
+
+        s = self.sol
+        take = lambda x: np.asarray(x)[:count]  # noqa: E731
+        att = np.asarray(s.ys)[:count, :self.hybrid.attitude.size]
+        return dict(ts=take(s.ts), gamma=take(s.gamma), gamma_dot=take(s.gamma_dot), omega0=take(s.omega0),
+                    dcm=take(s.dcm), energy=take(self.energy), angular_momentum=take(self.H), attitude=att,
+                    attitude_name=self.hybrid.attitude.name, modal=take(s.modal))
+
+    def end_state(self):
+        import numpy as np
+
+        return {"resume_flat": (("flat_state",), np.asarray(self.sol.ys)[-1])}
+
+
+def _state_from_part(ds, runner):
+    import jax.numpy as jnp
+
+    from .model import State
+
+    if runner.hybrid is not None:
+        return jnp.asarray(ds["resume_flat"].values, runner.dtype)
+    v = lambda k: jnp.asarray(ds[k].values, runner.dtype)  # noqa: E731
+    return State(v("resume_dcm"), v("resume_omega0"), v("resume_gamma"), v("resume_gamma_dot"))
+
+
+def _part_dataset(runner, part, count, skip_first, attrs):
+    import numpy as np
+
+    from .results import body_positions, simulation_dataset
+
+    r = part.rows(None)  # every row of the (padded) part: one shape, one compiled geometry
+    r["positions"] = body_positions(runner.model, r["gamma"])
+    first = 1 if skip_first else 0
+    r = {k: (v[first:count] if isinstance(v, np.ndarray) else tuple(x[first:count] for x in v)
+             if isinstance(v, tuple) else v) for k, v in r.items()}
+    ts = r.pop("ts")
+    ds = simulation_dataset(runner.model, ts, r.pop("gamma"), r.pop("gamma_dot"), r.pop("omega0"), r.pop("dcm"),
+                            **r, attrs=attrs)
+    for name, (dims, data) in part.end_state().items():
+        ds[name] = (dims, data, {"long_name": "state where this part ended (to resume from)"})
+    return ds
+
+
+def _progress(args, total, initial):
+    if args.no_progress or not sys.stderr.isatty():
+        return None
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        return None
+    return tqdm(total=total, initial=initial, unit="s", file=sys.stderr, leave=False,
+                bar_format="{l_bar}{bar}| t = {n:.4g} of {total:.4g} s [{elapsed}<{remaining}]")
+
+
+def cmd_simulate(args) -> int:
+    import numpy as np
+
+    from .results import ChunkedResult, command_line
+
+    if args.t1 == args.t0:
+        raise UserError("--t1 equals --t0: nothing to integrate")
+    if args.hybrid_small is None:
+        for opt, val in (("--modes", args.modes), ("--cutoff", args.cutoff), ("--spin", args.spin),
+                         ("--modal-damping", args.modal_damping)):
+            if val is not None:
+                raise UserError(f"{opt} needs --hybrid-small (the hinges in modal coordinates)")
+    start_wall = time.perf_counter()
+    model = _load_scene(args.scene)
+    out = pathlib.Path(args.out if args.out else f"{model.name or pathlib.Path(args.scene).stem}.nc")
+    if out.exists() and out.is_dir():
+        raise UserError(f"--out {str(out)!r} is a folder; give a file name such as run.nc")
+    cfg = _config(args, model)
+    writer = ChunkedResult(out)
+    bounds, rows_per_part = _chunk_bounds(cfg["points"], cfg["chunks"])
+    grid = np.linspace(cfg["t0"], cfg["t1"], cfg["points"])
+
+    start = 0
+    parts = []  # the part datasets: read back when resuming, then as written
+    if args.resume:
+        parts = writer.load_parts()
+        if not parts:
+            if out.is_file():
+                raise UserError(f"--resume: {out} is a finished run (no parts of an interrupted run beside it)")
+            raise UserError(f"--resume: no interrupted run to continue ({writer.parts_dir} does not exist)")
+        saved = parts[0].attrs
+        for key, value in cfg.items():
+            have = saved.get(key)
+            same = (np.allclose(np.asarray(have, float), np.asarray(value, float), rtol=0, atol=0)
+                    if isinstance(value, (int, float, list)) and have is not None else have == value)
+            if not same:
+                what = "the scene" if key == "scene" else key
+                raise UserError(f"--resume: {what} differs from the interrupted run "
+                                f"({'changed' if key == 'scene' else f'{have!r} there, {value!r} here'})")
+        start = len(parts)
+        if int(parts[-1].attrs.get("result_code", 0)) != 0:
+            raise UserError(f"--resume: the interrupted run had failed at t = {parts[-1].attrs.get('t_final')}; "
+                            "nothing to continue")
+    else:
+        if writer.parts():
+            raise UserError(f"{writer.parts_dir} holds parts of an interrupted run: continue it with --resume, "
+                            "or remove that folder")
+
+    runner = _Runner(args, model, cfg)
+    y0 = runner.initial() if start == 0 else _state_from_part(parts[-1], runner)
+    attrs = {**cfg, "command": command_line(), "complete": 0}
+    attrs.pop("scene")  # simulation_dataset stores the scene
+    delay = float(os.environ.get(CHUNK_DELAY_ENV, "0") or 0)
+
+    def terminate(signum, frame):
+        raise _Interrupted()
+
+    old = signal.signal(signal.SIGTERM, terminate)
+    bar = None
+    what = "hybrid equations" if runner.hybrid is not None else "Eq. (1)"
+    _say(f"jaxtree simulate: {model.name or args.scene}, {what}, t = {cfg['t0']:g} .. {cfg['t1']:g} s in "
+         f"{len(bounds)} parts" + (f", resuming after part {start}" if start else "") + " (compiling first)")
+    failed = None
+    compile_time = None
+    try:
+        bar = _progress(args, abs(cfg["t1"] - cfg["t0"]), abs(grid[bounds[start - 1][1]] - cfg["t0"]) if start else 0.0)
+        for c in range(start, len(bounds)):
+            a, b = bounds[c]
+            ts = np.concatenate([grid[a:b + 1], np.full(rows_per_part - (b - a + 1), grid[b])])
+            t_start = time.perf_counter()
+            part = runner.run(ts, y0, cfg["rtol"], cfg["atol"])
+            if compile_time is None:
+                compile_time = time.perf_counter() - t_start
+            count = b - a + 1
+            if part.kind is not None:
+                count = int(np.sum(np.isfinite(np.asarray(part.rows(count)["ts"]))))
+            pattrs = {**attrs, "chunk": c, "chunk_t0": float(grid[a]), "chunk_t1": float(grid[b]),
+                      "steps_accepted": part.steps[0], "steps_rejected": part.steps[1], "rhs_evaluations": part.steps[2],
+                      "result": "ok" if part.kind is None else part.kind,
+                      "result_code": 0 if part.kind is None else 1 + _kinds().index(part.kind), "t_final": part.t_final}
+            ds = _part_dataset(runner, part, count, c > 0, pattrs)
+            writer.write_part(c, ds)
+            parts.append(ds)
+            if part.kind is not None:
+                failed = part
+                break
+            # the next part starts from the state as written (float64 round-trips exactly), as a
+            # resumed run does
+            y0 = _state_from_part(ds, runner)
+            if bar is not None:
+                bar.update(abs(float(grid[b] - grid[a])))
+            if delay:
+                time.sleep(delay)
+        if bar is not None:
+            bar.close()
+            bar = None
+        extra = {}
+        if failed is None and not args.no_error_estimate:
+            _say("jaxtree simulate: error estimate (the run again at 10x the tolerances)")
+            extra = _error_estimate(runner, writer.merged(parts=parts), bounds, rows_per_part, grid, cfg)
+        # complete: the command ran to its end (a failed run too: its result code says how it ended)
+        ds = writer.merge(complete=True, attrs=extra, parts=parts)
+    except KeyboardInterrupt:
+        if bar is not None:
+            bar.close()
+        signal.signal(signal.SIGTERM, old)
+        ds = writer.merge(complete=False, parts=parts)
+        if ds is None:
+            _say("jaxtree simulate: interrupted before the first part was written; nothing saved")
+        else:
+            _say(f"jaxtree simulate: interrupted; {ds.sizes['time']} saved times up to t = {float(ds['time'][-1]):g} s "
+                 f"are in {out} (complete = 0). Continue with the same command and --resume.")
+        return EXIT_INTERRUPTED
+    finally:
+        if bar is not None:
+            bar.close()
+        signal.signal(signal.SIGTERM, old)
+
+    written = [str(out)] + (_exports(args, out, ds) if failed is None else [])
+    print(_summary(model, cfg, ds, written, runner, failed, time.perf_counter() - start_wall, compile_time))
+    if failed is not None:
+        _say(failed.message or "the run failed")
+        return EXIT_FAILED
+    return 0
+
+
+def _kinds():
+    from .simulate import _KINDS
+
+    return _KINDS
+
+
+def _error_estimate(runner, ds, bounds, rows_per_part, grid, cfg):
+    """Differences between this run and the same run at 10x the tolerances, over all saved
+    times: an estimate of the looser run's global error, hence an upper estimate of this run's
+    (the error of an adaptive run falls with its tolerance)."""
+    import numpy as np
+
+    y = runner.initial()
+    rows = {"gamma": [], "gamma_dot": [], "omega0": [], "dcm": []}
+    for c, (a, b) in enumerate(bounds):
+        ts = np.concatenate([grid[a:b + 1], np.full(rows_per_part - (b - a + 1), grid[b])])
+        part = runner.run(ts, y, 10 * cfg["rtol"], 10 * cfg["atol"])
+        if part.kind is not None:
+            return {"error_estimate": "unavailable: the run at 10x the tolerances failed"}
+        r = part.rows(b - a + 1)
+        for k in rows:
+            rows[k].append(r[k][1:] if c else r[k])
+        if runner.hybrid is not None:
+            y = part.sol.ys[-1]
+        else:
+            from .model import State
+
+            f = part.sol.final
+            y = State(*(np.asarray(x) for x in f))
+    d = {k: float(np.max(np.abs(np.concatenate(v) - ds[k].values))) for k, v in rows.items()}
+    return {"error_estimate_gamma": d["gamma"], "error_estimate_rates": max(d["gamma_dot"], d["omega0"]),
+            "error_estimate_dcm": d["dcm"],
+            "error_estimate": "max differences from the same run at 10x the tolerances (rad, rad/s, 1)"}
+
+
+def _exports(args, out, ds):
+    """The CSV export and the plots of a finished run; returns the files written."""
+    written = []
+    if args.csv:
+        from .output import save_csv
+        from .results import _to_solution
+
+        save_csv(args.csv, _to_solution(ds))
+        written.append(args.csv)
+    if not args.no_plot:
+        if not _matplotlib():
+            _say("matplotlib is not installed: no plots (pip install 'jaxtree[plot]')")
+            return written
+        from . import plots
+
+        prefix = args.plot if args.plot else str(out.with_suffix("")) if out.suffix == ".nc" else str(out)
+        plots.plot_histories(ds, f"{prefix}_histories.png")
+        plots.plot_drift(ds, f"{prefix}_drift.png")
+        written += [f"{prefix}_histories.png", f"{prefix}_drift.png"]
+    return written
+
+
+def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
+    import numpy as np
+
+    a = ds.attrs
+    opts = dict(precision=6, suppress_small=True, max_line_width=150)
+    hyb = runner.hybrid
+    lines = [f"scene {model.name!r}: {model.n + 1} bodies; "
+             + (f"hybrid coordinates, small hinges {list(hyb.small)} in {hyb.n_modes} modes ({hyb.form} form)"
+                if hyb is not None else "Eq. (1)")
+             + f"; {cfg['solver']}, rtol {cfg['rtol']:g}, atol {cfg['atol']:g}, attitude {cfg['attitude']}"]
+    lines.append(f"  result: {a.get('result')} at t = {float(a.get('t_final')):.6g} s"
+                 + (" (the run stopped early)" if failed is not None else ""))
+    rhs = int(a.get("rhs_evaluations", -1))
+    lines.append(f"  steps: {int(a.get('steps_accepted'))} accepted, {int(a.get('steps_rejected'))} rejected"
+                 + (f", {rhs} right-hand sides" if rhs >= 0 else "") + f", in {int(a.get('parts'))} part{'s' if int(a.get('parts')) > 1 else ''}")
+    if "error_estimate_gamma" in a:
+        lines.append(f"  error estimate (difference from a run at 10x the tolerances): angles "
+                     f"{float(a['error_estimate_gamma']):.2e} rad, rates {float(a['error_estimate_rates']):.2e} rad/s, "
+                     f"C {float(a['error_estimate_dcm']):.2e}")
+    elif "error_estimate" in a:
+        lines.append(f"  error estimate: {a['error_estimate']}")
+    why = []
+    if model.prescribed:
+        why.append("prescribed hinges do work")
+    if np.any(np.asarray(model.damping)[np.asarray(model.sprung, int) - 1] != 0) if model.sprung else False:
+        why.append("dampers dissipate")
+    if "energy_drift" in a:
+        lines.append(f"  energy drift: max |E - E0| / |E0| = {float(a['energy_drift']):.3e}"
+                     + (f" (not conserved: {', '.join(why)})" if why else ""))
+        lines.append(f"  angular-momentum drift: max |H - H0| / |H0| = {float(a['momentum_drift']):.3e}")
+    last = ds.isel(time=-1)
+    lines.append(f"  at the last saved time, t = {float(last['time']):.6g} s:")
+    lines.append(f"    gamma  = {np.array2string(last['gamma'].values, **opts)}")
+    lines.append(f"    omega0 = {np.array2string(last['omega0'].values, **opts)}")
+    lines.append(f"  wrote {', '.join(written)}")
+    t = f"  wall time {wall:.1f} s"
+    if compile_time is not None:
+        t += f" (first part, compile included: {compile_time:.1f} s)"
+    lines.append(t)
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- modes
+def cmd_modes(args) -> int:
+    import jax.numpy as jnp
+    import numpy as np
+
+    from .linearize import linearize, structure
+    from .modes import ModalError, modes
+    from .results import command_line, modes_dataset, write_netcdf
+
+    model = _load_scene(args.scene)
+    small = _hinges(model, args.small, "--small")
+    spin = np.zeros(3) if args.spin is None else np.asarray(args.spin, float)
+    dtype = jnp.result_type(model.mass)
+    lin = linearize(model, small, omega0=jnp.asarray(spin, dtype))
+    st = structure(lin.I, lin.J, lin.K)
+    if args.damping is not None and args.damping < 0:
+        raise UserError(f"--damping must be >= 0, got {args.damping}")
+    try:
+        md = modes(lin, damping=args.damping)
+    except ModalError as e:
+        raise UserError(f"modes of {model.name!r} with small hinges {list(small)}: {e}") from None
+    out = pathlib.Path(args.out if args.out else f"{model.name or pathlib.Path(args.scene).stem}_modes.nc")
+    ds = modes_dataset(model, md, small=small, omega0=spin,
+                       attrs={"command": command_line(), "damping": args.damping, "structure": st.describe()})
+    write_netcdf(ds, out)
+    f = np.asarray(md.frequencies)
+    z = np.asarray(md.damping_ratios)
+    print(f"scene {model.name!r}: modes of the small hinges {list(small)} "
+          f"({', '.join(model.names[k] for k in small[:6])}{', ...' if len(small) > 6 else ''}), "
+          f"nominal omega0 = {spin.tolist()} rad/s")
+    print(f"  {st.describe()}")
+    print(f"{'mode':>5} {'sigma (rad/s)':>14} {'f (Hz)':>11} {'period (s)':>11} {'zeta':>8}  dominated by")
+    for j in range(md.nu):
+        period = 2 * np.pi / f[j] if f[j] > 0 else float("inf")
+        label = md.labels[j] if md.labels else ""
+        print(f"{j + 1:5d} {f[j]:14.6g} {f[j] / (2 * np.pi):11.5g} {period:11.5g} {z[j]:8.4f}  {label}")
+    wrote = [str(out)]
+    if not args.no_plot:
+        if _matplotlib():
+            from .plots import plot_mode_shapes
+
+            png = args.plot if args.plot else str(out.with_suffix(".png"))
+            plot_mode_shapes(model, ds, path=png, modes=list(range(min(args.show, md.nu))))
+            wrote.append(png)
+        else:
+            _say("matplotlib is not installed: no mode-shape plot (pip install 'jaxtree[plot]')")
+    print(f"wrote {', '.join(wrote)}")
+    return 0
+
+
+# ----------------------------------------------------------------------------- animate, plot
+def _viewer():
+    try:
+        from . import viewer
+    except ImportError:
+        raise UserError("the 3D viewer (jaxtree.viewer) is not available in this installation") from None
+    return viewer
+
+
+def cmd_animate(args) -> int:
+    import numpy as np
+
+    ds = _load_result(args.result)
+    model = _model_of(ds, args.result)
+    viewer = _viewer()
+    kind = ds.attrs.get("kind")
+    title = args.title
+    if kind == "modes":
+        nu = ds.sizes["mode"]
+        k = 1 if args.mode is None else args.mode
+        if not 1 <= k <= nu:
+            raise UserError(f"--mode {k}: the result has modes 1..{nu}")
+        shape = np.asarray(ds["hinge_shape"].values[:, k - 1], float)
+        freq = float(ds["frequency"].values[k - 1])
+        if title is None:
+            label = str(ds["mode_label"].values[k - 1])
+            title = f"{model.name}: mode {k}, {freq:.4g} rad/s ({freq / (2 * np.pi):.4g} Hz)" + (
+                f", {label}" if label else "")
+        viewer.write_mode_animation(args.out, model, shape, freq, gamma=np.asarray(ds["gamma_nominal"].values, float),
+                                    amplitude=args.amplitude, title=title)
+    else:
+        if args.mode is not None or args.amplitude is not None:
+            raise UserError("--mode and --amplitude apply to a modes result (jaxtree modes), "
+                            f"{args.result} is a simulation")
+        if title is None:
+            title = f"{model.name}: t = {float(ds['time'][0]):g} .. {float(ds['time'][-1]):g} s" + (
+                "" if int(ds.attrs.get("complete", 1)) else " (partial run)")
+        viewer.write_animation(args.out, model, np.asarray(ds["time"].values), np.asarray(ds["dcm"].values),
+                               np.asarray(ds["gamma"].values), title=title)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_plot(args) -> int:
+    ds = _load_result(args.result)
+    if not _matplotlib():
+        raise UserError("matplotlib is not installed (pip install 'jaxtree[plot]')")
+    from . import plots
+
+    res = pathlib.Path(args.result)
+    prefix = args.out if args.out else str(res.with_suffix("") if res.suffix == ".nc" else res)
+    if ds.attrs.get("kind") == "modes":
+        model = _model_of(ds, args.result)
+        files = [f"{prefix}_shapes.png"]
+        plots.plot_mode_shapes(model, ds, path=files[0])
+    else:
+        files = [f"{prefix}_histories.png", f"{prefix}_drift.png"]
+        plots.plot_histories(ds, files[0])
+        plots.plot_drift(ds, files[1])
+    print(f"wrote {', '.join(files)}")
+    return 0

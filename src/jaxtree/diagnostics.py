@@ -1,0 +1,258 @@
+"""Public diagnostics of a vehicle: the conditioning of Eq. (1) and a scene check.
+
+:func:`condition` gives the condition number of the coefficient matrix of Eq. (1) (Defs. 38-40)
+in its unknowns (omega0 and the hinges that are neither prescribed nor inert, Sec. II B) and the
+direction of its eigenvalue nearest zero, named by hinges: where the matrix is nearly singular
+(gimbal lock: two hinge axes aligned through massless gimbal frames) that is the combination of
+rates that moves no mass. float64 keeps about ``16 - log10(cond)`` digits of the accelerations.
+
+:func:`check_scene` is what ``jaxtree check SCENE`` prints: the scene validated, its tree, the
+seed's Tables 1-2 for it (network elements N_kr of Def. 26, path elements epsilon_sk of Def. 27),
+masses, and the condition number of Eq. (1) at the initial state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .dynamics import SINGULAR_CONDITION, _matrix_condition, _unknown_labels, rotational_equations
+from .model import Model, State
+from .scene import SceneError, load_scene, scene_from_dict
+
+__all__ = ["Condition", "condition", "SceneReport", "check_scene"]
+
+# Above this condition number the summary warns that digits are being lost (float64 keeps
+# about 8 of its 16 digits there).
+POOR_CONDITION = 1e8
+
+
+class Condition(eqx.Module):
+    """Result of :func:`condition`.
+
+    - `number`: ``max |lambda| / min |lambda|`` of the Eq. (1) matrix in its unknowns (the
+      2-norm condition number of the symmetric positive definite matrix);
+    - `direction` (3 + len(model.unknown_hinges),): unit eigenvector of the eigenvalue nearest
+      zero, entries ordered as `labels` (``omega0x``, ``omega0y``, ``omega0z``, then
+      ``hinge k (name)`` for the unknown hinges);
+    - `labels` (static): the names of the entries of `direction`.
+    """
+
+    number: jax.Array
+    direction: jax.Array
+    labels: tuple[str, ...] = eqx.field(static=True)
+
+    @property
+    def singular(self) -> bool:
+        """True when the matrix is singular to float64 working accuracy (the threshold at which
+        :func:`jaxtree.simulate` diagnoses a failure as a singular Eq. (1))."""
+        c = float(self.number)
+        return not np.isfinite(c) or c > SINGULAR_CONDITION
+
+    def named_direction(self, threshold: float = 0.25) -> list[tuple[str, float]]:
+        """The entries of `direction` of at least `threshold` times its largest, as
+        ``(label, value)`` pairs, the largest first; the sign makes the largest positive."""
+        v = np.asarray(self.direction, dtype=float)
+        if not np.all(np.isfinite(v)) or not np.any(v):
+            return []
+        v = v * np.sign(v[np.argmax(np.abs(v))])
+        big = np.flatnonzero(np.abs(v) >= threshold * np.abs(v).max())
+        big = big[np.argsort(-np.abs(v[big]), kind="stable")]
+        return [(self.labels[i], float(v[i])) for i in big]
+
+    def describe(self) -> str:
+        """One line: the condition number, the digits it leaves, and the near-null direction."""
+        c = float(self.number)
+        parts = ", ".join(f"{name} {value:+.3f}" for name, value in self.named_direction())
+        if not np.isfinite(c):
+            return f"condition number of Eq. (1): infinite (singular matrix); near-null direction: {parts}"
+        digits = max(0.0, 16.0 - np.log10(max(c, 1.0)))
+        text = f"condition number of Eq. (1): {c:.3g} " + (
+            "(singular to float64 working accuracy)" if self.singular else f"(float64 keeps about {digits:.0f} digits)")
+        return text + f"; direction of its smallest eigenvalue: {parts}"
+
+    def __str__(self) -> str:
+        return self.describe()
+
+
+@eqx.filter_jit
+def _condition_core(model: Model, state: State, t):
+    gamma = state.gamma
+    if model.prescription is not None:
+        # the matrix depends on the angles of prescribed hinges: take them from the prescription
+        idx = np.asarray(model.prescription.hinges, dtype=np.int64) - 1
+        gamma = jnp.asarray(gamma).at[idx].set(jnp.asarray(model.prescription(t), jnp.result_type(gamma)))
+    A, _ = rotational_equations(model, state._replace(gamma=gamma), t)
+    return _matrix_condition(model, A)
+
+
+def condition(model: Model, state: State | None = None, t=0.0) -> Condition:
+    """Condition number of Eq. (1) at `state` (default ``model.initial``) and time `t`, and the
+    direction of its smallest eigenvalue named by hinges (:class:`Condition`).
+
+    The matrix of Defs. 38-40 is restricted to the unknowns: omega0 and the hinges that are not
+    prescribed (their angles at time `t` come from the prescription) or inert (nothing but
+    massless bodies outboard). Only the hinge angles enter the matrix. Pure: the result is a
+    pytree (jit and vmap it over states or model parameters).
+    """
+    state = model.initial if state is None else state
+    if not isinstance(state, State):
+        raise TypeError(f"condition: state must be a jaxtree.State, got {type(state).__name__}")
+    number, direction = _condition_core(model, state, jnp.asarray(t, jnp.result_type(model.mass)))
+    return Condition(number, direction, _unknown_labels(model))
+
+
+# ----------------------------------------------------------------------------- check_scene
+def _joint_text(model: Model, k: int) -> str:
+    kind = model.joints[k - 1]
+    if k in model.prescribed:
+        pres = model.prescription
+        if hasattr(pres, "amplitude"):
+            i = list(pres.hinges).index(k)
+            return (f"prescribed gamma = {float(pres.amplitude[i]):g} sin({float(pres.frequency[i]):g} t "
+                    f"+ {float(pres.phase[i]):g})")
+        return "prescribed"
+    if k in model.sprung:
+        return f"spring {float(model.stiffness[k - 1]):g} N m/rad, damper {float(model.damping[k - 1]):g} N m s/rad"
+    return "free" if kind in ("free", "") else kind
+
+
+def _tree_lines(model: Model) -> list[str]:
+    """An indented drawing of the tree: each body under its parent with its hinge."""
+    topo = model.topology
+    lines = [f"0 {model.names[0]}  (reference body b0, {float(model.mass[0]):g} kg)"]
+
+    def walk(k, prefix):
+        kids = topo.children[k]
+        for i, c in enumerate(kids):
+            last = i == len(kids) - 1
+            g = np.asarray(model.axis[c - 1], float)
+            mass = float(model.mass[c])
+            tags = []
+            if c in model.inert:
+                tags.append("inert: only massless bodies outboard")
+            text = (f"{prefix}{'`-- ' if last else '|-- '}{c} {model.names[c]}  ({mass:g} kg"
+                    f"{', massless' if mass == 0 else ''}); hinge {c} about "
+                    f"[{g[0]:.3g}, {g[1]:.3g}, {g[2]:.3g}]: {_joint_text(model, c)}")
+            if tags:
+                text += f" [{'; '.join(tags)}]"
+            lines.append(text)
+            walk(c, prefix + ("    " if last else "|   "))
+
+    walk(0, "")
+    return lines
+
+
+def _table(title, rows, row_labels, col_labels, corner):
+    width = max(2, max(len(str(c)) for c in col_labels), max((len(str(x)) for r in rows for x in r), default=1))
+    lw = max(len(corner), max(len(str(r)) for r in row_labels))
+    head = f"{corner:>{lw}} | " + " ".join(f"{c:>{width}}" for c in col_labels)
+    out = [title, head, "-" * len(head)]
+    for label, row in zip(row_labels, rows):
+        out.append(f"{label:>{lw}} | " + " ".join(f"{int(x):>{width}}" for x in row))
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneReport:
+    """What :func:`check_scene` found (its ``str`` is the text of ``jaxtree check``).
+
+    `model`; `source` (where the scene came from); `tree` (lines of the indented tree);
+    `network_elements` ((n+1, n+1), N_kr of Def. 26, the seed's Table 1); `path_elements`
+    ((n, n+1), epsilon_sk of Def. 27, the seed's Table 2); `masses` (n+1,), `total_mass`;
+    `condition` (:class:`Condition` of Eq. 1 at the initial state); `warnings` (lines).
+    """
+
+    model: Model
+    source: str
+    tree: tuple[str, ...]
+    network_elements: np.ndarray
+    path_elements: np.ndarray
+    masses: np.ndarray
+    total_mass: float
+    condition: Condition
+    warnings: tuple[str, ...]
+
+    def format(self, tables: bool | None = None) -> str:
+        """The report as text; `tables` prints Tables 1-2 (default: for up to 20 hinges)."""
+        m = self.model
+        n = m.n
+        if tables is None:
+            tables = n <= 20
+        lines = [f"scene {m.name!r} ({self.source}): valid; {n + 1} bodies, {n} hinges"]
+        lines.append(f"  prescribed hinges: {list(m.prescribed) or 'none'}; sprung: {list(m.sprung) or 'none'}; "
+                     f"inert: {list(m.inert) or 'none'}; unknowns of Eq. (1): 3 + {len(m.unknown_hinges)}")
+        lines += ["", "tree (body index, name, mass; hinge k joins body k to its parent):"]
+        lines += ["  " + s for s in self.tree]
+        if tables:
+            idx = list(range(n + 1))
+            lines.append("")
+            lines += _table("Table 1: network elements N_kr (Def. 26; column 0 is the input N_k)",
+                            self.network_elements, idx, idx, "k\\r")
+            lines.append("")
+            lines += _table("Table 2: path elements epsilon_sk (Def. 27: 1 iff hinge s lies between b0 and b_k)",
+                            self.path_elements, list(range(1, n + 1)), idx, "s\\k")
+        else:
+            lines += ["", f"Tables 1-2 ({n + 1} x {n + 1} and {n} x {n + 1}) not shown for {n} hinges "
+                          "(jaxtree check --tables prints them)"]
+        lines += ["", "masses (kg):"]
+        for k in range(n + 1):
+            lines.append(f"  {k:3d} {m.names[k]:<20s} {self.masses[k]:12.6g}")
+        lines.append(f"  total {self.total_mass:.6g} kg")
+        s = m.initial
+        lines += ["", f"at the initial state (omega0 = {np.asarray(s.omega0).tolist()} rad/s, "
+                      f"max |gamma| = {float(np.max(np.abs(np.asarray(s.gamma)), initial=0.0)):.3g} rad):"]
+        lines.append("  " + self.condition.describe())
+        if self.warnings:
+            lines += [""] + [f"warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.format()
+
+
+def check_scene(scene) -> SceneReport:
+    """Validate a scene and describe it (the ``jaxtree check`` command).
+
+    `scene`: a path to a ``jaxtree-scene/1`` JSON file, a bundled scene name (``"fig4"``), a
+    parsed scene dict, or a :class:`~jaxtree.Model`. Raises :class:`~jaxtree.SceneError` naming
+    the body and the field of an invalid scene (``FileNotFoundError`` for a missing file).
+    Returns a :class:`SceneReport` (``print(report)`` shows the text).
+    """
+    if isinstance(scene, Model):
+        model, source = scene, "model"
+    elif isinstance(scene, dict):
+        model, source = scene_from_dict(scene), "dict"
+    elif isinstance(scene, (str, pathlib.Path)):
+        p = pathlib.Path(scene)
+        try:
+            model = load_scene(scene)
+        except UnicodeDecodeError:
+            raise SceneError(f"{p}: not a text (JSON) file") from None
+        except IsADirectoryError:
+            raise SceneError(f"{p}: is a folder, not a scene file") from None
+        source = str(p) if p.exists() else f"bundled scene {str(scene)!r}"
+    else:
+        raise TypeError(f"check_scene: expected a path, a scene name, a dict or a Model, got {type(scene).__name__}")
+    topo = model.topology
+    masses = np.asarray(model.mass, dtype=float)
+    cond = condition(model)
+    warnings = []
+    c = float(cond.number)
+    if not np.isfinite(c) or c > SINGULAR_CONDITION:
+        warnings.append(f"Eq. (1) is singular at the initial state (condition number {c:.3g}): a simulation "
+                        "will stop at once; see the near-null direction above")
+    elif c > POOR_CONDITION:
+        warnings.append(f"Eq. (1) is poorly conditioned at the initial state ({c:.3g}): accelerations lose "
+                        f"about {np.log10(c):.0f} digits (float32 keeps none)")
+    if model.inert:
+        warnings.append(f"hinges {list(model.inert)} have nothing but massless bodies outboard: they are not "
+                        "unknowns of Eq. (1) and stay at their initial rates")
+    return SceneReport(model=model, source=source, tree=tuple(_tree_lines(model)),
+                       network_elements=np.asarray(topo.network_elements), path_elements=np.asarray(topo.path_elements),
+                       masses=masses, total_mass=float(masses.sum()), condition=cond, warnings=tuple(warnings))
