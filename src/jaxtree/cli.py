@@ -636,6 +636,9 @@ def cmd_simulate(args) -> int:
         raise _Interrupted()
 
     old = signal.signal(signal.SIGTERM, terminate)
+    # Ctrl-C interrupts (saving the parts) even when the command was started with SIGINT ignored,
+    # as a shell does for background jobs (Python then keeps the inherited disposition)
+    old_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     bar = None
     what = "hybrid equations" if runner.hybrid is not None else "Eq. (1)"
     _say(f"jaxtree simulate: {model.name or args.scene}, {what}, t = {cfg['t0']:g} .. {cfg['t1']:g} s in "
@@ -684,6 +687,7 @@ def cmd_simulate(args) -> int:
         if bar is not None:
             bar.close()
         signal.signal(signal.SIGTERM, old)
+        signal.signal(signal.SIGINT, old_int)
         ds = writer.merge(complete=False, parts=parts)
         if ds is None:
             _say("jaxtree simulate: interrupted before the first part was written; nothing saved")
@@ -695,6 +699,7 @@ def cmd_simulate(args) -> int:
         if bar is not None:
             bar.close()
         signal.signal(signal.SIGTERM, old)
+        signal.signal(signal.SIGINT, old_int)
 
     written = [str(out)] + (_exports(args, out, ds) if failed is None else [])
     print(_summary(model, cfg, ds, written, runner, failed, time.perf_counter() - start_wall, compile_time))
