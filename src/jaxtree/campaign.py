@@ -97,7 +97,7 @@ def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     if model.prescribed:
         hist["hold_torque"] = sol.hold_torque
     finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in hist.values()]))
-    code = sol.failure  # 0 ok, else 1 + index in simulate's _KINDS (the first five of FAILURES)
+    code = sol.failure  # a jaxtree._integrate.Failure code (the first five of FAILURES)
     state_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in sol.final]))
     diagnosis = jnp.where(
         code > 0,
@@ -109,9 +109,9 @@ def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     # for the failed members only: see _diagnose_failures)
     # a start that cannot be integrated (not finite, or Eq. 1 singular there) never ran: its
     # integrator result is that of the vehicle at rest simulate integrated in its place
-    from .simulate import _KINDS
+    from ._integrate import Failure
 
-    started = (code != _KINDS.index("nonfinite_start") + 1) & (code != _KINDS.index("singular_start") + 1)
+    started = (code != int(Failure.NONFINITE_START)) & (code != int(Failure.SINGULAR_START))
     return dict(hist, result=jnp.where(started, sol.result._value, -1), diagnosis=diagnosis,  # noqa: SLF001
                 steps=sol.stats["num_steps"], rejected=sol.stats["num_rejected_steps"],
                 rhs_evaluations=sol.stats["rhs_evaluations"], t_final=sol.t_final,
@@ -477,7 +477,7 @@ def monte_carlo(
     """
     import xarray as xr
 
-    from .simulate import DEFAULT_MAX_STEPS, default_tolerance
+    from ._integrate import DEFAULT_MAX_STEPS, default_tolerance
 
     start = _time.perf_counter()
     n = int(n)

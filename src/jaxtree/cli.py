@@ -361,7 +361,7 @@ def cmd_check(args) -> int:
 def _config(args, model):
     """The run's configuration, stored in every part (a resumed run must match it)."""
     from .results import _scene_json
-    from .simulate import default_tolerance
+    from ._integrate import default_tolerance
     import jax.numpy as jnp
 
     tol = default_tolerance(jnp.result_type(model.mass))
@@ -438,10 +438,10 @@ class _FullPart:
     def __init__(self, sol):
         import numpy as np
 
-        from .simulate import SimulationError, _failure_kind
+        from ._integrate import SimulationError, failure_kind
 
         self.sol = sol
-        self.kind = _failure_kind(sol)
+        self.kind = failure_kind(sol.failure)
         self.message = None
         if self.kind is not None:
             try:
@@ -510,7 +510,7 @@ class _HybridPart:
         self.t_final = float(np.asarray(sol.t_final))
         self.message = None
         if self.kind is not None:
-            from .simulate import _MESSAGES
+            from ._integrate import MESSAGES as _MESSAGES
 
             f = sol.final
             self.message = (f"jaxtree.simulate_hybrid: {_MESSAGES[self.kind]}.\n  stopped at t = {self.t_final:.9g}\n"
@@ -710,7 +710,7 @@ def cmd_simulate(args) -> int:
 
 
 def _kinds():
-    from .simulate import _KINDS
+    from ._integrate import KINDS as _KINDS
 
     return _KINDS
 

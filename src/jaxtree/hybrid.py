@@ -84,11 +84,12 @@ from . import _checks
 from .dynamics import configuration, mass_matrix, rotational_equations
 from .kinematics import ancestor_sum, body_rotations, cross, full_precision, mm, mv
 from .linearize import linearize, resolve_hinges
+from ._hinges import prescribed_motion, selector
 from .model import Model, State
 from .modes import ModalError, modes as _modes
-from .simulate import (_KINDS, _MESSAGES, SimulationError, _check_state, _check_times, _check_tolerances,
-                       _failure_report, _is_traced, _last_finite, _report, _result_code, _warn_below_roundoff,
-                       default_tolerance)
+from ._integrate import (DEFAULT_MAX_STEPS, MESSAGES, Failure, SimulationError, check_state, check_times,
+                         check_tolerances, default_controller, default_tolerance, failure_report, integrate,
+                         is_traced, progress_meter, report_failures, result_code, warn_below_roundoff)
 from .topology import Topology
 
 __all__ = [
@@ -241,7 +242,7 @@ class HybridModel(eqx.Module):
 
     def _selectors(self, dtype):
         n = self.model.n
-        sel = lambda hs: jnp.asarray(_selector(n, hs), dtype)
+        sel = lambda hs: selector(n, hs, dtype)  # noqa: E731
         return sel(self.small), sel(self.large), sel(self.model.prescribed)
 
     def _base(self, dtype):
@@ -258,13 +259,11 @@ class HybridModel(eqx.Module):
         ES, EL, EG = self._selectors(dtype)
         gamma = self._base(dtype) + EL @ gL
         gamma_dot = EL @ gdL
-        gdd = None
-        if self.model.prescription is not None:
-            g, gd, gdd = self.model.prescription.derivatives(jnp.asarray(t, dtype))
-            gamma = gamma + EG @ g.astype(dtype)
-            gamma_dot = gamma_dot + EG @ gd.astype(dtype)
-            gdd = gdd.astype(dtype)
-        return gamma, gamma_dot, gdd
+        motion = prescribed_motion(self.model, t, dtype)
+        if motion is None:
+            return gamma, gamma_dot, None
+        g, gd, gdd = motion
+        return gamma + EG @ g, gamma_dot + EG @ gd, gdd
 
     def state(self, t, y) -> State:
         """The physical :class:`~jaxtree.State` (all n hinges) of a flat hybrid state:
@@ -327,13 +326,6 @@ class HybridModel(eqx.Module):
         return _with_inverse(eqx.tree_at(lambda h: h.keep, self, keep))
 
 
-def _selector(n, hinges):
-    """Constant n x len(hinges) matrix E with ``gamma = E @ gamma_hinges`` (no scatter)."""
-    E = np.zeros((n, len(hinges)))
-    E[np.asarray(hinges, dtype=np.int64) - 1, np.arange(len(hinges))] = 1.0
-    return E
-
-
 def _modal_block(hm: HybridModel):
     """The constant modal block ``kin + rows^T I accel`` (masked), when the projected small-small
     block of Eq. (30) is constant."""
@@ -388,7 +380,7 @@ def _large_frame(hm: HybridModel, bases, t, dcm, w, gL, gdL, v0=None):
     topo = Topology(parents)
     hinges = bodies[1:]
     dtype = w.dtype
-    nL, nP = len(hm.large), len(model.prescribed)
+    nP = len(model.prescribed)
     gddP = None
     gcol, gdcol = gL, gdL
     if nP:
@@ -428,7 +420,6 @@ def _large_frame(hm: HybridModel, bases, t, dcm, w, gL, gdL, v0=None):
         F0, T0 = mv(R[lb], F.astype(dtype)), mv(R[lb], T.astype(dtype))
         wrench = wrench.at[lb].add(-jnp.concatenate([T0 + cross(r[lb], F0), F0], 1))
     # the unknowns' motion map of each large body: rotation and translation of b_0, then the hinges
-    nz = 6 + nL + nP
     inv = _inverse(order)  # column -> body order
     path = topo.path_elements[inv].T  # (nb, nc): the column's hinge is on the path to the body
     Jac = jnp.concatenate([jnp.broadcast_to(jnp.eye(6, dtype=dtype), (len(bodies), 6, 6)),
@@ -1060,7 +1051,7 @@ class HybridSolution(eqx.Module):
 
 def _failure_code(result):
     """0 for success, else the ``Solution.failure`` code of :func:`jaxtree.simulate`."""
-    return jnp.where(result == dfx.RESULTS.successful, 0, _result_code(result))
+    return jnp.where(result == dfx.RESULTS.successful, 0, result_code(result))
 
 
 def _hybrid_failure_message(code, t, state, modal):
@@ -1069,7 +1060,7 @@ def _hybrid_failure_message(code, t, state, modal):
     np.set_printoptions(precision=6, suppress=False, linewidth=120)
 
     def describe(kind, pick):
-        lines = [f"jaxtree.simulate_hybrid: {_MESSAGES[kind]}.", f"  stopped at t = {float(pick(t)):.9g}",
+        lines = [f"jaxtree.simulate_hybrid: {MESSAGES[kind]}.", f"  stopped at t = {float(pick(t)):.9g}",
                  f"  omega0 = {pick(state.omega0)}", f"  gamma = {pick(state.gamma)}",
                  f"  gamma_dot = {pick(state.gamma_dot)}", f"  C = {pick(state.dcm).tolist()}",
                  f"  modal coordinates = {pick(modal)}"]
@@ -1077,7 +1068,7 @@ def _hybrid_failure_message(code, t, state, modal):
             lines.append("  diagnosis: the state is not finite")
         return "\n".join(lines)
 
-    return _failure_report(code, describe)
+    return failure_report(code, describe)
 
 
 def _energy_and_momentum(model, state):
@@ -1092,7 +1083,7 @@ def _energy_and_momentum(model, state):
 
 
 @eqx.filter_jit
-def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, max_steps, report, residual):
+def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, max_steps, report, residual, meter):
     # A non-finite start cannot be integrated (NaN error estimates give NaN steps until max_steps):
     # integrate the vehicle at rest in its place, report "nonfinite_start" and return NaN histories.
     finite_start = jnp.all(jnp.isfinite(y0))
@@ -1100,23 +1091,12 @@ def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, m
     model = hybrid.model
     rest = hybrid.pack(State(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype), hybrid.gamma_nominal.astype(dtype),
                              jnp.zeros(model.n, dtype)))
-    y_start = y0
-    y0 = jnp.where(finite_start, y0, rest)
     if controller is None:
-        controller = dfx.PIDController(rtol=rtol, atol=atol, pcoeff=0.3, icoeff=0.3,
-                                       dtmin=1e-12 * jnp.abs(t1 - t0), force_dtmin=False)
-    saveat = dfx.SaveAt(subs=(dfx.SubSaveAt(ts=ts), dfx.SubSaveAt(t1=True)))
-    sol = dfx.diffeqsolve(
-        dfx.ODETerm(hybrid_rhs), solver, t0, t1, dt0, y0, args=hybrid, saveat=saveat,
-        stepsize_controller=controller, max_steps=max_steps, throw=False,
-    )
-    (ts_h, ts_f), (ys_h, ys_f) = sol.ts, sol.ys
-    i = _last_finite(ts_f)
-    t_final, y_final = ts_f[i], ys_f[i]
-    t_final = jnp.where(finite_start, t_final, t0)
-    y_final = jnp.where(finite_start, y_final, y_start)
-    ys_h = jnp.where(finite_start, ys_h, jnp.nan)
-    code = jnp.where(finite_start, _failure_code(sol.result), _KINDS.index("nonfinite_start") + 1)
+        controller = default_controller(rtol, atol, t0, t1)
+    ts_h, ys_h, t_final, y_final, sol = integrate(hybrid_rhs, solver, t0, t1, dt0, y0, hybrid, ts=ts,
+                                                  controller=controller, max_steps=max_steps, progress_meter=meter,
+                                                  start_ok=finite_start, rest=rest)
+    code = jnp.where(finite_start, _failure_code(sol.result), int(Failure.NONFINITE_START))
     states = jax.vmap(hybrid.state)(ts_h, ys_h)
     final = hybrid.state(t_final, y_final)
     energy, momentum = jax.vmap(lambda st: _energy_and_momentum(hybrid.model, st))(states)
@@ -1133,7 +1113,7 @@ def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, m
             if message is not None:
                 raise SimulationError(message)
 
-        _report(host, code != 0, jax.lax.stop_gradient((code, t_final, final, out.final_modal)))
+        report_failures(host, code != 0, jax.lax.stop_gradient((code, t_final, final, out.final_modal)))
     return out
 
 
@@ -1150,8 +1130,9 @@ def simulate_hybrid(
     rtol: float | None = None,
     atol: float | None = None,
     dt0=None,
-    max_steps: int = 200_000,
+    max_steps: int = DEFAULT_MAX_STEPS,
     throw: bool = True,
+    progress: bool | dfx.AbstractProgressMeter = False,
 ) -> HybridSolution:
     """Integrate the hybrid-coordinate equations with diffrax.
 
@@ -1160,7 +1141,11 @@ def simulate_hybrid(
     - `saveat`: a number of evenly spaced save times (default 101) or an array of times;
     - `solver`: default :class:`diffrax.Dopri8`; `stepsize_controller`: default a PID controller
       with `rtol`, `atol` (as :func:`jaxtree.simulate`: default :func:`jaxtree.default_tolerance`
-      of the model's dtype); `dt0`: default ``1e-3 |t1 - t0|``.
+      of the model's dtype); `dt0`: default ``1e-3 |t1 - t0|``;
+    - `progress`: diffrax's progress meter, as in :func:`jaxtree.simulate`.
+
+    The integration is :func:`jaxtree.simulate`'s (:mod:`jaxtree._integrate`): the same
+    step-size control, save-time layout, failure kinds and failure report.
 
     Raises :class:`jaxtree.SimulationError` when the run fails and `throw` is set, naming the
     time, the physical state and the modal coordinates where it stopped: at once when called
@@ -1171,12 +1156,12 @@ def simulate_hybrid(
     dtype = jnp.result_type(hybrid.model.mass)
     rtol = default_tolerance(dtype) if rtol is None else rtol
     atol = default_tolerance(dtype) if atol is None else atol
-    _check_tolerances("simulate_hybrid", rtol, atol, max_steps)
+    check_tolerances("simulate_hybrid", rtol, atol, max_steps)
     if stepsize_controller is None:
-        _warn_below_roundoff(rtol, dtype, stacklevel=3)  # the caller of full_precision's wrapper
+        warn_below_roundoff(rtol, dtype, stacklevel=3)  # the caller of full_precision's wrapper
     y0 = hybrid.model.initial if y0 is None else y0
     if isinstance(y0, State):
-        _check_state("simulate_hybrid", hybrid.model, y0)
+        check_state("simulate_hybrid", hybrid.model, y0)
     y = hybrid.pack(y0) if isinstance(y0, State) else jnp.asarray(y0, dtype)
     residual = hybrid.projection_residual(y0) if isinstance(y0, State) else jnp.asarray(np.nan, dtype)
     if y.shape != (hybrid.size,):
@@ -1185,13 +1170,14 @@ def simulate_hybrid(
         ts = jnp.linspace(jnp.asarray(t0, dtype), jnp.asarray(t1, dtype), int(saveat))
     else:
         ts = jnp.asarray(saveat, dtype)
-    _check_times("simulate_hybrid", t0, t1, ts)
+    check_times("simulate_hybrid", t0, t1, ts)
     t0a, t1a = jnp.asarray(t0, dtype), jnp.asarray(t1, dtype)
     dt0 = 1e-3 * (t1a - t0a) if dt0 is None else jnp.asarray(dt0, dtype)
     solver = dfx.Dopri8() if solver is None else solver
-    traced = _is_traced((hybrid, y, t0a, t1a, ts, rtol, atol, dt0, solver, stepsize_controller))
+    traced = is_traced((hybrid, y, t0a, t1a, ts, rtol, atol, dt0, solver, stepsize_controller))
     sol = _solve_hybrid(hybrid, y, t0a, t1a, ts, jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), dt0,
-                        solver, stepsize_controller, int(max_steps), bool(throw and traced), residual)
+                        solver, stepsize_controller, int(max_steps), bool(throw and traced), residual,
+                        progress_meter(progress))
     if throw and not traced:
         message = _hybrid_failure_message(sol.failure, sol.t_final, sol.final, sol.final_modal)
         if message is not None:

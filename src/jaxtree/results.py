@@ -217,10 +217,10 @@ def simulation_dataset(model: Model, ts, gamma, gamma_dot, omega0, dcm, *, energ
 
 def solution_attrs(sol) -> dict:
     """Attributes of a :class:`jaxtree.Solution`: attitude, result, where it ended, steps, drift."""
-    from .simulate import _failure_kind
+    from ._integrate import failure_kind
 
     st = {k: int(np.asarray(x)) for k, x in sol.stats.items() if np.ndim(x) == 0}
-    kind = _failure_kind(sol)
+    kind = failure_kind(sol.failure)
     return {
         "attitude": sol.problem.attitude.name, "result": "ok" if kind is None else kind,
         "result_code": int(np.asarray(sol.failure)), "t_final": float(np.asarray(sol.t_final)),
@@ -452,7 +452,8 @@ def _to_solution(ds):
     import diffrax as dfx  # noqa: F401  (Solution's field types)
 
     from .attitude import get_attitude
-    from .simulate import _KINDS, Problem, Solution
+    from ._integrate import KINDS as _KINDS
+    from .simulate import Problem, Solution
 
     model = _model_of(ds)
     dtype = jnp.result_type(model.mass)

@@ -19,7 +19,6 @@ progress meters are diffrax objects, passed to :func:`diffrax.diffeqsolve` uncha
 from __future__ import annotations
 
 import math
-import warnings
 from typing import Any, Callable, NamedTuple
 
 import diffrax as dfx
@@ -30,8 +29,31 @@ import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
-from ._checks import SceneError, SceneTypeError, as_float, as_int, short
+from . import _hinges
+from ._checks import SceneError, SceneTypeError, as_float, short
 from ._checks import _model as check_model
+from ._integrate import (
+    DEFAULT_ATOL,
+    DEFAULT_MAX_STEPS,
+    DEFAULT_RTOL,
+    DEFAULT_SAVE_POINTS,
+    MESSAGES,
+    Failure,
+    SimulationError,
+    check_state,
+    check_times,
+    check_tolerances,
+    default_controller,
+    default_tolerance,
+    failure_kind,
+    failure_report,
+    integrate,
+    is_traced,
+    progress_meter,
+    report_failures,
+    result_code,
+    warn_below_roundoff,
+)
 from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
 from .control import AbstractController
 from .kinematics import full_precision
@@ -44,6 +66,7 @@ from .dynamics import (
     _unknown_rows,
     mass_center_acceleration,
     rotational_equations,
+    _solve_accelerations,
     solve_accelerations,
 )
 from .model import Model, State
@@ -61,100 +84,6 @@ __all__ = [
     "default_tolerance",
 ]
 
-# Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
-DEFAULT_RTOL = 1e-9
-DEFAULT_ATOL = 1e-9
-DEFAULT_SAVE_POINTS = 101
-DEFAULT_MAX_STEPS = 200_000
-# The default controller stops with `dt_min_reached` (a clear error) instead of shrinking the
-# step forever when the motion becomes singular (gimbal lock, non-finite accelerations).
-DTMIN_FRACTION = 1e-12
-# PI step-size control (diffrax's suggested starting point for high-order solvers): on fig4_free
-# it rejects ~5% of the steps instead of ~17% with pure integral control, for the same error.
-PCOEFF = 0.3
-ICOEFF = 0.3
-
-
-def default_tolerance(dtype) -> float:
-    """Default ``rtol`` and ``atol`` of :func:`simulate` for a model of floating `dtype`.
-
-    1e-9 in float64. In lower precisions the error estimate of a high-order solver meets
-    roundoff: Dopri8 in float32 on fig4_free over 10 s takes 217 steps at 1e-4, 762 at 1e-5,
-    and at 1e-9 it runs into max_steps (200k steps, 27 s). The default is therefore the power
-    of ten nearest to ``1000 * eps`` when that is larger: 1e-4 in float32.
-    """
-    eps = float(jnp.finfo(dtype).eps)
-    return max(DEFAULT_RTOL, 10.0 ** round(math.log10(1e3 * eps)))
-
-
-def _check_times(name, t0, t1, ts=None):
-    """Concrete start, end and save times, checked before tracing: numbers, finite, and the save
-    times ordered along the integration and within it (diffrax's own checks fire inside the
-    compiled solve, under a long traceback). Traced values are left to run time."""
-    values = [("t0", t0), ("t1", t1)] + ([] if ts is None else [("saveat", ts)])
-    concrete = {label: x for label, x in values if not _is_traced(x)}
-    for label, x in concrete.items():
-        a = as_float(x, f"{name}: {label}", finite=False)
-        if label != "saveat" and a.shape != ():
-            raise SceneError(f"{name}: {label} must be a scalar time, got shape {a.shape}")
-        if not np.all(np.isfinite(a)):
-            raise SceneError(f"{name}: {label} is not finite ({a.tolist()})")
-    if len(concrete) < len(values) or ts is None:
-        return
-    a, b = (float(np.asarray(x)) for x in (t0, t1))
-    ts = np.asarray(ts, float)
-    step = np.diff(ts) * (1.0 if b >= a else -1.0)
-    if np.any(step < 0):
-        i = int(np.flatnonzero(step < 0)[0])
-        raise SceneError(f"{name}: saveat times must run from t0 toward t1 ({'increasing' if b >= a else 'decreasing'}); "
-                         f"saveat[{i}] = {ts[i]:g} is followed by {ts[i + 1]:g}")
-    lo, hi = min(a, b), max(a, b)
-    outside = np.flatnonzero((ts < lo) | (ts > hi))
-    if outside.size:
-        i = int(outside[0])
-        raise SceneError(f"{name}: saveat[{i}] = {ts[i]:g} lies outside the integration from t0 = {a:g} to t1 = {b:g}")
-
-
-def _check_state(name, model: Model, state: State):
-    """A concrete initial :class:`~jaxtree.State`, checked before tracing: numeric fields of the
-    shapes for the model's n hinges (JAX would clamp out-of-range indices silently), and ``dcm``
-    a rotation matrix (orthonormal, determinant +1). Traced fields are left alone; non-finite
-    values are a failed run (``nonfinite_start``), not an input error."""
-    if not isinstance(state, State):
-        raise SceneTypeError(f"{name}: y0 must be a jaxtree.State, got {type(state).__name__}")
-    need = {"dcm": (3, 3), "omega0": (3,), "gamma": (model.n,), "gamma_dot": (model.n,)}
-    for field, shape in need.items():
-        x = getattr(state, field)
-        got = jnp.shape(x) if _is_traced(x) else as_float(x, f"{name}: y0.{field}", finite=False).shape
-        if got != shape:
-            raise SceneError(f"{name}: y0.{field} has shape {got}; the model '{model.name}' with {model.n} hinges "
-                             f"needs {shape}")
-    C = state.dcm
-    if _is_traced(C):
-        return
-    C = np.asarray(C, float)
-    if not np.all(np.isfinite(C)):
-        return  # reported as a non-finite start
-    dtype = jnp.result_type(model.mass)
-    tol = max(1e-6, 1e3 * float(jnp.finfo(dtype).eps))
-    err, det = float(np.abs(C @ C.T - np.eye(3)).max()), float(np.linalg.det(C))
-    if err > tol or det < 0:
-        raise SceneError(f"{name}: y0.dcm is not a rotation matrix (max |C C^T - I| = {err:.3g}, "
-                         f"det C = {det:.6g}); give the direction cosines of Def. 9, {{b0}} = C {{i}}")
-
-
-def _check_tolerances(name, rtol, atol, max_steps):
-    """Concrete tolerances non-negative and not both zero, and at least one step allowed."""
-    as_int(max_steps, f"{name}: max_steps", minimum=1)
-    values = {"rtol": rtol, "atol": atol}
-    if _is_traced(list(values.values())):
-        return
-    for label, x in values.items():
-        v = as_float(x, f"{name}: {label}", finite=False)
-        if not np.all(np.isfinite(v)) or np.any(v < 0):
-            raise SceneError(f"{name}: {label} must be finite and non-negative, got {v.tolist()}")
-    if np.all(np.asarray(rtol, float) == 0) and np.all(np.asarray(atol, float) == 0):
-        raise SceneError(f"{name}: rtol and atol are both zero: no step would ever be accepted")
 
 
 def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw):
@@ -163,7 +92,7 @@ def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controlle
     pointing from `t0` toward `t1`, `translation` a bool or ``(X0 (3,), X_dot0 (3,))``, and
     diffrax objects where diffrax objects go."""
     check_model("simulate", model)
-    if dt0 is not None and not _is_traced((dt0, t0, t1)):
+    if dt0 is not None and not is_traced((dt0, t0, t1)):
         h = float(as_float(dt0, "simulate: dt0", ()))
         direction = float(np.asarray(t1, float)) - float(np.asarray(t0, float))
         if h * direction < 0:
@@ -174,7 +103,7 @@ def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controlle
             raise SceneError(f"simulate: translation must be True, False or (X0, X_dot0), got a tuple of "
                              f"{len(translation)}")
         for label, x in zip(("X0", "X_dot0"), translation):
-            if not _is_traced(x):
+            if not is_traced(x):
                 as_float(x, f"simulate: translation {label}", (3,))
             elif jnp.shape(x) != (3,):
                 raise SceneError(f"simulate: translation {label} must have shape (3,), got {jnp.shape(x)}")
@@ -187,31 +116,6 @@ def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controlle
             raise SceneTypeError(f"simulate: {label} must be a diffrax.{kind.__name__}, got {short(value)}")
     if not isinstance(throw, (bool, np.bool_)):
         raise SceneTypeError(f"simulate: throw must be True or False, got {short(throw)}")
-
-
-def _warn_below_roundoff(rtol, dtype, stacklevel):
-    """Warn when a concrete `rtol` is too small for `dtype`: below ~50 unit roundoffs the steps
-    pile up (fig4_free in float32 over 10 s: 762 steps at 1e-5, 2759 at 3e-6, 7834 at 1e-6 with
-    a larger error than at 1e-5, max_steps at 3e-7)."""
-    if isinstance(rtol, jax.core.Tracer):
-        return
-    try:
-        value = float(np.min(np.asarray(rtol)))
-    except (TypeError, ValueError):
-        return
-    eps = float(jnp.finfo(dtype).eps)
-    if value < 50 * eps:
-        warnings.warn(
-            f"rtol={value:g} is below 50 x the unit roundoff of {jnp.dtype(dtype).name} ({eps:.2g}): the "
-            f"solver's error estimate is dominated by roundoff and the steps pile up (toward max_steps). "
-            f"Use rtol >= {default_tolerance(dtype):g} (the default for {jnp.dtype(dtype).name}), or float64.",
-            stacklevel=stacklevel + 1,
-        )
-
-
-class SimulationError(RuntimeError):
-    """A simulation stopped early: step-size collapse, max_steps, a singular Eq. (1) matrix,
-    a non-finite state or an attitude singularity. The message gives the time and the state."""
 
 
 # ----------------------------------------------------------------------------- the ODE
@@ -236,8 +140,7 @@ class Problem(eqx.Module):
     def free_hinges(self) -> tuple[int, ...]:
         """Hinges (1..n) in the state: all but the prescribed ones. They are the unknowns of
         Eq. (1) plus any inert hinges (only massless bodies outboard), whose acceleration is zero."""
-        p = set(self.model.prescribed)
-        return tuple(k for k in range(1, self.model.n + 1) if k not in p)
+        return _hinges.free_hinges(self.model)
 
     @property
     def n_unknown(self) -> int:
@@ -272,24 +175,16 @@ class Problem(eqx.Module):
         """The controller's internal states (a pytree) in a flat state, or None."""
         return self._unravel_control(self.unpack(y)[4])
 
-    def _full(self, t, gamma_u, gamma_dot_u):
-        """All n hinge angles and rates at time t (prescribed ones from the prescription)."""
-        model = self.model
-        if model.prescription is None:
-            return gamma_u, gamma_dot_u
-        u = np.asarray(self.free_hinges, dtype=np.int64) - 1
-        p = np.asarray(model.prescribed, dtype=np.int64) - 1
-        inverse = np.argsort(np.concatenate([u, p]))
-        g, gd, _ = model.prescription.derivatives(jnp.asarray(t, gamma_u.dtype))
-        gamma = jnp.concatenate([gamma_u, g.astype(gamma_u.dtype)])[inverse]
-        gamma_dot = jnp.concatenate([gamma_dot_u, gd.astype(gamma_u.dtype)])[inverse]
-        return gamma, gamma_dot
+    def _complete(self, t, y):
+        """The :class:`~jaxtree.State` (all n hinges, C from the attitude variables) of a flat
+        state and the prescribed accelerations (one evaluation of the prescription)."""
+        att, w, g, gd, _, _, _ = self.unpack(y)
+        gamma, gamma_dot, gdd_p = _hinges.from_free(self.model, t, g, gd)
+        return State(self.attitude.to_dcm(att), w, gamma, gamma_dot), gdd_p
 
     def state(self, t, y) -> State:
         """The :class:`~jaxtree.State` (all n hinges, C from the attitude variables) of a flat state."""
-        att, w, g, gd, _, _, _ = self.unpack(y)
-        gamma, gamma_dot = self._full(t, g, gd)
-        return State(self.attitude.to_dcm(att), w, gamma, gamma_dot)
+        return self._complete(t, y)[0]
 
     def torque(self, t, state, z):
         """User hinge torques (n,) (None when there is no law or controller)."""
@@ -304,12 +199,12 @@ class Problem(eqx.Module):
 
     def accelerations(self, t, y):
         """``(state, z, tau, Accelerations)`` at (t, y)."""
-        state = self.state(t, y)
+        state, gdd_p = self._complete(t, y)
         z = self.control_state(y)
         tau = self.torque(t, state, z)
         if tau is not None:
             tau = jnp.asarray(tau, state.gamma.dtype)
-        return state, z, tau, solve_accelerations(self.model, state, t, tau)
+        return state, z, tau, _solve_accelerations(self.model, state, t, tau, completed=gdd_p)
 
     def vector_field(self, t, y, args=None):
         """Right side of the first-order equations (Eqs. 25-27; Eq. 2 when enabled)."""
@@ -486,7 +381,7 @@ class Solution(eqx.Module):
     @property
     def ok(self) -> bool:
         """True when the run reached t1 or stopped at a user event (concrete values only)."""
-        return _failure_kind(self) is None
+        return failure_kind(self.failure) is None
 
     def evaluate(self, t) -> State:
         """State at time t from the dense output (needs ``saveat=diffrax.SaveAt(..., dense=True)``)."""
@@ -582,11 +477,6 @@ def _rhs_evaluations(solver, stats, dt0_given: bool):
     return stats["num_steps"] * per_step + start
 
 
-def _last_finite(ts):
-    idx = jnp.arange(ts.shape[0])
-    return jnp.maximum(jnp.max(jnp.where(jnp.isfinite(ts), idx, -1)), 0)
-
-
 # (the round-off threshold of a Cholesky pivot: see jaxtree.dynamics.SINGULAR_PIVOT)
 from .dynamics import SINGULAR_PIVOT  # noqa: E402
 
@@ -643,44 +533,19 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     start_ok = finite_start & ~singular_start
     n, z3 = problem.model.n, jnp.zeros(3, dtype)
     rest = problem.pack(State(jnp.eye(3, dtype=dtype), z3, jnp.zeros(n, dtype), jnp.zeros(n, dtype)))
-    y_start = y
-    y = jnp.where(start_ok, y, rest)
     if controller is None:
-        controller = dfx.PIDController(
-            rtol=rtol, atol=atol, pcoeff=PCOEFF, icoeff=ICOEFF, dtmin=DTMIN_FRACTION * jnp.abs(t1 - t0),
-            force_dtmin=False,
-        )
+        controller = default_controller(rtol, atol, t0, t1)
         if dt0 is None:
             # a choice of the discretization, not a function to differentiate (BacksolveAdjoint
             # refuses a first step that carries a tangent)
-            dt0 = jax.lax.stop_gradient(_initial_step(problem, y, t0, t1))
-    # BacksolveAdjoint takes one SaveAt(ts=...) only: the final state is then saved as one more time
-    single = isinstance(adjoint, dfx.BacksolveAdjoint) and not opts.user_saveat
+            dt0 = jax.lax.stop_gradient(_initial_step(problem, jnp.where(start_ok, y, rest), t0, t1))
+    ts = None
     if not opts.user_saveat:
         ts = jnp.linspace(t0, t1, opts.grid, dtype=dtype) if opts.grid is not None else saveat
-        if single:
-            saveat = dfx.SaveAt(ts=jnp.concatenate([ts, jnp.reshape(t1, (1,)).astype(ts.dtype)]))
-        else:
-            saveat = dfx.SaveAt(subs=(dfx.SubSaveAt(ts=ts), dfx.SubSaveAt(t1=True)))
-    sol = dfx.diffeqsolve(
-        dfx.ODETerm(_vector_field), solver, t0, t1, dt0, y, args=problem, saveat=saveat,
-        stepsize_controller=controller, adjoint=adjoint, event=event, max_steps=opts.max_steps,
-        throw=False, progress_meter=progress_meter,
-    )
-    if isinstance(saveat.subs, (tuple, list)):
-        ts_h, ys_h = sol.ts[0], sol.ys[0]
-        ts_f, ys_f = sol.ts[-1], sol.ys[-1]
-    elif single:
-        ts_h, ys_h = sol.ts[:-1], sol.ys[:-1]
-        ts_f, ys_f = sol.ts, sol.ys
-    else:
-        ts_h, ys_h = sol.ts, sol.ys
-        ts_f, ys_f = sol.ts, sol.ys
-    i = _last_finite(ts_f)
-    t_final, y_final = ts_f[i], ys_f[i]
-    t_final = jnp.where(start_ok, t_final, t0)
-    y_final = jnp.where(start_ok, y_final, y_start)
-    ys_h = jnp.where(start_ok, ys_h, jnp.nan)
+    ts_h, ys_h, t_final, y_final, sol = integrate(
+        _vector_field, solver, t0, t1, dt0, y, problem, ts=ts, saveat=saveat if opts.user_saveat else None,
+        controller=controller, adjoint=adjoint, event=event, max_steps=opts.max_steps,
+        progress_meter=progress_meter, start_ok=start_ok, rest=rest)
     hist = _history(problem, ts_h, ys_h)
     final_state = problem.state(t_final, y_final)
     _, _, _, _, _, Xf, Xdf = problem.unpack(y_final)
@@ -696,9 +561,8 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     stats["rhs_evaluations"] = _rhs_evaluations(solver, sol.stats, dt0 is not None)
     R = dfx.RESULTS
     ok = (sol.result == R.successful) | ((sol.result == R.event_occurred) & ~singular)
-    failure = jnp.where(start_ok, jnp.where(ok, 0, _result_code(sol.result, singular)),
-                        jnp.where(singular_start, _KINDS.index("singular_start") + 1,
-                                  _KINDS.index("nonfinite_start") + 1))
+    failure = jnp.where(start_ok, jnp.where(ok, 0, result_code(sol.result, singular)),
+                        jnp.where(singular_start, int(Failure.SINGULAR_START), int(Failure.NONFINITE_START)))
     out = Solution(
         ts=ts_h, gamma=hist["gamma"], gamma_dot=hist["gamma_dot"], omega0=hist["omega0"], dcm=hist["dcm"],
         attitude=hist["attitude"], control_state=hist["control_state"], X=hist["X"], X_dot=hist["X_dot"],
@@ -718,81 +582,21 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
         def diagnose(code, t, state, margin, model):  # only when a run failed: an eigendecomposition
             return _condition(model, state, t)
 
-        _report(host, failure != 0,
-                jax.lax.stop_gradient((failure, t_final, final_state, out.margin, problem.model)), diagnose)
+        report_failures(host, failure != 0,
+                        jax.lax.stop_gradient((failure, t_final, final_state, out.margin, problem.model)), diagnose)
     return out
 
 
-def _report(host, failed, args, extra=None):
-    """Call ``host(*args, *extra(args))`` on the host at run time when a run `failed`: one call
-    for a whole ``jax.vmap`` batch, none when every run succeeded.
-
-    ``jax.debug.callback`` alone is unrolled by vmap into one callback per batch member (a
-    campaign of 4096 runs: 4096 host calls, and compile and run times that grow with the
-    batch); this custom batching rule hands the batch to a single callback instead (`host`
-    takes arrays with leading batch axes, as a batch of solutions has). The call, and `extra`
-    (diagnostics that cost a decomposition, computed per run), sit behind a ``lax.cond`` on
-    "some run failed", so a successful run pays neither (simulate's fixed cost per call). `args`
-    carry no gradient (`stop_gradient`): reporting does not enter derivatives."""
-
-    def call(failed, args):
-        more = ()
-        if extra is not None:
-            fn = extra
-            for _ in range(jnp.ndim(failed)):  # one vmap per batch axis
-                fn = jax.vmap(fn)
-            more = tuple(fn(*args))
-        jax.debug.callback(host, *args, *more)
-
-    @jax.custom_batching.custom_vmap
-    def report(failed, args):
-        jax.lax.cond(jnp.any(failed), call, lambda f, a: None, failed, args)
-        return jnp.zeros((), jnp.int32)
-
-    @report.def_vmap
-    def _batched(axis_size, in_batched, failed, args):
-        bf, ba = in_batched
-        failed = failed if bf else jnp.broadcast_to(failed, (axis_size,) + jnp.shape(failed))
-        args = jax.tree_util.tree_map(
-            lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x)), args, ba)
-        report(failed, args)
-        return jnp.zeros((axis_size,), jnp.int32), True
-
-    report(failed, args)
-
-
 # ----------------------------------------------------------------------------- failures
-_KINDS = ("max_steps", "dt_min", "singular_attitude", "other", "nonfinite_start", "singular_start")
-
-
-def _failure_kind(sol: Solution):
-    code = np.asarray(sol.failure).reshape(-1)
-    bad = np.flatnonzero(code)
-    return None if bad.size == 0 else _KINDS[int(code[bad[0]]) - 1]
-
-
 def _margin(problem, y):
     m = problem.attitude.margin(problem.unpack(y)[0])
     return jnp.asarray(jnp.nan, y.dtype) if m is None else m
 
 
-_MESSAGES = {
-    "max_steps": "the maximum number of solver steps was reached (increase max_steps, or the motion "
-                 "became singular)",
-    "dt_min": "the step size collapsed (the accelerations became singular or non-finite)",
-    "singular_attitude": "the attitude angles approach their singularity (|cos theta_2| fell below the "
-                         "tolerance of Eq. 24); use attitude='quaternion' or 'dcm'",
-    "other": "the solver failed",
-    "nonfinite_start": "the initial state is not finite",
-    "singular_start": "the Eq. (1) matrix is singular at the initial state to working precision (a pivot of its "
-                      "Cholesky factorization is at round-off level): the accelerations are undetermined",
-}
-
-
 def _format_failure(kind, t, state: State, condition, margin, attitude_name, result_message="", direction=None,
                     labels=None):
     np.set_printoptions(precision=6, suppress=False, linewidth=120)
-    lines = [f"jaxtree.simulate: {_MESSAGES[kind]}."]
+    lines = [f"jaxtree.simulate: {MESSAGES[kind]}."]
     if result_message:
         lines.append(f"  diffrax: {result_message}")
     lines.append(f"  stopped at t = {float(t):.9g}")
@@ -815,46 +619,15 @@ def _format_failure(kind, t, state: State, condition, margin, attitude_name, res
     return "\n".join(lines)
 
 
-def _failure_report(code, describe):
-    """The message for the failed members of a (batch of) run(s), or None if none failed.
-
-    `code` holds ``_KINDS`` indices + 1 (0: success), with the batch's leading axes; for the
-    first three failed members ``describe(kind, pick)`` gives the lines of one report, where
-    ``pick(x)`` takes that member's entry of an array with the same leading axes."""
-    code = np.asarray(code)
-    flat = code.reshape(-1)
-    bad = np.flatnonzero(flat)
-    if bad.size == 0:
-        return None
-    msgs = []
-    for b in bad[:3]:
-        idx = np.unravel_index(b, code.shape) if code.ndim else ()
-        pick = lambda x, idx=idx: np.asarray(x)[idx]  # noqa: E731
-        prefix = f"[batch index {tuple(int(i) for i in idx)}] " if code.ndim else ""
-        msgs.append(prefix + describe(_KINDS[int(flat[b]) - 1], pick))
-    if bad.size > 3:
-        msgs.append(f"... and {bad.size - 3} more failed batch members")
-    return "\n".join(msgs)
-
-
 def _raise_from_callback(code, t, state, condition, margin, attitude_name, direction=None, labels=None):
     def describe(kind, pick):
         return _format_failure(kind, pick(t), State(*(pick(x) for x in state)), pick(condition), pick(margin),
                                str(attitude_name), direction=None if direction is None else pick(direction),
                                labels=labels)
 
-    message = _failure_report(code, describe)
+    message = failure_report(code, describe)
     if message is not None:
         raise SimulationError(message)
-
-
-def _result_code(result, singular=False):
-    """``_KINDS`` index + 1 of a failed diffrax result (whatever it is; success is masked by the
-    caller): step limit, step-size collapse, a singular Eq. (1) matrix (`singular`), or other."""
-    R, code = dfx.RESULTS, lambda kind: _KINDS.index(kind) + 1
-    return jnp.where(result == R.max_steps_reached, code("max_steps"),
-                     jnp.where(result == R.dt_min_reached, code("dt_min"),
-                               jnp.where(singular, code("singular_attitude"), code("other"))))
 
 
 def check_solution(sol: Solution) -> None:
@@ -876,23 +649,6 @@ def check_solution(sol: Solution) -> None:
 
 
 # ----------------------------------------------------------------------------- simulate
-def _is_traced(tree) -> bool:
-    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
-
-
-def _progress_meter(progress):
-    if progress is False or progress is None:
-        return dfx.NoProgressMeter()
-    if progress is True:
-        try:
-            import tqdm  # noqa: F401
-
-            return dfx.TqdmProgressMeter()
-        except ImportError:
-            return dfx.TextProgressMeter()
-    if isinstance(progress, dfx.AbstractProgressMeter):
-        return progress
-    raise SceneTypeError(f"simulate: progress must be a bool or a diffrax progress meter, got {short(progress)}")
 
 
 @full_precision
@@ -987,11 +743,11 @@ def simulate(
         rtol = default_tolerance(dtype)
     if atol is None:
         atol = default_tolerance(dtype)
-    _check_tolerances("simulate", rtol, atol, max_steps)
+    check_tolerances("simulate", rtol, atol, max_steps)
     if stepsize_controller is None:
-        _warn_below_roundoff(rtol, dtype, stacklevel=3)  # the caller of full_precision's wrapper
+        warn_below_roundoff(rtol, dtype, stacklevel=3)  # the caller of full_precision's wrapper
     y0 = model.initial if y0 is None else y0
-    _check_state("simulate", model, y0)
+    check_state("simulate", model, y0)
     grid, user_saveat = None, False
     if isinstance(saveat, dfx.SaveAt):
         if saveat.subs is None:
@@ -1003,13 +759,13 @@ def simulate(
             raise SceneError(f"simulate: saveat: need at least 2 save points, got {grid}")
         saveat = None
     else:
-        shape = jnp.shape(saveat) if _is_traced(saveat) else as_float(saveat, "simulate: saveat", finite=False).shape
+        shape = jnp.shape(saveat) if is_traced(saveat) else as_float(saveat, "simulate: saveat", finite=False).shape
         if len(shape) != 1:
             raise SceneError(f"simulate: saveat: expected a number of save points or a 1-D array of times, "
                              f"got shape {shape}")
-    _check_times("simulate", t0, t1, None if grid is not None or user_saveat else saveat)
+    check_times("simulate", t0, t1, None if grid is not None or user_saveat else saveat)
     ev, has_guard, user_event = _combine_events(event, att)
-    meter = _progress_meter(progress)
+    meter = progress_meter(progress)
     # every argument is checked: from here on JAX may trace
     if not (grid is not None or user_saveat):
         saveat = jnp.asarray(saveat, dtype)
@@ -1025,7 +781,7 @@ def simulate(
         solver = dfx.Dopri8()
     if adjoint is None:
         adjoint = dfx.RecursiveCheckpointAdjoint()
-    traced = _is_traced((model, y0, t0, t1, params, controller, law, saveat, ev, translation, X0, Xd0, rtol, atol,
+    traced = is_traced((model, y0, t0, t1, params, controller, law, saveat, ev, translation, X0, Xd0, rtol, atol,
                          dt0, solver, stepsize_controller, adjoint))
     if not traced and throw:
         start = [np.asarray(x, float) for x in (*y0, *(() if X0 is None else (X0, Xd0)))]

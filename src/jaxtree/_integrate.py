@@ -1,0 +1,337 @@
+"""The integration core shared by :func:`jaxtree.simulate` (Eq. 1), :func:`jaxtree.simulate_hybrid`
+(Eqs. 105-123) and the campaign runner: defaults of solver and step-size control, the checks of
+times, tolerances and the initial state before tracing, the layout of save times (a history
+plus the final state), a start that cannot be integrated, failure kinds as a named enumeration,
+and the failure report (a host callback, one per batch). Each formulation supplies its vector
+field, its state packing and the text of its report; the integration itself is diffrax's.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import warnings
+from typing import Any, Callable, NamedTuple
+
+import diffrax as dfx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._checks import SceneError, SceneTypeError, as_float, as_int, is_traced, short
+from .model import Model, State
+
+# Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
+DEFAULT_RTOL = 1e-9
+DEFAULT_ATOL = 1e-9
+DEFAULT_SAVE_POINTS = 101
+DEFAULT_MAX_STEPS = 200_000
+# The default controller stops with `dt_min_reached` (a clear error) instead of shrinking the
+# step forever when the motion becomes singular (gimbal lock, non-finite accelerations).
+DTMIN_FRACTION = 1e-12
+# PI step-size control (diffrax's suggested starting point for high-order solvers): on fig4_free
+# it rejects ~5% of the steps instead of ~17% with pure integral control, for the same error.
+PCOEFF = 0.3
+ICOEFF = 0.3
+
+
+class Failure(enum.IntEnum):
+    """How a run ended: ``Solution.failure`` / ``HybridSolution.failure`` hold these codes (0 is
+    success). The names, lower-cased, are the kinds result files and campaigns record."""
+
+    NONE = 0
+    MAX_STEPS = 1  # the solver's step limit
+    DT_MIN = 2  # the step size collapsed below DTMIN_FRACTION of the span
+    SINGULAR_ATTITUDE = 3  # the Euler angles' singularity guard (Eq. 24) fired
+    OTHER = 4  # any other solver failure
+    NONFINITE_START = 5  # the initial state is not finite: not integrated
+    SINGULAR_START = 6  # Eq. (1) singular to working precision at the start: not integrated
+
+    @property
+    def kind(self) -> str:
+        return self.name.lower()
+
+
+# the failure kinds by code - 1 (the codes' names as result files and campaigns spell them)
+KINDS = tuple(f.kind for f in Failure if f is not Failure.NONE)
+
+MESSAGES = {
+    "max_steps": "the maximum number of solver steps was reached (increase max_steps, or the motion "
+                 "became singular)",
+    "dt_min": "the step size collapsed (the accelerations became singular or non-finite)",
+    "singular_attitude": "the attitude angles approach their singularity (|cos theta_2| fell below the "
+                         "tolerance of Eq. 24); use attitude='quaternion' or 'dcm'",
+    "other": "the solver failed",
+    "nonfinite_start": "the initial state is not finite",
+    "singular_start": "the Eq. (1) matrix is singular at the initial state to working precision (a pivot of its "
+                      "Cholesky factorization is at round-off level): the accelerations are undetermined",
+}
+
+
+def failure_kind(code) -> str | None:
+    """The kind of the first failed member of a code (array), or None when all succeeded."""
+    code = np.asarray(code).reshape(-1)
+    bad = np.flatnonzero(code)
+    return None if bad.size == 0 else KINDS[int(code[bad[0]]) - 1]
+
+
+def default_controller(rtol, atol, t0, t1) -> dfx.PIDController:
+    """The step-size control of both formulations: PI with PCOEFF / ICOEFF and a minimum step of
+    DTMIN_FRACTION of the span (without forcing it: a collapse is a `dt_min` failure)."""
+    return dfx.PIDController(rtol=rtol, atol=atol, pcoeff=PCOEFF, icoeff=ICOEFF,
+                             dtmin=DTMIN_FRACTION * jnp.abs(t1 - t0), force_dtmin=False)
+
+
+class Run(NamedTuple):
+    """One integration: the history at the save times, the last state reached and diffrax's
+    solution (stats, result, event mask)."""
+
+    ts: jax.Array
+    ys: jax.Array
+    t_final: jax.Array
+    y_final: jax.Array
+    sol: Any
+
+
+def integrate(vector_field: Callable, solver, t0, t1, dt0, y0, args, *, ts=None, saveat: dfx.SaveAt | None = None,
+              controller, adjoint=None, event=None, max_steps: int, progress_meter=None, start_ok=None,
+              rest=None) -> Run:
+    """Integrate ``dy/dt = vector_field(t, y, args)`` from `t0` to `t1` with diffrax.
+
+    Save times: `ts` (the history) and the final state, as two sub-saves; with
+    :class:`diffrax.BacksolveAdjoint`, which takes one ``SaveAt(ts=...)``, `t1` is appended to
+    `ts` instead. A user's `saveat` is used as is (its last row is the final state). The final
+    state is the last finite save (a failed run stops early and pads with inf).
+
+    A start that cannot be integrated (``start_ok`` False: not finite, or singular) is replaced
+    by `rest`, so that the solver runs its normal course instead of rejecting NaN steps until
+    `max_steps` (a vmapped batch would wait for its worst member); its history is NaN and its
+    final state the given start at `t0`.
+    """
+    y_start = y0
+    if start_ok is not None:
+        y0 = jnp.where(start_ok, y0, rest)
+    single = saveat is None and isinstance(adjoint, dfx.BacksolveAdjoint)
+    if saveat is None:
+        if single:
+            saveat = dfx.SaveAt(ts=jnp.concatenate([ts, jnp.reshape(t1, (1,)).astype(ts.dtype)]))
+        else:
+            saveat = dfx.SaveAt(subs=(dfx.SubSaveAt(ts=ts), dfx.SubSaveAt(t1=True)))
+    sol = dfx.diffeqsolve(
+        dfx.ODETerm(vector_field), solver, t0, t1, dt0, y0, args=args, saveat=saveat,
+        stepsize_controller=controller, adjoint=dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
+        event=event, max_steps=max_steps, throw=False,
+        progress_meter=dfx.NoProgressMeter() if progress_meter is None else progress_meter,
+    )
+    if isinstance(saveat.subs, (tuple, list)):
+        ts_h, ys_h = sol.ts[0], sol.ys[0]
+        ts_f, ys_f = sol.ts[-1], sol.ys[-1]
+    elif single:
+        ts_h, ys_h = sol.ts[:-1], sol.ys[:-1]
+        ts_f, ys_f = sol.ts, sol.ys
+    else:
+        ts_h, ys_h = sol.ts, sol.ys
+        ts_f, ys_f = sol.ts, sol.ys
+    i = last_finite(ts_f)
+    t_final, y_final = ts_f[i], ys_f[i]
+    if start_ok is not None:
+        t_final = jnp.where(start_ok, t_final, t0)
+        y_final = jnp.where(start_ok, y_final, y_start)
+        ys_h = jnp.where(start_ok, ys_h, jnp.nan)
+    return Run(ts_h, ys_h, t_final, y_final, sol)
+
+
+def default_tolerance(dtype) -> float:
+    """Default ``rtol`` and ``atol`` of :func:`simulate` for a model of floating `dtype`.
+
+    1e-9 in float64. In lower precisions the error estimate of a high-order solver meets
+    roundoff: Dopri8 in float32 on fig4_free over 10 s takes 217 steps at 1e-4, 762 at 1e-5,
+    and at 1e-9 it runs into max_steps (200k steps, 27 s). The default is therefore the power
+    of ten nearest to ``1000 * eps`` when that is larger: 1e-4 in float32.
+    """
+    eps = float(jnp.finfo(dtype).eps)
+    return max(DEFAULT_RTOL, 10.0 ** round(math.log10(1e3 * eps)))
+
+
+def check_times(name, t0, t1, ts=None):
+    """Concrete start, end and save times, checked before tracing: numbers, finite, and the save
+    times ordered along the integration and within it (diffrax's own checks fire inside the
+    compiled solve, under a long traceback). Traced values are left to run time."""
+    values = [("t0", t0), ("t1", t1)] + ([] if ts is None else [("saveat", ts)])
+    concrete = {label: x for label, x in values if not is_traced(x)}
+    for label, x in concrete.items():
+        a = as_float(x, f"{name}: {label}", finite=False)
+        if label != "saveat" and a.shape != ():
+            raise SceneError(f"{name}: {label} must be a scalar time, got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise SceneError(f"{name}: {label} is not finite ({a.tolist()})")
+    if len(concrete) < len(values) or ts is None:
+        return
+    a, b = (float(np.asarray(x)) for x in (t0, t1))
+    ts = np.asarray(ts, float)
+    step = np.diff(ts) * (1.0 if b >= a else -1.0)
+    if np.any(step < 0):
+        i = int(np.flatnonzero(step < 0)[0])
+        raise SceneError(f"{name}: saveat times must run from t0 toward t1 ({'increasing' if b >= a else 'decreasing'}); "
+                         f"saveat[{i}] = {ts[i]:g} is followed by {ts[i + 1]:g}")
+    lo, hi = min(a, b), max(a, b)
+    outside = np.flatnonzero((ts < lo) | (ts > hi))
+    if outside.size:
+        i = int(outside[0])
+        raise SceneError(f"{name}: saveat[{i}] = {ts[i]:g} lies outside the integration from t0 = {a:g} to t1 = {b:g}")
+
+
+def check_state(name, model: Model, state: State):
+    """A concrete initial :class:`~jaxtree.State`, checked before tracing: numeric fields of the
+    shapes for the model's n hinges (JAX would clamp out-of-range indices silently), and ``dcm``
+    a rotation matrix (orthonormal, determinant +1). Traced fields are left alone; non-finite
+    values are a failed run (``nonfinite_start``), not an input error."""
+    if not isinstance(state, State):
+        raise SceneTypeError(f"{name}: y0 must be a jaxtree.State, got {type(state).__name__}")
+    need = {"dcm": (3, 3), "omega0": (3,), "gamma": (model.n,), "gamma_dot": (model.n,)}
+    for field, shape in need.items():
+        x = getattr(state, field)
+        got = jnp.shape(x) if is_traced(x) else as_float(x, f"{name}: y0.{field}", finite=False).shape
+        if got != shape:
+            raise SceneError(f"{name}: y0.{field} has shape {got}; the model '{model.name}' with {model.n} hinges "
+                             f"needs {shape}")
+    C = state.dcm
+    if is_traced(C):
+        return
+    C = np.asarray(C, float)
+    if not np.all(np.isfinite(C)):
+        return  # reported as a non-finite start
+    dtype = jnp.result_type(model.mass)
+    tol = max(1e-6, 1e3 * float(jnp.finfo(dtype).eps))
+    err, det = float(np.abs(C @ C.T - np.eye(3)).max()), float(np.linalg.det(C))
+    if err > tol or det < 0:
+        raise SceneError(f"{name}: y0.dcm is not a rotation matrix (max |C C^T - I| = {err:.3g}, "
+                         f"det C = {det:.6g}); give the direction cosines of Def. 9, {{b0}} = C {{i}}")
+
+
+def check_tolerances(name, rtol, atol, max_steps):
+    """Concrete tolerances non-negative and not both zero, and at least one step allowed."""
+    as_int(max_steps, f"{name}: max_steps", minimum=1)
+    values = {"rtol": rtol, "atol": atol}
+    if is_traced(list(values.values())):
+        return
+    for label, x in values.items():
+        v = as_float(x, f"{name}: {label}", finite=False)
+        if not np.all(np.isfinite(v)) or np.any(v < 0):
+            raise SceneError(f"{name}: {label} must be finite and non-negative, got {v.tolist()}")
+    if np.all(np.asarray(rtol, float) == 0) and np.all(np.asarray(atol, float) == 0):
+        raise SceneError(f"{name}: rtol and atol are both zero: no step would ever be accepted")
+
+
+def warn_below_roundoff(rtol, dtype, stacklevel):
+    """Warn when a concrete `rtol` is too small for `dtype`: below ~50 unit roundoffs the steps
+    pile up (fig4_free in float32 over 10 s: 762 steps at 1e-5, 2759 at 3e-6, 7834 at 1e-6 with
+    a larger error than at 1e-5, max_steps at 3e-7)."""
+    if is_traced(rtol):
+        return
+    try:
+        value = float(np.min(np.asarray(rtol)))
+    except (TypeError, ValueError):
+        return
+    eps = float(jnp.finfo(dtype).eps)
+    if value < 50 * eps:
+        warnings.warn(
+            f"rtol={value:g} is below 50 x the unit roundoff of {jnp.dtype(dtype).name} ({eps:.2g}): the "
+            f"solver's error estimate is dominated by roundoff and the steps pile up (toward max_steps). "
+            f"Use rtol >= {default_tolerance(dtype):g} (the default for {jnp.dtype(dtype).name}), or float64.",
+            stacklevel=stacklevel + 1,
+        )
+
+
+class SimulationError(RuntimeError):
+    """A simulation stopped early: step-size collapse, max_steps, a singular Eq. (1) matrix,
+    a non-finite state or an attitude singularity. The message gives the time and the state."""
+
+
+def last_finite(ts):
+    idx = jnp.arange(ts.shape[0])
+    return jnp.maximum(jnp.max(jnp.where(jnp.isfinite(ts), idx, -1)), 0)
+
+
+def report_failures(host, failed, args, extra=None):
+    """Call ``host(*args, *extra(args))`` on the host at run time when a run `failed`: one call
+    for a whole ``jax.vmap`` batch, none when every run succeeded.
+
+    ``jax.debug.callback`` alone is unrolled by vmap into one callback per batch member (a
+    campaign of 4096 runs: 4096 host calls, and compile and run times that grow with the
+    batch); this custom batching rule hands the batch to a single callback instead (`host`
+    takes arrays with leading batch axes, as a batch of solutions has). The call, and `extra`
+    (diagnostics that cost a decomposition, computed per run), sit behind a ``lax.cond`` on
+    "some run failed", so a successful run pays neither (simulate's fixed cost per call). `args`
+    carry no gradient (`stop_gradient`): reporting does not enter derivatives."""
+
+    def call(failed, args):
+        more = ()
+        if extra is not None:
+            fn = extra
+            for _ in range(jnp.ndim(failed)):  # one vmap per batch axis
+                fn = jax.vmap(fn)
+            more = tuple(fn(*args))
+        jax.debug.callback(host, *args, *more)
+
+    @jax.custom_batching.custom_vmap
+    def report(failed, args):
+        jax.lax.cond(jnp.any(failed), call, lambda f, a: None, failed, args)
+        return jnp.zeros((), jnp.int32)
+
+    @report.def_vmap
+    def _batched(axis_size, in_batched, failed, args):
+        bf, ba = in_batched
+        failed = failed if bf else jnp.broadcast_to(failed, (axis_size,) + jnp.shape(failed))
+        args = jax.tree_util.tree_map(
+            lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x)), args, ba)
+        report(failed, args)
+        return jnp.zeros((axis_size,), jnp.int32), True
+
+    report(failed, args)
+
+
+def failure_report(code, describe):
+    """The message for the failed members of a (batch of) run(s), or None if none failed.
+
+    `code` holds ``KINDS`` indices + 1 (0: success), with the batch's leading axes; for the
+    first three failed members ``describe(kind, pick)`` gives the lines of one report, where
+    ``pick(x)`` takes that member's entry of an array with the same leading axes."""
+    code = np.asarray(code)
+    flat = code.reshape(-1)
+    bad = np.flatnonzero(flat)
+    if bad.size == 0:
+        return None
+    msgs = []
+    for b in bad[:3]:
+        idx = np.unravel_index(b, code.shape) if code.ndim else ()
+        pick = lambda x, idx=idx: np.asarray(x)[idx]  # noqa: E731
+        prefix = f"[batch index {tuple(int(i) for i in idx)}] " if code.ndim else ""
+        msgs.append(prefix + describe(KINDS[int(flat[b]) - 1], pick))
+    if bad.size > 3:
+        msgs.append(f"... and {bad.size - 3} more failed batch members")
+    return "\n".join(msgs)
+
+
+def result_code(result, singular=False):
+    """The :class:`Failure` code of a failed diffrax result (whatever it is; success is masked
+    by the caller): step limit, step-size collapse, a singular attitude (`singular`), or other."""
+    R = dfx.RESULTS
+    return jnp.where(result == R.max_steps_reached, int(Failure.MAX_STEPS),
+                     jnp.where(result == R.dt_min_reached, int(Failure.DT_MIN),
+                               jnp.where(singular, int(Failure.SINGULAR_ATTITUDE), int(Failure.OTHER))))
+
+
+def progress_meter(progress):
+    if progress is False or progress is None:
+        return dfx.NoProgressMeter()
+    if progress is True:
+        try:
+            import tqdm  # noqa: F401
+
+            return dfx.TqdmProgressMeter()
+        except ImportError:
+            return dfx.TextProgressMeter()
+    if isinstance(progress, dfx.AbstractProgressMeter):
+        return progress
+    raise SceneTypeError(f"simulate: progress must be a bool or a diffrax progress meter, got {short(progress)}")
