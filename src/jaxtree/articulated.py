@@ -261,7 +261,6 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
     n = model.n
     dtype = cfg.rho.dtype
     par = np.asarray(model.topology.parents, np.int64)
-    zero3 = jnp.zeros((1, 3), dtype)
     # spatial velocities about O, motion of the hinges, velocity-product accelerations
     uO = vel + cross(cfg.rho, omega)  # velocity of the point of b_k at O
     Sw, Su = cfg.axis, cross(cfg.hinge, cfg.axis)

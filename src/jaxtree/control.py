@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._hinges import selector
 from .model import State
 
 __all__ = ["AbstractController", "Controller", "HingePD", "HingePID", "hinge_torque_vector"]
@@ -35,10 +36,8 @@ __all__ = ["AbstractController", "Controller", "HingePD", "HingePID", "hinge_tor
 def hinge_torque_vector(n: int, hinges, torque):
     """Scatter torques on `hinges` (1-based, static) into an (n,) vector (a constant 0/1 product)."""
     hinges = tuple(int(k) for k in np.atleast_1d(hinges))
-    select = np.zeros((n, len(hinges)))
-    select[np.asarray(hinges) - 1, np.arange(len(hinges))] = 1.0
     torque = jnp.atleast_1d(torque)
-    return jnp.asarray(select, torque.dtype) @ torque
+    return selector(n, hinges, torque.dtype) @ torque
 
 
 def _split_reference(reference, hinges):

@@ -40,7 +40,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import articulated
+from . import _hinges, articulated
+from ._checks import is_traced
 from ._math import SINGULAR_PIVOT, regular as _regular  # noqa: F401 (SINGULAR_PIVOT is public here)
 from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum
 from .model import Model, State
@@ -314,28 +315,9 @@ def _rhs_from_sums(model, cfg, sub, tau, loads):
     return jnp.concatenate([rhs0, hinge])
 
 
-def _split(model):
-    """Static index arrays (0-based hinges): unknowns, prescribed, and the inverse permutation
-    that puts ``[unknowns, prescribed, inert]`` back in hinge order."""
-    u = np.asarray(model.unknown_hinges, dtype=np.int64) - 1
-    p = np.asarray(model.prescribed, dtype=np.int64) - 1
-    i = np.asarray(model.inert, dtype=np.int64) - 1
-    inverse = np.argsort(np.concatenate([u, p, i]))
-    return u, p, inverse
-
-
 def _complete_state(model, t, state: State):
-    """Fill the prescribed hinges of `state` from the prescription at time t."""
-    if model.prescription is None:
-        return state, None
-    dtype = _dtype(model, state.gamma)
-    g, gd, gdd = model.prescription.derivatives(jnp.asarray(t, dtype))
-    i = np.asarray(model.prescribed) - 1
-    keep = np.setdiff1d(np.arange(model.n), i)
-    inverse = np.argsort(np.concatenate([keep, i]))
-    merge = lambda full, pres: jnp.concatenate([full.astype(dtype)[keep], pres.astype(dtype)])[inverse]
-    state = state._replace(gamma=merge(state.gamma, g), gamma_dot=merge(state.gamma_dot, gd))
-    return state, gdd.astype(dtype)
+    """`state` with its prescribed hinges from the prescription at time t, and their accelerations."""
+    return _hinges.complete(model, t, state, _dtype(model, state.gamma))
 
 
 @full_precision
@@ -398,12 +380,18 @@ def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelera
     return acc
 
 
-def _solve_accelerations(model, state, t, tau):
+def _solve_accelerations(model, state, t, tau, completed=None):
+    """Eq. (1) at a state; `completed`: the prescribed accelerations of a state already
+    completed with its prescribed hinges (:func:`jaxtree._hinges.complete`, once per right side),
+    or None to complete it here."""
+    if completed is None:
+        state, gdd_p = _complete_state(model, t, state)
+    else:
+        gdd_p = completed if model.prescription is not None else None
     if articulated.resolve_method(model) == "articulated":
-        return _solve_articulated(model, state, t, tau)
-    state, gdd_p = _complete_state(model, t, state)
+        return _solve_articulated(model, state, t, tau, gdd_p)
     A, rhs = rotational_equations(model, state, t, tau)
-    u, p, inverse = _split(model)
+    u, p, inverse = _hinges.split(model)
     if gdd_p is None and not model.inert:
         x = _cholesky_solve(A, rhs)
         return Accelerations(x[:3], x[3:], jnp.zeros((0,), x.dtype))
@@ -418,9 +406,9 @@ def _solve_accelerations(model, state, t, tau):
     return Accelerations(x[:3], gdd, hold)
 
 
-def _solve_articulated(model, state, t, tau):
-    """Eq. (1) by the blocked articulated-body recursion of :mod:`jaxtree.articulated`."""
-    state, gdd_p = _complete_state(model, t, state)
+def _solve_articulated(model, state, t, tau, gdd_p):
+    """Eq. (1) by the blocked articulated-body recursion of :mod:`jaxtree.articulated` (the
+    state completed with its prescribed hinges, their accelerations `gdd_p`)."""
     dtype = _dtype(model, state.gamma, state.gamma_dot, state.omega0)
     gamma, gamma_dot = jnp.asarray(state.gamma, dtype), jnp.asarray(state.gamma_dot, dtype)
     state = State(jnp.asarray(state.dcm, dtype), jnp.asarray(state.omega0, dtype), gamma, gamma_dot)
@@ -436,8 +424,7 @@ def _solve_articulated(model, state, t, tau):
 
 def _check_finite(name, model, state, t, tau, acc):
     """Raise :class:`DynamicsError` when an eager call gives non-finite accelerations."""
-    leaves = jax.tree_util.tree_leaves((model, state, t, tau, acc))
-    if any(isinstance(x, jax.core.Tracer) for x in leaves):
+    if is_traced((model, state, t, tau, acc)):
         return
     if all(bool(np.all(np.isfinite(np.asarray(x)))) for x in (acc.omega0_dot, acc.gamma_ddot)):
         return

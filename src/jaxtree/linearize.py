@@ -45,6 +45,7 @@ import numpy as np
 from .dynamics import rotational_equations
 from . import _checks
 from .kinematics import full_precision, tilde
+from ._hinges import selector
 from .model import Model, State
 
 __all__ = [
@@ -196,13 +197,6 @@ def _nominal(model, omega0, gamma, dcm):
     return w, g, C
 
 
-def _selector(n, hinges, dtype):
-    """Constant n x nu matrix E with ``gamma = gamma_nominal + E @ y`` (no scatter in traced code)."""
-    E = np.zeros((n, len(hinges)))
-    E[np.asarray(hinges, dtype=np.int64) - 1, np.arange(len(hinges))] = 1.0
-    return jnp.asarray(E, dtype)
-
-
 def _jacobian(fun, nu3):
     """Value and Jacobian of ``fun`` at zero by ``jax.jacfwd``."""
     z0 = jnp.zeros((nu3,), jnp.float64)
@@ -214,7 +208,7 @@ def _jacobian(fun, nu3):
 @eqx.filter_jit
 def _partial(model, hinges, dcm, omega0, gamma, gamma_dot, omega0_dot, gamma_ddot, t):
     n, nu = model.n, len(hinges)
-    E = _selector(n, hinges, gamma.dtype)
+    E = selector(n, hinges, gamma.dtype)
 
     def residual(z):
         y, yd, ydd = z[:nu], z[nu:2 * nu], z[2 * nu:]
@@ -300,7 +294,7 @@ def linearize(model: Model, small, *, omega0=None, gamma=None, dcm=None, t=0.0) 
 def _vehicle(model, hinges, dcm, omega0, gamma, t):
     n, nu = model.n, len(hinges)
     dtype = gamma.dtype
-    E = _selector(n, hinges, dtype)
+    E = selector(n, hinges, dtype)
     m = 3 + nu
 
     def residual(z):

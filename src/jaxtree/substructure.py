@@ -192,7 +192,6 @@ def held_base(t: Terms, v, c, stiffness, damping):
     """``(I, J, K)`` of the substructure with its base moving at spatial velocity `v` and
     acceleration `c` (6 each, {b} components about the base's mass center): the small rows of
     ``A(y) [c; y''] + b(y, y', v) - tau_S = 0`` to first order (Eq. 40 for one substructure)."""
-    nu = t.A0.shape[0] - 6
     I = t.A0[6:, 6:]
     K = jnp.einsum("iaj,a->ij", t.A1[6:, :6], c) + 0.5 * jnp.einsum("iabj,a,b->ij", t.G1[6:], v, v) \
         + jnp.diag(stiffness)
