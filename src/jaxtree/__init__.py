@@ -28,6 +28,7 @@ from .model import (
 )
 from .scene import (
     Body as Body,
+    Joint as Joint,
     Free as Free,
     SpringDamper as SpringDamper,
     PrescribedSine as PrescribedSine,

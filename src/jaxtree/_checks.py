@@ -46,6 +46,8 @@ class SceneWarning(UserWarning):
 
 
 def is_traced(tree) -> bool:
+    """True when any leaf of `tree` is a JAX tracer (inside jit, vmap or grad): its value is
+    known only at run time, so checks on values are left to run time."""
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
 
 

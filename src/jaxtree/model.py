@@ -9,6 +9,8 @@ not need is never traced.
 
 from __future__ import annotations
 
+import abc
+
 import dataclasses
 from typing import Callable, NamedTuple
 
@@ -43,8 +45,9 @@ class Prescription(eqx.Module):
 
     hinges: eqx.AbstractVar[tuple[int, ...]]
 
+    @abc.abstractmethod
     def __call__(self, t):
-        raise NotImplementedError
+        """Angles of the prescribed hinges at time t, shape ``(len(hinges),)``."""
 
     def derivatives(self, t):
         """``(gamma, gamma_dot, gamma_ddot)`` of the prescribed hinges at time t."""
@@ -77,8 +80,9 @@ class BodyLoads(eqx.Module):
 
     bodies: eqx.AbstractVar[tuple[int, ...]]
 
+    @abc.abstractmethod
     def __call__(self, t, state: State):
-        raise NotImplementedError
+        """``(force, torque)``, each ``(len(bodies), 3)``, at time t and `state`."""
 
 
 class FunctionLoads(BodyLoads):

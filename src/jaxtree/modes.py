@@ -48,6 +48,7 @@ import numpy as np
 
 from .linearize import LinearSystem, structure
 from . import _checks
+from ._checks import is_traced
 
 __all__ = ["Modes", "ModalError", "UnstableError", "DefectiveError", "modes", "first_order"]
 
@@ -120,10 +121,6 @@ def first_order(I, J, K):
     Q = jnp.block([[Z, K], [-K, -J]])
     B = jnp.block([[Z, U], [-jnp.linalg.solve(I, K), -jnp.linalg.solve(I, J)]])
     return P, Q, B
-
-
-def _is_traced(*xs):
-    return any(isinstance(x, jax.core.Tracer) for x in xs)
 
 
 # ----------------------------------------------------------------------------- real modes
@@ -295,7 +292,7 @@ def modes(I, J=None, K=None, *, damping=None, kind: str | None = None, labels: S
     nu = I.shape[0]
     if I.shape != (nu, nu) or J.shape != (nu, nu) or K.shape != (nu, nu):
         raise ValueError(f"modes: I, J, K must be square of one size, got {I.shape}, {J.shape}, {K.shape}")
-    traced = _is_traced(I, J, K, damping)
+    traced = is_traced((I, J, K, damping))
     coords = tuple(labels) if labels is not None else tuple(f"y{i + 1}" for i in range(nu))
     if len(coords) != nu:
         raise ValueError(f"modes: {len(coords)} labels for {nu} coordinates")

@@ -8,12 +8,13 @@ and the field at fault.
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import json
 import os
 import pathlib
 import tempfile
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, ClassVar, Iterable, Sequence
 
 import equinox as eqx
 import jax
@@ -48,38 +49,50 @@ _SCENES = pathlib.Path(__file__).resolve().parent / "scenes"
 
 
 # ----------------------------------------------------------------------------- joints
+class Joint(abc.ABC):
+    """The law of one hinge, a closed family (Def. 21, Sec. II B): :class:`Free` and
+    :class:`SpringDamper` give the joint torque ``tau_k`` of Eq. (1) (the model's `sprung`
+    hinges); :class:`PrescribedSine` and :class:`Prescribed` prescribe ``gamma_k(t)``
+    kinematically (the model's `prescribed` hinges, moved to the right side of Eq. 1). Laws of
+    the whole state act beside them at run time: a user law ``tau(t, state, params)`` and a
+    controller with internal states (:mod:`jaxtree.control`), both arguments of
+    :func:`jaxtree.simulate`. `kind` is the scene format's joint kind."""
+
+    kind: ClassVar[str]
+
+
 @dataclasses.dataclass(frozen=True)
-class Free:
+class Free(Joint):
     """A hinge with no torque law (tau_k = 0 unless a controller adds one)."""
 
-    kind = "free"
+    kind: ClassVar[str] = "free"
 
 
 @dataclasses.dataclass(frozen=True)
-class SpringDamper:
+class SpringDamper(Joint):
     """``tau_k = -stiffness * gamma_k - damping * gamma_dot_k``."""
 
     stiffness: float
     damping: float = 0.0
-    kind = "spring_damper"
+    kind: ClassVar[str] = "spring_damper"
 
 
 @dataclasses.dataclass(frozen=True)
-class PrescribedSine:
+class PrescribedSine(Joint):
     """Prescribed ``gamma_k(t) = amplitude * sin(frequency * t + phase)`` (the scene's ``sine``)."""
 
     amplitude: float
     frequency: float
     phase: float = 0.0
-    kind = "prescribed"
+    kind: ClassVar[str] = "prescribed"
 
 
 @dataclasses.dataclass(frozen=True)
-class Prescribed:
+class Prescribed(Joint):
     """Prescribed ``gamma_k(t) = fn(t)`` for any JAX-differentiable scalar function of time."""
 
     fn: Callable
-    kind = "prescribed"
+    kind: ClassVar[str] = "prescribed"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -154,7 +167,7 @@ _JOINT_KEYS = {"free": {"kind"}, "spring_damper": {"kind", "stiffness", "damping
 
 
 def _joint(joint, k, name):
-    if isinstance(joint, (Free, SpringDamper, PrescribedSine, Prescribed)):
+    if isinstance(joint, (Free, SpringDamper, PrescribedSine, Prescribed)):  # the closed family
         j = joint
     elif isinstance(joint, dict):
         if "kind" not in joint:
