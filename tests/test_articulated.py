@@ -11,7 +11,7 @@ import pytest
 import jaxtree
 from jaxtree import articulated
 
-from conftest import random_state
+from helpers import random_state
 from oracle import oracle_eom
 from trees import chain, deep_and_wide, gimbal_model, random_tree, star
 

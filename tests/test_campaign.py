@@ -2,7 +2,6 @@
 and a Dask cluster. Every campaign here has the same shape (fig4_free, 6 runs of 1 s in chunks
 of 4, 11 save times) so that the in-process runs share one compiled chunk."""
 
-import json
 import os
 import pathlib
 import subprocess
@@ -133,7 +132,6 @@ def test_chunks_split_over_two_forced_host_devices_give_the_same_numbers(campaig
     script = f"""
 import os, sys, json
 os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
-sys.path.insert(0, {str(pathlib.Path(__file__).parent)!r})
 import jax, numpy as np
 from test_campaign import run
 assert len(jax.local_devices()) == 2
@@ -141,7 +139,10 @@ ds = run(devices=2)
 np.savez({str(tmp_path / "two.npz")!r}, omega0=ds.omega0.values, gamma=ds.gamma.values, steps=ds.steps.values,
          failure=ds.failure.values)
 """
-    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    # the child imports this module from this folder (PYTHONPATH, as pytest's rootdir does here)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(pathlib.Path(__file__).parent),
+                                                                    os.environ.get("PYTHONPATH")])))
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, env=env)
     assert proc.returncode == 0, proc.stderr[-3000:]
     two = np.load(tmp_path / "two.npz")
     np.testing.assert_array_equal(two["omega0"], campaign.omega0.values)

@@ -16,7 +16,7 @@ import pytest
 import jaxtree
 from jaxtree.barycentric import seed_equations
 
-from conftest import random_state, scene_names
+from helpers import random_state, scene_names
 from oracle import oracle_body_states, oracle_eom
 from trees import chain, deep_and_wide, gimbal_model, random_tree, star
 

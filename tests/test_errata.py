@@ -6,7 +6,7 @@ import numpy as np
 import jaxtree
 from jaxtree.barycentric import barycentric, coupling_inertia
 
-from conftest import random_state
+from helpers import random_state
 from oracle import oracle_eom
 
 

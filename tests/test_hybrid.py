@@ -17,7 +17,6 @@ of an 8th-order method, each with a local error below TOL times the state size (
 1 to 30), observed at 1e-11 .. 2e-10 on these runs; ``SAME`` = 2e-8 leaves a margin of 100.
 """
 
-import sys
 
 import equinox as eqx
 import jax
@@ -31,8 +30,7 @@ import jaxtree
 from jaxtree import State
 from jaxtree.kinematics import tilde
 
-sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
-from test_linearize import _appendix_c  # noqa: E402
+from helpers import appendix_c
 
 TOL = 1e-11
 SAME = 2e-8
@@ -138,7 +136,7 @@ def fig4():
 def appendix():
     """Fig. C-1 with both rod hinges small and omega0 the only large variable: the precomputed
     (polynomial) path with real modes (Eq. 121), modes on the nominal spin Omega b3."""
-    model, p = _appendix_c()
+    model, p = appendix_c()
     hm = jaxtree.hybrid_model(model, (1, 2), omega0=[0.0, 0.0, 1.0], basis="set")
     assert hm.form == "real" and hm.precomputed and hm.n_modes == 2 and hm.large == ()
     return model, p, hm
@@ -722,7 +720,7 @@ def test_gross_deformation_of_a_chain_limits_eq30():
         out[theta] = (float(np.abs(np.asarray(hyb.gamma) - G).max() / scale),
                       float(np.abs(r.y[3:nu].T - G).max() / scale))
     print("relative error of the hinge angles (Eq. 30, all-linear):", out)
-    (e30_small, lin_small), (e30_big, lin_big) = out[0.25], out[1.0]
+    (e30_small, _), (e30_big, lin_big) = out[0.25], out[1.0]
     assert e30_small < 0.02 and e30_big > 0.05
     assert 8.0 < e30_big / e30_small < 32.0  # ~ (1 / 0.25)^2: governed by the gross rotation
     assert lin_big < e30_big

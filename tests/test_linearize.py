@@ -12,47 +12,12 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree import Body, SpringDamper, State
+from jaxtree import State
 from jaxtree.barycentric import barycentric
+from helpers import ALL, PARENTS, appendix_c, planar_model, principal_moments, random_model
 from oracle import oracle_eom
 
 
-# ----------------------------------------------------------------------------- helpers
-def principal_moments(rng):
-    """Principal moments of some mass distribution (they satisfy the triangle inequality)."""
-    x = rng.uniform(0.2, 1.0, 3)
-    return np.array([x[1] + x[2], x[0] + x[2], x[0] + x[1]])
-
-
-def random_inertia(rng):
-    Q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
-    return Q @ np.diag(principal_moments(rng)) @ Q.T
-
-
-def random_model(rng, parents, axes=None, hop=None, hob=None, inertia=None, damping=0.0, prescribe=()):
-    """A tree with random masses/inertias/geometry and springs (stiffness 20..60) on every hinge."""
-    n = len(parents)
-    bodies = []
-    for k in range(n + 1):
-        J = random_inertia(rng) if inertia is None else inertia[k]
-        mass = rng.uniform(1.0, 3.0) if k else rng.uniform(20.0, 40.0)
-        if k == 0:
-            bodies.append(Body("base", mass, J))
-            continue
-        ax = rng.normal(size=3) if axes is None else axes[k - 1]
-        joint = SpringDamper(rng.uniform(20.0, 60.0), damping)
-        if k in prescribe:
-            joint = jaxtree.PrescribedSine(0.1, 1.0)
-        bodies.append(Body(f"link{k}", mass, J, parent=parents[k - 1], axis=ax,
-                           hinge_on_parent=rng.normal(size=3) if hop is None else hop[k - 1],
-                           hinge_on_body=rng.normal(size=3) if hob is None else hob[k - 1], joint=joint))
-    return jaxtree.build_model(bodies)
-
-
-# One tree shape for most tests, so that the jitted linearization (keyed on the model structure and the
-# set A) and the oracle compile once: b0 - 1 - 2 - 3, b0 - 4 - 5, 1 - 6.
-PARENTS = [0, 1, 2, 0, 4, 1]
-ALL = (1, 2, 3, 4, 5, 6)
 
 
 def oracle_residual(model, omega0, gamma, gamma_dot, acc):
@@ -210,19 +175,12 @@ def test_nonspinning_elastic_eq51_and_36d():
     np.testing.assert_allclose(I0, I36, rtol=1e-12, atol=1e-12 * np.abs(I36).max())
 
 
-def _planar_model(rng, parents, g, positions):
-    """Hinge axes all `g`; hinge points and mass centers given by `positions(k)` (hop, hob)."""
-    n = len(parents)
-    hop, hob = zip(*[positions(k) for k in range(1, n + 1)])
-    return random_model(rng, parents, axes=[g] * n, hop=hop, hob=hob)
-
-
 def test_transverse_case_eqs_55_58():
     """All hinge axes parallel to g, omega0 = Omega g, geometry in 3-D (Figs. 8-10): J skew and equal to
     Eq. (55c), K symmetric and equal to Eq. (58b) plus the springs."""
     rng = np.random.default_rng(5)
     g = np.array([0.0, 0.0, 1.0])
-    model = _planar_model(rng, PARENTS, g, lambda k: (rng.normal(size=3), rng.normal(size=3)))
+    model = planar_model(rng, PARENTS, g, lambda k: (rng.normal(size=3), rng.normal(size=3)))
     Omega = 0.8
     small = ALL
     lin = jaxtree.linearize(model, small, omega0=Omega * g)
@@ -255,7 +213,7 @@ def test_rectilinear_transverse_case_J_zero():
     g = np.array([0.0, 0.0, 1.0])
     x = np.array([1.0, 0.0, 0.0])
     side = {1: 1, 2: 1, 3: 1, 4: -1, 5: -1, 6: 1}
-    model = _planar_model(rng, PARENTS, g, lambda k: (rng.uniform(0.3, 1.0) * x * side[k],
+    model = planar_model(rng, PARENTS, g, lambda k: (rng.uniform(0.3, 1.0) * x * side[k],
                                                       -rng.uniform(0.3, 1.0) * x * side[k]))
     I, J, K = (np.asarray(x) for x in jaxtree.linearize(model, ALL, omega0=1.3 * g))
     st = jaxtree.structure(I, J, K)
@@ -303,28 +261,6 @@ def test_meridional_case_eqs_66_67():
 
 
 # ----------------------------------------------------------------------------- Appendix C
-def _appendix_c():
-    model = jaxtree.load_scene("appendix_c")
-    m0, m = float(model.mass[0]), float(model.mass[1])
-    I0 = np.diag(np.asarray(model.inertia[0]))
-    L = -float(model.hinge_on_body[0, 1])  # rod of length 2L hinged at its end
-    r = float(model.hinge_on_parent[0, 1])  # cylinder radius
-    k = float(model.stiffness[0])
-    # the scene is the system of Fig. C-1: identical thin rods on +-b2, hinge axes b1
-    np.testing.assert_allclose(np.asarray(model.inertia[1]), np.diag([m * (2 * L) ** 2 / 12, 0, m * (2 * L) ** 2 / 12]))
-    np.testing.assert_allclose(np.asarray(model.inertia[2]), np.asarray(model.inertia[1]))
-    np.testing.assert_allclose(np.asarray(model.axis), [[1, 0, 0], [1, 0, 0]])
-    np.testing.assert_allclose(np.asarray(model.hinge_on_parent[1]), [0, -r, 0])
-    np.testing.assert_allclose(np.asarray(model.hinge_on_body[1]), [0, L, 0])
-    M = m0 + 2 * m
-    R = m * L / M  # (C-3)
-    Jc = 4.0 / 3.0 * m * L ** 2  # (C-48)
-    c = Jc + M * R * r
-    extra = 2 * m * (r ** 2 + 2 * r * L + 4.0 / 3.0 * L ** 2)  # (C-52)
-    I1, I2, I3 = I0[0] + extra, I0[1], I0[2] + extra
-    return model, dict(M=M, R=R, J=Jc, c=c, r=r, k=k, I1=I1, I2=I2, I3=I3)
-
-
 def _appendix_c_expected(p, w, wd):
     """C-61..C-65 as residual (left side minus right side), first order in gamma: returns
     residual (5,), accel (5, 2), rate (5, 2), angle (5, 2)."""
@@ -351,7 +287,7 @@ def _appendix_c_expected(p, w, wd):
 def test_appendix_c_linearized_equations_c61_c65():
     """Eq. (30) for Fig. C-1 with gamma_1, gamma_2 small and omega0 unrestricted reproduces C-61..C-65
     coefficient by coefficient (and with it C-53..C-60) at random omega0 and omega0_dot."""
-    model, p = _appendix_c()
+    model, p = appendix_c()
     rng = np.random.default_rng(1)
     for _ in range(3):
         w, wd = rng.normal(size=3), rng.normal(size=3)
@@ -364,7 +300,7 @@ def test_appendix_c_linearized_equations_c61_c65():
 
 def test_appendix_c_transformation_c69_c74():
     """The transformation C-69 (gamma = T eta, rows C-64 +- C-65) gives the decoupled C-70..C-74."""
-    model, p = _appendix_c()
+    model, p = appendix_c()
     M, R, J, c, r, k = p["M"], p["R"], p["J"], p["c"], p["r"], p["k"]
     I1, I2, I3 = p["I1"], p["I2"], p["I3"]
     T = 0.5 * np.array([[1.0, 1.0], [1.0, -1.0]])  # C-69a
@@ -394,7 +330,7 @@ def test_appendix_c_transformation_c69_c74():
 def test_appendix_c_structure_and_eq66_extra_term():
     """Fig. C-1 spinning about the cylinder axis is a meridional case: J = 0, K symmetric with the
     spin stiffness (J + M R r) Omega^2 of C-64 (not the (J - M R^2) Omega^2 of the printed Eq. 66)."""
-    model, p = _appendix_c()
+    model, p = appendix_c()
     Om = 1.3
     I, J, K = (np.asarray(x) for x in jaxtree.linearize(model, (1, 2), omega0=[0.0, 0.0, Om]))
     st = jaxtree.structure(I, J, K)
@@ -407,7 +343,7 @@ def test_vehicle_linearization_structure_and_fd():
     """Full-system linearization (Sec. III B, omega0 perturbations included): I, K symmetric, J skew at a
     relative equilibrium (Eq. 69), and the rows equal central differences of the nonlinear Eq. (1) with
     omega0 = Omega + theta' + Omega x theta, omega0_dot = theta'' + Omega x theta'."""
-    model, p = _appendix_c()
+    model, p = appendix_c()
     Om = np.array([0.0, 0.0, 0.9])
     lin = jaxtree.linearize_vehicle(model, omega0=Om)
     I, J, K = (np.asarray(x) for x in lin)

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 import jaxtree
 from jaxtree import Body, SpringDamper
-from test_linearize import PARENTS, ALL, _appendix_c, _planar_model, random_model
+from helpers import ALL, PARENTS, appendix_c, planar_model, random_model
 
 
 def check_biorthogonality(md, tol=1e-10):
@@ -70,7 +70,7 @@ def test_appendix_c_modes_held_base():
     """C-73/C-74 with omega0 held at Omega b3: eta1 = gamma1 + gamma2 (rods in phase) has
     sigma^2 = (k + (J + M R r) Omega^2) / J, eta2 (antiphase) has (k + (J + M R r) Omega^2) / (J - 2 M R^2).
     Real modes: phi^T I phi = U, phi^T K phi = sigma^2 (Eqs. 101-103)."""
-    model, p = _appendix_c()
+    model, p = appendix_c()
     for Om in (0.0, 1.0):
         lin = jaxtree.linearize(model, (1, 2), omega0=[0, 0, Om])
         md = jaxtree.modes(lin)
@@ -116,7 +116,7 @@ def test_appendix_c_vehicle_modes():
     and eta1 coupled to the base roll: sigma^2 = k / (J - 2 (J + M R r)^2 / I1) (C-70, C-73).
     Spinning about b3: the nonzero frequencies are those of C-70..C-74 linearized about Omega b3,
     plus Omega itself (a tilt of the spin axis seen in the spinning frame) and one rigid mode."""
-    model, p = _appendix_c()
+    model, p = appendix_c()
     md = jaxtree.modes(jaxtree.linearize_vehicle(model))
     assert md.kind == "real"
     s_eta1 = np.sqrt(p["k"] / (p["J"] - 2 * p["c"] ** 2 / p["I1"]))
@@ -141,7 +141,7 @@ def transverse():
     """A spinning transverse-deformation tree (Figs. 8-10): J skew and nonzero, K positive definite."""
     rng = np.random.default_rng(5)
     g = np.array([0.0, 0.0, 1.0])
-    model = _planar_model(rng, PARENTS, g, lambda k: (rng.normal(size=3), rng.normal(size=3)))
+    model = planar_model(rng, PARENTS, g, lambda k: (rng.normal(size=3), rng.normal(size=3)))
     return model, jaxtree.linearize(model, ALL, omega0=0.8 * g)
 
 
@@ -286,7 +286,7 @@ def test_modal_damping_real_and_spinning(transverse):
     """Eq. (104) in the real case: eigenvalues -zeta sigma +- i sigma sqrt(1 - zeta^2) and the damped state
     matrix has phi^T C phi = 2 zeta sigma; spinning: i sigma -> -zeta sigma +- i sigma (Sec. III E), and the
     real damped state matrix B has exactly these eigenvalues (independent eigensolver)."""
-    model, p = _appendix_c()
+    model, p = appendix_c()
     lin = jaxtree.linearize(model, (1, 2))
     zeta = np.array([0.02, 0.05])
     md0 = jaxtree.modes(lin)
@@ -331,7 +331,7 @@ def test_frequency_gradients_match_finite_differences(case, transverse):
     """d sigma / d (stiffness k_1, mass m_1, hinge geometry p^{1 0}_y) by forward-mode AD through
     linearize and modes equals central differences, for real and gyroscopic modes."""
     if case == "real":
-        model, _ = _appendix_c()
+        model, _ = appendix_c()
         small, w = (1, 2), jnp.zeros(3)
     else:
         model, lin = transverse
@@ -351,7 +351,7 @@ def test_frequency_gradients_match_finite_differences(case, transverse):
 # ----------------------------------------------------------------------------- simulation
 @pytest.fixture(scope="module")
 def dynamics():
-    model, _ = _appendix_c()
+    model, _ = appendix_c()
     f = eqx.filter_jit(lambda m, C, w, g, gd: jaxtree.forward_dynamics(m, C, w, g, gd))
     return model, f
 

@@ -11,7 +11,7 @@ import pytest
 import jaxtree
 from jaxtree import results
 
-from test_topology import TABLE_1, TABLE_2, _table
+from helpers import TABLE_1, TABLE_2, table
 
 
 # ----------------------------------------------------------------------------- condition
@@ -73,8 +73,8 @@ def test_check_scene_gives_the_seeds_tables_1_and_2_for_fig4():
     """The tables check_scene prints for fig4 are the seed's Tables 1 and 2 (read from its text)."""
     report = jaxtree.check_scene("fig4")
     text = str(report)
-    np.testing.assert_array_equal(report.network_elements, _table(TABLE_1))
-    np.testing.assert_array_equal(report.path_elements, _table(TABLE_2))
+    np.testing.assert_array_equal(report.network_elements, table(TABLE_1))
+    np.testing.assert_array_equal(report.path_elements, table(TABLE_2))
 
     def printed(title):
         lines = text.split(title, 1)[1].splitlines()[3:]
@@ -85,8 +85,8 @@ def test_check_scene_gives_the_seeds_tables_1_and_2_for_fig4():
             rows.append([int(x) for x in line.split("|")[1].split()])
         return np.array(rows)
 
-    np.testing.assert_array_equal(printed("Table 1:"), _table(TABLE_1))
-    np.testing.assert_array_equal(printed("Table 2:"), _table(TABLE_2))
+    np.testing.assert_array_equal(printed("Table 1:"), table(TABLE_1))
+    np.testing.assert_array_equal(printed("Table 2:"), table(TABLE_2))
     assert report.total_mass == pytest.approx(1000 + 50 + 20 + 6 * 10)
     assert "gimbal_outer  (0 kg, massless)" in text and "prescribed gamma = 1 sin(0.5 t + 0)" in text
 

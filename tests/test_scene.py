@@ -8,7 +8,7 @@ import pytest
 import jaxtree
 from jaxtree import SceneError
 
-from conftest import SHARED_SCENES
+from helpers import SHARED_SCENES
 
 
 def test_bundled_scenes_are_the_shared_reference_scenes():

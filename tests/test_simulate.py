@@ -9,7 +9,6 @@ expm and DOP853 with tests/oracle.py, and the prescription's own inverse functio
 
 import dataclasses
 import re
-import sys
 
 import diffrax as dfx
 import equinox as eqx
@@ -24,9 +23,8 @@ import jaxtree
 from jaxtree import State, simulate
 from jaxtree.control import hinge_torque_vector
 
-sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
-from conftest import random_state  # noqa: E402
-from oracle import oracle_eom  # noqa: E402
+from helpers import random_state
+from oracle import oracle_eom
 
 # Conservation over 100 s of fig4_free at rtol = atol = 1e-12 (the requirement).
 DRIFT_100S = 1e-9

@@ -8,7 +8,6 @@ import pathlib
 import re
 import shutil
 
-import jax
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
