@@ -29,7 +29,6 @@ import time
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
-import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -41,7 +40,7 @@ HUB_GOAL, SMALL_GOAL = 1e-3, 1e-2
 
 def scenario(name, torque_scale):
     model = jaxtree.load_scene(name)
-    pulse = lambda t: jaxtree.loads.thruster_pulse(t, 1.0, 2.0, rise=0.1)  # noqa: E731
+    pulse = lambda t: jaxtree._src.loads.thruster_pulse(t, 1.0, 2.0, rise=0.1)  # noqa: E731
     if name == "panels95":
         torque = np.array([5.0, 3.0, 0.0])
         small = tuple(k for k in range(1, model.n + 1) if model.names[k].startswith("wing"))

@@ -190,7 +190,7 @@ def pinocchio_runs(model, ref, tols, repeats):
     # spins, about an axis through its own mass center
     # body 0's mass center moves with the system's at rest: its velocity relative to the system
     # mass center (zero for fig4_free, where only the rotor spins about its own mass center)
-    from jaxtree.dynamics import _configuration, _velocities
+    from jaxtree._src.dynamics import _configuration, _velocities
 
     cfg, omega = _configuration(model, s.gamma, s.omega0, s.gamma_dot)
     v0 = np.asarray(_velocities(model, cfg, omega)[0])
@@ -289,7 +289,7 @@ def main():
     model = jaxtree.load_scene(scene)
     if ARGS.method:
         model = model.with_method(ARGS.method)
-    say(f"  jaxtree method: {jaxtree.articulated.resolve_method(model)}")
+    say(f"  jaxtree method: {jaxtree._src.articulated.resolve_method(model)}")
     large = scene != "fig4_free"
     reference_tol = 1e-12 if large else REFERENCE_TOL
     if large:

@@ -19,7 +19,6 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxtree
-from jaxtree import output
 
 out = pathlib.Path(sys.argv[1] if len(sys.argv) > 1 else "results")
 STOWED, OVERSHOOT, SWEEP = -1.2, 0.1, 8.0  # rad, rad, s
@@ -62,14 +61,14 @@ print(f"  deployment motor torque (hold torque of hinge 5): max |tau_5| = {np.na
 # Phase 2: latched, released to the springs, from the latch state
 after = jaxtree.simulate(latched, t_latch + 20.0, t0=deploy.t_final, y0=deploy.final, saveat=401,
                          rtol=1e-10, atol=1e-10)
-print(output.summary("after the latch", after))
+print(jaxtree.summary("after the latch", after))
 print(f"  hinge 5 settles: |gamma_5| at the end {abs(float(after.final.gamma[4])):.2e} rad; "
       f"panel hinges 6-10 at the end {np.round(np.asarray(after.final.gamma[5:]), 4)}")
 
 runs = {"deploying": deploy, "latched": after}
-output.save_npz(out / "deploy_latch.npz", runs)
+jaxtree.save_npz(out / "deploy_latch.npz", runs)
 for name, sol in runs.items():
-    output.save_csv(out / f"deploy_latch_{name}.csv", sol)
+    jaxtree.save_csv(out / f"deploy_latch_{name}.csv", sol)
 try:
     import matplotlib
 
@@ -79,11 +78,11 @@ try:
     fig, axes = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for name, sol in runs.items():
-        h = output.histories(sol)
+        h = jaxtree.histories(sol)
         for k in range(4, 10):
             axes[0].plot(h["t"], h["gamma"][:, k], color=colors[k % len(colors)], lw=1,
                          label=f"$\\gamma_{{{k + 1}}}$" if name == "deploying" else None)
-    h1, h2 = output.histories(deploy), output.histories(after)
+    h1, h2 = jaxtree.histories(deploy), jaxtree.histories(after)
     axes[1].plot(h1["t"], h1["hold_torque"][:, -1], "k", lw=1, label="motor (hold torque of the prescription)")
     axes[1].plot(h2["t"], -(K_LATCH * h2["gamma"][:, 4] + D_LATCH * h2["gamma_dot"][:, 4]), "r", lw=1,
                  label="latch spring and damper")
@@ -95,7 +94,7 @@ try:
     axes[1].legend(fontsize=8)
     axes[1].set_xlabel("t (s)")
     fig.tight_layout()
-    with output.atomic_write(out / "deploy_latch.png") as fh:
+    with jaxtree.atomic_write(out / "deploy_latch.png") as fh:
         fig.savefig(fh, format="png", dpi=110)
     print(f"plot: {out / 'deploy_latch.png'}")
 except ImportError:

@@ -18,7 +18,6 @@ import jax
 import numpy as np
 
 import jaxtree
-from jaxtree import output
 
 out = pathlib.Path(sys.argv[1] if len(sys.argv) > 1 else "results")
 model = jaxtree.load_scene("fig4")
@@ -31,7 +30,7 @@ for attitude in ("euler123", "quaternion"):
     sol = jaxtree.simulate(model, 100.0, attitude=attitude, saveat=1001, rtol=1e-9, atol=1e-9)
     jax.block_until_ready(sol.gamma)
     runs[attitude] = sol
-    print(output.summary(attitude, sol, first=time.perf_counter() - t0))
+    print(jaxtree.summary(attitude, sol, first=time.perf_counter() - t0))
 
 e, q = runs["euler123"], runs["quaternion"]
 print("max |difference| Euler vs quaternion run:",
@@ -40,9 +39,9 @@ print("max |difference| Euler vs quaternion run:",
       f"C {np.abs(np.asarray(e.dcm - q.dcm)).max():.2e}")
 print("hinge-1 hold torque: max |tau_1| =", f"{np.abs(np.asarray(q.hold_torque)).max():.4f} N m")
 
-output.save_npz(out / "fig4_sample_problem.npz", runs)
+jaxtree.save_npz(out / "fig4_sample_problem.npz", runs)
 for name, sol in runs.items():
-    output.save_csv(out / f"fig4_sample_problem_{name}.csv", sol)
-if not output.save_plot(out / "fig4_sample_problem.png", runs, title="Fig. 4 sample problem, 100 s"):
+    jaxtree.save_csv(out / f"fig4_sample_problem_{name}.csv", sol)
+if not jaxtree.save_plot(out / "fig4_sample_problem.png", runs, title="Fig. 4 sample problem, 100 s"):
     print("matplotlib is not installed: no plot")
 print(f"results in {out.resolve()}")

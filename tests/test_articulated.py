@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree import articulated
+from jaxtree._src import articulated
 
 from helpers import random_state
 from oracle import oracle_eom
@@ -19,7 +19,7 @@ from trees import chain, deep_and_wide, gimbal_model, random_tree, star
 class ConstantLoads(jaxtree.BodyLoads):
     """Forces and torques (body frames) on a static set of bodies, as array leaves."""
 
-    bodies: tuple = jaxtree.model.eqx.field(static=True)
+    bodies: tuple = jaxtree._src.model.eqx.field(static=True)
     force: jax.Array
     torque: jax.Array
 
@@ -183,7 +183,7 @@ def test_vmap_and_gradients(scenes):
     for field, index in [("mass", 3), ("hinge_on_parent", (4, 0)), ("stiffness", 2), ("inertia", (6, 1, 1)),
                          ("axis", (1, 2))]:
         h = 1e-6 * max(1.0, abs(float(getattr(model, field)[index])))
-        bump = lambda d: jaxtree.model.eqx.tree_at(lambda m: getattr(m, field), model,
+        bump = lambda d: jaxtree._src.model.eqx.tree_at(lambda m: getattr(m, field), model,
                                                     getattr(model, field).at[index].add(d))
         fd = (f(bump(h)) - f(bump(-h))) / (2 * h)
         assert abs(float(getattr(grads, field)[index] - fd)) <= 1e-6 * max(1.0, abs(float(fd))), field

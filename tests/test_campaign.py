@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree.campaign import monte_carlo
+from jaxtree._src.campaign import monte_carlo
 
 N, CHUNK, T1, SAVES, TOL, MAX_STEPS = 6, 4, 1.0, 11, 1e-8, 3000
 KEY = 7
@@ -99,7 +99,7 @@ def test_store_is_written_chunk_by_chunk_and_a_rerun_resumes(campaign, tmp_path,
     """A campaign killed after its first chunk leaves that chunk in the store; the rerun computes
     only the second and returns the numbers of an uninterrupted in-memory run."""
     pytest.importorskip("zarr" if suffix == ".zarr" else "scipy")
-    import jaxtree.campaign as C
+    import jaxtree._src.campaign as C
 
     out = tmp_path / f"mc{suffix}"
     real, calls = C.run_chunk, []

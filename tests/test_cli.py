@@ -1,7 +1,7 @@
 """The ``jaxtree`` command line: subcommands, one-line errors, result files written in parts,
 and an interrupted run that resumes to the same answer.
 
-Most commands run in this process (``jaxtree.cli.main``), sharing compiled functions; the
+Most commands run in this process (``jaxtree._src.cli.main``), sharing compiled functions; the
 interruption test runs the command in subprocesses and kills them."""
 
 import json
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree import cli
+from jaxtree._src import cli
 
 # one configuration shared by the in-process run and the interrupted subprocess runs
 T1, POINTS, CHUNKS = "1", "21", "4"
@@ -230,10 +230,10 @@ def _stand_in_viewer(monkeypatch):
     def write_mode_animation(path, model, shape, frequency, *, gamma=None, amplitude=None, title=None):
         calls.append(("mode", path, model, shape, frequency, gamma, amplitude, title))
 
-    fake = types.ModuleType("jaxtree.viewer")
+    fake = types.ModuleType("jaxtree._src.viewer")
     fake.write_animation, fake.write_mode_animation = write_animation, write_mode_animation
-    monkeypatch.setitem(sys.modules, "jaxtree.viewer", fake)
-    monkeypatch.setattr(jaxtree, "viewer", fake, raising=False)
+    monkeypatch.setitem(sys.modules, "jaxtree._src.viewer", fake)
+    monkeypatch.setattr(jaxtree._src, "viewer", fake, raising=False)
     return calls
 
 

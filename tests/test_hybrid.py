@@ -28,7 +28,7 @@ from scipy.integrate import solve_ivp
 
 import jaxtree
 from jaxtree import State
-from jaxtree.kinematics import tilde
+from jaxtree._src.kinematics import tilde
 
 from helpers import appendix_c
 
@@ -614,7 +614,7 @@ def test_truncation_under_a_slew_falls_as_modes_are_added():
     truncated model against the all-mode one falls as modes are added per wing and vanishes with
     all of them; a repeated frequency (the two identical wings) is never split."""
     model = _wings(damping=False).with_loads(
-        jaxtree.BodyTorque(0, [0.0, 8.0, 3.0], lambda t: jaxtree.loads.thruster_pulse(t, 0.5, 1.0, rise=0.1)))
+        jaxtree.BodyTorque(0, [0.0, 8.0, 3.0], lambda t: jaxtree._src.loads.thruster_pulse(t, 0.5, 1.0, rise=0.1)))
     state = model.initial._replace(gamma=jnp.zeros(model.n), gamma_dot=jnp.zeros(model.n))
     small = tuple(range(1, 9))
     full = jaxtree.hybrid_model(model, small)
@@ -665,7 +665,7 @@ def test_projection_residual_of_the_initial_state():
 def test_held_base_frequencies_are_differentiable_in_the_stiffness():
     """d sigma / d k of a wing's held-base modes (substructure terms, held_base, modes traced with
     kind='real') against central finite differences."""
-    from jaxtree import substructure as sub
+    from jaxtree._src import substructure as sub
 
     model = _wings(damping=False)
     grp = sub.substructures(model, (1, 2, 3, 4))[0]

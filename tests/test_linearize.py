@@ -13,7 +13,7 @@ import pytest
 
 import jaxtree
 from jaxtree import State
-from jaxtree.barycentric import barycentric
+from jaxtree._src.barycentric import barycentric
 from helpers import ALL, PARENTS, appendix_c, planar_model, principal_moments, random_model
 from oracle import oracle_eom
 

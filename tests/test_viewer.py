@@ -13,7 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import jaxtree
-from jaxtree import viewer
+from jaxtree._src import viewer
 
 CHROMIUM = "/usr/bin/chromium"
 

@@ -29,7 +29,7 @@ def _fast_cpu_compiler():
 
 
 def _parser():
-    from .cli import _Parser
+    from ._src.cli import _Parser
 
     p = _Parser(prog="python -m jaxtree", description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", default="fig4", help="bundled scene name or path to a scene JSON (default: fig4)")
@@ -47,7 +47,7 @@ def _parser():
 
 def main(argv=None) -> int:
     """The ``jaxtree`` command: a subcommand of :mod:`jaxtree.cli`, else the sample problem."""
-    from .cli import main as cli_main
+    from ._src.cli import main as cli_main
 
     return cli_main(argv)
 
@@ -62,9 +62,9 @@ def sample(argv=None) -> int:
     import numpy as np
 
     import jaxtree
-    from jaxtree import output
+    from jaxtree._src import output
 
-    from .cli import _load_scene
+    from ._src.cli import _load_scene
 
     model = _load_scene(args.scene)
     attitudes = [a.strip() for a in args.attitudes.split(",") if a.strip()]

@@ -46,22 +46,6 @@ from ._math import SINGULAR_PIVOT, regular as _regular  # noqa: F401 (SINGULAR_P
 from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum
 from .model import Model, State
 
-__all__ = [
-    "Configuration",
-    "configuration",
-    "mass_matrix",
-    "rotational_equations",
-    "forward_dynamics",
-    "solve_accelerations",
-    "hinge_torques",
-    "external_loads",
-    "kinetic_energy",
-    "angular_momentum",
-    "body_angular_velocities",
-    "mass_center_acceleration",
-    "DynamicsError",
-]
-
 
 class DynamicsError(ArithmeticError):
     """Eq. (1) gave non-finite accelerations in an eager (untraced) call of

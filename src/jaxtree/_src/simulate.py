@@ -33,9 +33,7 @@ from . import _hinges
 from ._checks import SceneError, SceneTypeError, as_float, short
 from ._checks import _model as check_model
 from ._integrate import (
-    DEFAULT_ATOL,
     DEFAULT_MAX_STEPS,
-    DEFAULT_RTOL,
     DEFAULT_SAVE_POINTS,
     MESSAGES,
     Failure,
@@ -70,19 +68,6 @@ from .dynamics import (
     solve_accelerations,
 )
 from .model import Model, State
-
-__all__ = [
-    "Problem",
-    "Solution",
-    "SimulationError",
-    "simulate",
-    "check_solution",
-    "hinge_angle_event",
-    "state_event",
-    "DEFAULT_RTOL",
-    "DEFAULT_ATOL",
-    "default_tolerance",
-]
 
 
 

@@ -15,8 +15,6 @@ import functools
 
 import numpy as np
 
-__all__ = ["Topology"]
-
 
 class Topology:
     """Parents of an n-hinge tree and the tables derived from them.

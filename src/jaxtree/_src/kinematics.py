@@ -21,17 +21,6 @@ import numpy as np
 
 from .topology import Topology
 
-__all__ = [
-    "tilde",
-    "hinge_rotation",
-    "body_rotations",
-    "relative_rotations",
-    "ancestor_sum",
-    "subtree_sum",
-    "dcm_rate",
-    "full_precision",
-]
-
 
 def full_precision(fn):
     """Trace `fn` with every matrix product at full precision of its dtype.

@@ -24,8 +24,6 @@ from .dynamics import _complete_state, external_loads, hinge_torques
 from .kinematics import body_rotations, full_precision, relative_rotations
 from .model import Model, State
 
-__all__ = ["Barycentric", "barycentric", "coupling_inertia", "seed_equations"]
-
 
 class Barycentric(NamedTuple):
     """Constant mass geometry of Defs. 30-36 (body-frame components)."""

@@ -45,17 +45,6 @@ import numpy as np
 
 from .model import Model, State
 
-__all__ = [
-    "RESULT_FORMAT",
-    "simulation_dataset",
-    "modes_dataset",
-    "save_result",
-    "load_result",
-    "write_netcdf",
-    "ChunkedResult",
-    "versions",
-]
-
 RESULT_FORMAT = "jaxtree-result/1"
 ENGINE = "h5netcdf"
 

@@ -21,31 +21,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import (SceneError, SceneTypeError, SceneWarning, as_float, is_traced, rotation, short,
+from ._checks import (SceneError, SceneTypeError, as_float, is_traced, rotation, short,
                       unknown_keys)
 from .model import BodyLoads, Model, Prescription, SinePrescription, State
 from .topology import Topology
 
-__all__ = [
-    "Body",
-    "Free",
-    "SpringDamper",
-    "PrescribedSine",
-    "Prescribed",
-    "SceneError",
-    "SceneWarning",
-    "build_model",
-    "validate_model",
-    "load_scene",
-    "scene_from_dict",
-    "scene_to_dict",
-    "save_scene",
-    "scene_path",
-    "list_scenes",
-]
-
 FORMAT = "jaxtree-scene/1"
-_SCENES = pathlib.Path(__file__).resolve().parent / "scenes"
+_SCENES = pathlib.Path(__file__).resolve().parents[1] / "scenes"  # jaxtree/scenes
 
 
 # ----------------------------------------------------------------------------- joints

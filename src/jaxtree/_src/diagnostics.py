@@ -25,8 +25,6 @@ from .dynamics import SINGULAR_CONDITION, _matrix_condition, _unknown_labels, ro
 from .model import Model, State
 from .scene import SceneError, load_scene, scene_from_dict
 
-__all__ = ["Condition", "condition", "SceneReport", "check_scene"]
-
 # Above this condition number the summary warns that digits are being lost (float64 keeps
 # about 8 of its 16 digits there).
 POOR_CONDITION = 1e8

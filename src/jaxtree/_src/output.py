@@ -15,8 +15,6 @@ import numpy as np
 
 from .simulate import Solution
 
-__all__ = ["histories", "save_npz", "save_csv", "save_plot", "summary", "atomic_write"]
-
 
 @contextlib.contextmanager
 def atomic_write(path, mode="wb"):

@@ -26,8 +26,6 @@ import numpy as np
 from .dynamics import configuration
 from .model import BodyLoads, Model, State
 
-__all__ = ["PerBodyLoads", "BodyTorque", "GravityGradient", "CombinedLoads", "combine_loads", "thruster_pulse"]
-
 
 class PerBodyLoads(BodyLoads):
     """Loads from one function per body: ``fn(t, state) -> (force (3,), torque (3,))``.

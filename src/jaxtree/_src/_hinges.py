@@ -21,8 +21,6 @@ import numpy as np
 
 from .model import Model, State
 
-__all__ = ["index", "selector", "order", "split", "prescribed_motion", "complete", "from_free"]
-
 
 def index(hinges) -> np.ndarray:
     """0-based int64 indices of 1-based hinge numbers."""

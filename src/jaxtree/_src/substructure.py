@@ -54,8 +54,6 @@ from .articulated import _force_cross, _inertia_apply, _inertia_matrix, _motion_
 from .kinematics import ancestor_sum, body_rotations, cross, mm, mv
 from .topology import Topology
 
-__all__ = ["Substructure", "substructures", "Terms", "terms", "held_base"]
-
 
 class Substructure(NamedTuple):
     """A connected group of small hinges: `hinges` (ascending, 1..n), the `base` body it hangs

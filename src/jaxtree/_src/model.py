@@ -21,8 +21,6 @@ import numpy as np
 
 from .topology import Topology
 
-__all__ = ["Model", "State", "Prescription", "SinePrescription", "BodyLoads", "FunctionLoads"]
-
 
 class State(NamedTuple):
     """Instantaneous state of Eq. (1): ``dcm`` is C of Def. 9 ({b^0} = C {i}); ``omega0`` in {b^0};

@@ -33,21 +33,6 @@ import jax.numpy as jnp
 
 from .kinematics import tilde
 
-__all__ = [
-    "AbstractAttitude",
-    "DirectionCosines",
-    "Euler123",
-    "Quaternion",
-    "get_attitude",
-    "euler123_to_dcm",
-    "dcm_to_euler123",
-    "euler123_rate_matrix",
-    "quaternion_to_dcm",
-    "dcm_to_quaternion",
-    "quaternion_rate",
-    "orthogonality_error",
-]
-
 
 # ----------------------------------------------------------------------------- functions
 def euler123_to_dcm(theta):

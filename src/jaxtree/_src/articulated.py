@@ -65,8 +65,6 @@ import numpy as np
 from ._math import regular as _regular
 from .kinematics import ancestor_sum, cross, dot, mv
 
-__all__ = ["METHODS", "resolve_method", "plan", "BlockPlan"]
-
 METHODS = ("auto", "dense", "articulated")
 
 # Largest number of hinges in one block. Blocks are dense inside (their factorization costs

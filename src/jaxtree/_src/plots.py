@@ -17,8 +17,6 @@ import numpy as np
 
 from .model import Model
 
-__all__ = ["plot_histories", "plot_drift", "plot_mode_shapes", "plot_work_precision", "tree_segments"]
-
 
 def _figure(**kw):
     """A new figure outside pyplot's state (a plot made here never becomes pyplot's current

@@ -31,8 +31,6 @@ import signal
 import sys
 import time
 
-__all__ = ["main"]
-
 SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "sample")
 EXIT_USAGE, EXIT_FAILED, EXIT_INTERRUPTED = 2, 1, 130
 # Seconds to sleep after each part of `simulate` is written: lets a test interrupt a run
@@ -64,7 +62,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _fast_cpu_compiler():
-    from .__main__ import _fast_cpu_compiler as f
+    from ..__main__ import _fast_cpu_compiler as f
 
     f()
 
@@ -317,7 +315,7 @@ def main(argv=None) -> int:
     if not argv or (argv[0].startswith("-") and argv[0] not in ("-h", "--help", "--version")):
         argv = ["sample"] + argv
     if argv[0] == "sample":
-        from .__main__ import sample
+        from ..__main__ import sample
 
         try:
             return sample(argv[1:])
@@ -863,7 +861,7 @@ def _viewer():
     try:
         from . import viewer
     except ImportError:
-        raise UserError("the 3D viewer (jaxtree.viewer) is not available in this installation") from None
+        raise UserError("the 3D viewer (jaxtree.write_animation) is not available in this installation") from None
     return viewer
 
 

@@ -50,8 +50,6 @@ from .linearize import LinearSystem, structure
 from . import _checks
 from ._checks import is_traced
 
-__all__ = ["Modes", "ModalError", "UnstableError", "DefectiveError", "modes", "first_order"]
-
 
 class ModalError(ValueError):
     """The matrices do not describe an acceptable vehicle for modal analysis."""

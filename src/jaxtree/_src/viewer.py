@@ -48,17 +48,6 @@ from .dynamics import configuration
 from .model import Model
 from .output import atomic_write
 
-__all__ = [
-    "animation_html",
-    "write_animation",
-    "mode_html",
-    "write_mode_animation",
-    "inertia_box",
-    "poses",
-    "expand_shape",
-    "MAX_FRAMES",
-]
-
 MAX_FRAMES = 2000  # frames embedded in a page at most (evenly decimated beyond)
 MAX_BODY_FRAMES = 250_000  # frames x bodies at most: caps a page near 9 MB for large trees
 THIN = 0.02  # a box's smallest half-width at least this share of its largest

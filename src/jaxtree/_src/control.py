@@ -30,8 +30,6 @@ import numpy as np
 from ._hinges import selector
 from .model import State
 
-__all__ = ["AbstractController", "Controller", "HingePD", "HingePID", "hinge_torque_vector"]
-
 
 def hinge_torque_vector(n: int, hinges, torque):
     """Scatter torques on `hinges` (1-based, static) into an (n,) vector (a constant 0/1 product)."""

@@ -53,8 +53,6 @@ from .attitude import dcm_to_quaternion
 from .dynamics import SINGULAR_CONDITION
 from .model import Model
 
-__all__ = ["monte_carlo", "FAILURES"]
-
 # jaxtree's diagnosis of a failed member ("" for a run that reached t1)
 FAILURES = ("", "max_steps", "dt_min", "singular_attitude", "other", "nonfinite_start", "singular_matrix",
             "nonfinite_state")

@@ -22,8 +22,6 @@ import warnings
 import jax
 import numpy as np
 
-__all__ = ["SceneError", "SceneWarning"]
-
 
 class SceneError(ValueError):
     """Invalid vehicle description or argument; the message names the body and the field
@@ -134,13 +132,13 @@ def unknown_keys(given, known, where: str) -> None:
         warnings.warn(f"{where}: unknown key {key!r} ignored{hint}", SceneWarning, stacklevel=_caller_level())
 
 
-_PACKAGE = os.path.dirname(os.path.abspath(__file__))
+_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # the jaxtree package
 
 
 def _caller_level() -> int:
     """The `stacklevel` of the first frame outside jaxtree (the user's call), for warnings."""
     level, frame = 1, sys._getframe(1)
-    while frame is not None and os.path.dirname(os.path.abspath(frame.f_code.co_filename)) == _PACKAGE:
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(_PACKAGE + os.sep):
         level += 1
         frame = frame.f_back
     return level

@@ -92,15 +92,6 @@ from ._integrate import (DEFAULT_MAX_STEPS, MESSAGES, Failure, SimulationError, 
                          is_traced, progress_meter, report_failures, result_code, warn_below_roundoff)
 from .topology import Topology
 
-__all__ = [
-    "HybridModel",
-    "HybridSolution",
-    "hybrid_model",
-    "hybrid_rhs",
-    "hybrid_equations",
-    "simulate_hybrid",
-]
-
 
 # ----------------------------------------------------------------------------- the model
 class _Precomputed(eqx.Module):

@@ -48,17 +48,6 @@ from .kinematics import full_precision, tilde
 from ._hinges import selector
 from .model import Model, State
 
-__all__ = [
-    "LinearSystem",
-    "PartialLinearization",
-    "Structure",
-    "resolve_hinges",
-    "linearized_equations",
-    "linearize",
-    "linearize_vehicle",
-    "structure",
-]
-
 
 class LinearSystem(eqx.Module):
     """Constant-coefficient equations ``I y'' + J y' + K y = bias`` (Eq. 42 with the forcing

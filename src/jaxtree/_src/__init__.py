@@ -1,0 +1,5 @@
+"""jaxtree's implementation, one module per idea of the seed (``docs/architecture.md``).
+
+Not a public API: names here may change without notice. The public surface is the package
+``jaxtree`` itself (its ``__all__``).
+"""
