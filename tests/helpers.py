@@ -5,6 +5,7 @@ trees in ``trees.py``."""
 
 import pathlib
 
+import equinox as eqx
 import jax
 import numpy as np
 
@@ -153,3 +154,15 @@ BRANCHES = {
 def table(text):
     """A printed table as an integer array."""
     return np.array([[int(x) for x in row.split()] for row in text.strip().splitlines()])
+
+
+# ----------------------------------------------------------------------------- loads as array leaves
+class ConstantLoads(jaxtree.BodyLoads):
+    """Forces and torques (body frames) on a static set of bodies, as array leaves."""
+
+    bodies: tuple = eqx.field(static=True)
+    force: jax.Array
+    torque: jax.Array
+
+    def __call__(self, t, state):
+        return self.force, self.torque

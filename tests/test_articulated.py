@@ -11,20 +11,9 @@ import pytest
 import jaxtree
 from jaxtree._src import articulated
 
-from helpers import random_state
+from helpers import ConstantLoads, random_state
 from oracle import oracle_eom
 from trees import chain, deep_and_wide, gimbal_model, random_tree, star
-
-
-class ConstantLoads(jaxtree.BodyLoads):
-    """Forces and torques (body frames) on a static set of bodies, as array leaves."""
-
-    bodies: tuple = jaxtree._src.model.eqx.field(static=True)
-    force: jax.Array
-    torque: jax.Array
-
-    def __call__(self, t, state):
-        return self.force, self.torque
 
 
 def rel(a, b):

@@ -98,8 +98,7 @@ def test_dataset_holds_each_member_as_run_alone_and_failed_members_apart(campaig
 def test_store_is_written_chunk_by_chunk_and_a_rerun_resumes(campaign, tmp_path, monkeypatch, suffix):
     """A campaign killed after its first chunk leaves that chunk in the store; the rerun computes
     only the second and returns the numbers of an uninterrupted in-memory run."""
-    pytest.importorskip("zarr" if suffix == ".zarr" else "scipy")
-    import jaxtree._src.campaign as C
+    import jaxtree._src.campaign as C  # (zarr, and scipy for NetCDF, come with the test extra)
 
     out = tmp_path / f"mc{suffix}"
     real, calls = C.run_chunk, []
@@ -152,7 +151,8 @@ np.savez({str(tmp_path / "two.npz")!r}, omega0=ds.omega0.values, gamma=ds.gamma.
 
 
 def test_a_dask_local_cluster_of_two_processes_gives_the_same_numbers(campaign):
-    distributed = pytest.importorskip("distributed")
+    import distributed  # the test extra's dask[distributed]
+
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cl, \
             distributed.Client(cl) as client:
         ds = run(client=client)

@@ -16,22 +16,11 @@ import pytest
 import jaxtree
 from jaxtree._src.barycentric import seed_equations
 
-from helpers import random_state, scene_names
+from helpers import ConstantLoads, random_state, scene_names
 from oracle import oracle_body_states, oracle_eom
 from trees import chain, deep_and_wide, gimbal_model, random_tree, star
 
 RTOL = 1e-10  # the issue's bound; double-precision results agree to ~1e-15 relative
-
-
-class ConstantLoads(jaxtree.BodyLoads):
-    """Forces and torques (body frames) on a static set of bodies, as array leaves."""
-
-    bodies: tuple = jaxtree._src.model.eqx.field(static=True)
-    force: jax.Array
-    torque: jax.Array
-
-    def __call__(self, t, state):
-        return self.force, self.torque
 
 
 equations = jax.jit(jaxtree.rotational_equations)
