@@ -67,10 +67,11 @@ def say(*a):
 def sample(key, model):
     k = jax.random.split(key, 3)
     s = model.initial
+    dtype = model.stiffness.dtype  # draws in the model's precision (a float32 campaign scatters float32)
     panels = np.asarray(model.sprung[1:]) - 1  # the panel chain (hinge 1 is the platform's)
-    omega0 = s.omega0 + 0.01 * jax.random.normal(k[0], (3,))
-    gamma_dot = s.gamma_dot.at[panels].add(0.01 * jax.random.normal(k[1], (len(panels),)))
-    stiffness = model.stiffness.at[panels].multiply(1 + 0.1 * jax.random.normal(k[2], (len(panels),)))
+    omega0 = s.omega0 + 0.01 * jax.random.normal(k[0], (3,), dtype)
+    gamma_dot = s.gamma_dot.at[panels].add(0.01 * jax.random.normal(k[1], (len(panels),), dtype))
+    stiffness = model.stiffness.at[panels].multiply(1 + 0.1 * jax.random.normal(k[2], (len(panels),), dtype))
     return eqx.tree_at(lambda m: (m.stiffness, m.initial), model,
                        (stiffness.astype(model.stiffness.dtype),
                         s._replace(omega0=omega0.astype(s.omega0.dtype), gamma_dot=gamma_dot.astype(s.gamma_dot.dtype))))
