@@ -31,7 +31,7 @@ def _fast_cpu_compiler():
 def _parser():
     from ._src.cli import _Parser
 
-    p = _Parser(prog="python -m jaxtree", description=__doc__.split("\n\n")[0])
+    p = _Parser(prog="python -m jaxtree", description=(__doc__ or "").split("\n\n")[0])
     p.add_argument("--scene", default="fig4", help="bundled scene name or path to a scene JSON (default: fig4)")
     p.add_argument("--duration", type=float, default=100.0, help="simulated time in seconds (default: 100)")
     p.add_argument("--points", type=int, default=1001, help="number of saved times (default: 1001)")

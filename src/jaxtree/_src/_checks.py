@@ -20,6 +20,7 @@ import sys
 import warnings
 
 import jax
+from jax.core import Tracer
 import numpy as np
 
 
@@ -46,7 +47,7 @@ class SceneWarning(UserWarning):
 def is_traced(tree) -> bool:
     """True when any leaf of `tree` is a JAX tracer (inside jit, vmap or grad): its value is
     known only at run time, so checks on values are left to run time."""
-    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
+    return any(isinstance(x, Tracer) for x in jax.tree_util.tree_leaves(tree))
 
 
 def short(value, limit: int = 80) -> str:
@@ -70,7 +71,7 @@ def as_float(value, what: str, shape=None, *, finite: bool = True) -> np.ndarray
     (SceneTypeError), ragged nested lists, a shape other than `shape` (when given), and
     non-finite entries or integers too large for a float (when `finite`). A traced value
     raises too: call this only on concrete data."""
-    if isinstance(value, jax.core.Tracer):
+    if isinstance(value, Tracer):
         raise SceneTypeError(f"{what} is traced (inside jax.jit / vmap / grad); it needs a concrete value here")
     if value is None:
         raise SceneTypeError(f"{what} must be numeric, got None")

@@ -110,9 +110,11 @@ def integrate(vector_field: Callable, solver, t0, t1, dt0, y0, args, *, ts=None,
     """
     y_start = y0
     if start_ok is not None:
+        assert rest is not None, "integrate: start_ok needs rest"
         y0 = jnp.where(start_ok, y0, rest)
     single = saveat is None and isinstance(adjoint, dfx.BacksolveAdjoint)
     if saveat is None:
+        assert ts is not None, "integrate: give ts or saveat"
         if single:
             saveat = dfx.SaveAt(ts=jnp.concatenate([ts, jnp.reshape(t1, (1,)).astype(ts.dtype)]))
         else:
@@ -123,15 +125,17 @@ def integrate(vector_field: Callable, solver, t0, t1, dt0, y0, args, *, ts=None,
         event=event, max_steps=max_steps, throw=False,
         progress_meter=dfx.NoProgressMeter() if progress_meter is None else progress_meter,
     )
+    assert sol.ts is not None and sol.ys is not None  # something is always saved
+    sol_ts, sol_ys = sol.ts, sol.ys
     if isinstance(saveat.subs, (tuple, list)):
-        ts_h, ys_h = sol.ts[0], sol.ys[0]
-        ts_f, ys_f = sol.ts[-1], sol.ys[-1]
+        ts_h, ys_h = sol_ts[0], sol_ys[0]
+        ts_f, ys_f = sol_ts[-1], sol_ys[-1]
     elif single:
-        ts_h, ys_h = sol.ts[:-1], sol.ys[:-1]
-        ts_f, ys_f = sol.ts, sol.ys
+        ts_h, ys_h = sol_ts[:-1], sol_ys[:-1]
+        ts_f, ys_f = sol_ts, sol_ys
     else:
-        ts_h, ys_h = sol.ts, sol.ys
-        ts_f, ys_f = sol.ts, sol.ys
+        ts_h, ys_h = sol_ts, sol_ys
+        ts_f, ys_f = sol_ts, sol_ys
     i = last_finite(ts_f)
     t_final, y_final = ts_f[i], ys_f[i]
     if start_ok is not None:

@@ -118,9 +118,8 @@ class BlockPlan(NamedTuple):
 def plan(model, block: int | None = None) -> BlockPlan:
     """The blocks of `model`'s tree (static; cached on the model's structure), at most `block`
     hinges each where the tree allows (default :data:`DEFAULT_BLOCK`)."""
-    if block is None:
-        block = getattr(model, "block_size", 0) or DEFAULT_BLOCK
-    return _plan(model.topology, tuple(model.massive), tuple(model.unknown_hinges), tuple(model.inert), int(block))
+    size: int = block if block is not None else (getattr(model, "block_size", 0) or DEFAULT_BLOCK)
+    return _plan(model.topology, tuple(model.massive), tuple(model.unknown_hinges), tuple(model.inert), int(size))
 
 
 @functools.lru_cache(maxsize=64)
@@ -333,7 +332,7 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
     # ------------------------------------------------------------------ inward over block levels
     m = len(bp.parent)
     P = [None] * m
-    factors = [None] * m
+    factors: list = [None] * m  # every slot is filled level by level below
     ok = jnp.asarray(True)  # no pivot at round-off level (see jaxtree.dynamics.SINGULAR_PIVOT)
     leaves = np.asarray([j for j in range(m) if not bp.children[j]], np.int64)
     if len(leaves):
@@ -372,7 +371,7 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
         Tp = Xh[pa] - jnp.einsum("jai,jak->jik", Lmat[pa], Z)  # port acceleration = T a~
         T = {j: Tp[i] for i, j in enumerate(ported)}
     base = jnp.concatenate([a0, jnp.ones((1,), dtype)])
-    at = [None] * m  # homogeneous acceleration of each block's parent
+    at: list = [None] * m  # homogeneous acceleration of each block's parent
     for level in bp.levels:
         inner = [j for j in level if bp.parent_block[j] >= 0]
         if inner:
