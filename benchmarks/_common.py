@@ -19,11 +19,13 @@ def machine() -> str:
             cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
     except OSError:
         pass
-    load = ", load average %.2f %.2f %.2f" % os.getloadavg() if hasattr(os, "getloadavg") else ""
-    return (f"{platform.system()} {platform.release()}, {cpu}, {os.cpu_count()} cores{load}; "
-            f"python {platform.python_version()}, jax {jax.__version__}, diffrax {diffrax.__version__}, "
-            f"equinox {eqx.__version__}, numpy {np.__version__}; backend {jax.default_backend()} "
-            f"{jax.devices()[0].device_kind}")
+    load = ", load average {:.2f} {:.2f} {:.2f}".format(*os.getloadavg()) if hasattr(os, "getloadavg") else ""
+    return (
+        f"{platform.system()} {platform.release()}, {cpu}, {os.cpu_count()} cores{load}; "
+        f"python {platform.python_version()}, jax {jax.__version__}, diffrax {diffrax.__version__}, "
+        f"equinox {eqx.__version__}, numpy {np.__version__}; backend {jax.default_backend()} "
+        f"{jax.devices()[0].device_kind}"
+    )
 
 
 def timed(fn, repeats):

@@ -38,8 +38,9 @@ def pinocchio_model(model):
     pm.appendBodyToJoint(jid[0], pin.Inertia(mass[0], com[0], inertia[0]), pin.SE3.Identity())
     for k in range(1, model.n + 1):
         placement = pin.SE3(np.eye(3), offsets[k - 1])
-        j = pm.addJoint(jid[model.topology.parents[k - 1]], pin.JointModelRevoluteUnaligned(axis[k - 1]), placement,
-                        f"h{k}")
+        j = pm.addJoint(
+            jid[model.topology.parents[k - 1]], pin.JointModelRevoluteUnaligned(axis[k - 1]), placement, f"h{k}"
+        )
         pm.appendBodyToJoint(j, pin.Inertia(mass[k], com[k], inertia[k]), pin.SE3.Identity())
         jid.append(j)
     iq = np.array([pm.joints[j].idx_q for j in jid[1:]])
@@ -68,8 +69,10 @@ def mjcf(model, *, timestep, integrator=None, springs=False):
             head = '<body name="b0"><freejoint name="root"/>'
         else:
             spring = f' stiffness="{stiffness[k - 1]:.17g}" springref="0" damping="0"' if springs else ""
-            head = (f'<body name="b{k}" pos="{f(offsets[k - 1])}">'
-                    f'<joint name="h{k}" type="hinge" pos="0 0 0" axis="{f(axis[k - 1])}"{spring}/>')
+            head = (
+                f'<body name="b{k}" pos="{f(offsets[k - 1])}">'
+                f'<joint name="h{k}" type="hinge" pos="0 0 0" axis="{f(axis[k - 1])}"{spring}/>'
+            )
         return head + inertial(k) + "".join(body(c) for c in children[k]) + "</body>"
 
     sys.setrecursionlimit(max(sys.getrecursionlimit(), 10 * model.n + 1000))

@@ -72,9 +72,14 @@ def sample(key, model):
     omega0 = s.omega0 + 0.01 * jax.random.normal(k[0], (3,), dtype)
     gamma_dot = s.gamma_dot.at[panels].add(0.01 * jax.random.normal(k[1], (len(panels),), dtype))
     stiffness = model.stiffness.at[panels].multiply(1 + 0.1 * jax.random.normal(k[2], (len(panels),), dtype))
-    return eqx.tree_at(lambda m: (m.stiffness, m.initial), model,
-                       (stiffness.astype(model.stiffness.dtype),
-                        s._replace(omega0=omega0.astype(s.omega0.dtype), gamma_dot=gamma_dot.astype(s.gamma_dot.dtype))))
+    return eqx.tree_at(
+        lambda m: (m.stiffness, m.initial),
+        model,
+        (
+            stiffness.astype(model.stiffness.dtype),
+            s._replace(omega0=omega0.astype(s.omega0.dtype), gamma_dot=gamma_dot.astype(s.gamma_dot.dtype)),
+        ),
+    )
 
 
 def campaign(model, n, **kw):
@@ -105,8 +110,9 @@ def _peer_worker(job):
     ts = np.linspace(0.0, T1, SAVES)
     out, nfev = [], 0
     for stiffness, omega0, gamma, gamma_dot in members:
+
         def rhs(t, x):
-            w, g, gd, lin = x[:3], x[3:3 + n], x[3 + n:3 + 2 * n], x[3 + 2 * n:]
+            w, g, gd, lin = x[:3], x[3 : 3 + n], x[3 + n : 3 + 2 * n], x[3 + 2 * n :]
             q[iq] = g
             v[:3], v[3:6], v[iv] = lin, w, gd
             tau[iv] = -stiffness * g
@@ -115,7 +121,7 @@ def _peer_worker(job):
 
         x0 = np.concatenate([omega0, gamma, gamma_dot, np.zeros(3)])
         r = solve_ivp(rhs, (0.0, T1), x0, method="DOP853", rtol=tol, atol=tol, t_eval=ts)
-        out.append(r.y.T[:, :3 + n])
+        out.append(r.y.T[:, : 3 + n])
         nfev += r.nfev
     return np.asarray(out), nfev
 
@@ -157,6 +163,7 @@ def main():
     say(results["machine"])
     try:
         import pinocchio
+
         say(f"pinocchio {pinocchio.__version__}, scipy {__import__('scipy').__version__}")
     except ImportError:
         pinocchio = None
@@ -207,15 +214,25 @@ def main():
         wall = time.perf_counter() - t
         eff = np.asarray(ds.attrs["chunk_efficiency"])
         ok = int((ds.status.values == "successful").sum())
-        row = {"wall_s": wall, "first_chunk_s": first, "runs_per_s": n / wall, "sim_s_per_s": n * T1 / wall,
-               "efficiency_mean": float(eff.mean()), "efficiency_min": float(eff.min()),
-               "steps_mean": float(ds.steps.values.mean()), "steps_max": int(ds.steps.values.max()),
-               "pilot_s": ds.attrs["pilot_s"], "successful": ok}
+        row = {
+            "wall_s": wall,
+            "first_chunk_s": first,
+            "runs_per_s": n / wall,
+            "sim_s_per_s": n * T1 / wall,
+            "efficiency_mean": float(eff.mean()),
+            "efficiency_min": float(eff.min()),
+            "steps_mean": float(ds.steps.values.mean()),
+            "steps_max": int(ds.steps.values.max()),
+            "pilot_s": ds.attrs["pilot_s"],
+            "successful": ok,
+        }
         rows[label] = row
-        say(f"  {label:12s} first chunk (compile + run) {first:6.1f} s; campaign {wall:6.1f} s: {n / wall:7.1f} runs/s, "
+        say(
+            f"  {label:12s} first chunk (compile + run) {first:6.1f} s; campaign {wall:6.1f} s: {n / wall:7.1f} runs/s, "
             f"{n * T1 / wall:8.0f} simulated s/s; chunk efficiency mean {eff.mean():.3f} min {eff.min():.3f}; "
             f"steps mean {ds.steps.values.mean():.0f} max {ds.steps.values.max()}; {ok}/{n} successful"
-            + (f"; pilot {ds.attrs['pilot_s']:.1f} s" if kw.get("order") else ""))
+            + (f"; pilot {ds.attrs['pilot_s']:.1f} s" if kw.get("order") else "")
+        )
         return ds
 
     ds_index = run_variant("index order")
@@ -235,8 +252,10 @@ def main():
     t = time.perf_counter()
     ds32 = campaign(m32, n)
     wall32 = time.perf_counter() - t
-    say(f"  error {e32:.2e} (subsample); first chunk {first32:.1f} s; campaign {wall32:.1f} s: {n / wall32:.1f} runs/s, "
-        f"{n * T1 / wall32:.0f} simulated s/s; chunk efficiency mean {np.mean(ds32.attrs['chunk_efficiency']):.3f}")
+    say(
+        f"  error {e32:.2e} (subsample); first chunk {first32:.1f} s; campaign {wall32:.1f} s: {n / wall32:.1f} runs/s, "
+        f"{n * T1 / wall32:.0f} simulated s/s; chunk efficiency mean {np.mean(ds32.attrs['chunk_efficiency']):.3f}"
+    )
     results["jaxtree_float32"] = {"error": e32, "wall_s": wall32, "runs_per_s": n / wall32, "first_chunk_s": first32}
 
     if peer_tol is not None:
@@ -247,8 +266,10 @@ def main():
         results["peer"] = {"wall_s": wall, "runs_per_s": n / wall, "tol": peer_tol}
         best = max(r["runs_per_s"] for r in rows.values())
         ratio = best / (n / wall)
-        say(f"\n[goal] jaxtree float64 best {best:.1f} runs/s against the peer's {n / wall:.1f}: {ratio:.2f}x "
-            f"(goal >= 2x): {'met' if ratio >= 2 else 'NOT met'}")
+        say(
+            f"\n[goal] jaxtree float64 best {best:.1f} runs/s against the peer's {n / wall:.1f}: {ratio:.2f}x "
+            f"(goal >= 2x): {'met' if ratio >= 2 else 'NOT met'}"
+        )
         results["ratio"] = ratio
     if ARGS.json:
         write_json(ARGS.json, results)

@@ -55,8 +55,11 @@ import time
 def _blas_threads_from_argv(argv):
     """``--blas-threads N`` must act before numpy, scipy and jax load OpenBLAS."""
     for i, a in enumerate(argv):
-        value = a.split("=", 1)[1] if a.startswith("--blas-threads=") else (
-            argv[i + 1] if a == "--blas-threads" and i + 1 < len(argv) else None)
+        value = (
+            a.split("=", 1)[1]
+            if a.startswith("--blas-threads=")
+            else (argv[i + 1] if a == "--blas-threads" and i + 1 < len(argv) else None)
+        )
         if value is not None:
             os.environ["OPENBLAS_NUM_THREADS"] = os.environ["OMP_NUM_THREADS"] = value
 
@@ -72,13 +75,14 @@ if __name__ == "__main__":
     _blas_threads_from_argv(sys.argv[1:])
     _cpu_emitters_from_argv(sys.argv[1:])
 
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxtree  # noqa: E402  (turns on float64)
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-from _peers import MUJOCO_TINY_MASS, mjcf, pinocchio_model  # noqa: E402
+
 from _common import write_json  # noqa: E402
+from _peers import MUJOCO_TINY_MASS, mjcf, pinocchio_model  # noqa: E402
 
 SCENES = ("fig4", "chain50", "panels95", "chain200")
 GROWTH = (10, 25, 50, 100, 200)
@@ -118,10 +122,16 @@ def _version(module_name):
 def _git_commit():
     try:
         here = pathlib.Path(__file__).resolve().parent
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True, text=True,
-                             timeout=5)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
-                               capture_output=True, text=True, timeout=5)
+        out = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5
+        )
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=here,
+            capture_output=True,
+            text=True,
+            timeout=5,
+        )
         return out.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "") if out.returncode == 0 else None
     except (OSError, subprocess.SubprocessError):
         return None
@@ -150,8 +160,9 @@ def machine_info():
         "devices": [str(d) for d in jax.devices()],
         "x64": bool(jax.config.read("jax_enable_x64")),
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
-        "blas_threads": {k: os.environ.get(k, "unset") for k in
-                         ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")},
+        "blas_threads": {
+            k: os.environ.get(k, "unset") for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+        },
         "scipy": _version("scipy"),
         "pinocchio": _version("pinocchio"),
         "mujoco": _version("mujoco"),
@@ -219,10 +230,18 @@ def chain_model(n, k=400.0, length=0.5, mass=2.0, angle=0.02):
     seg = _plate(mass, length, 0.1, 0.02)
     bodies = [jaxtree.Body("hub", 100.0, np.diag([30.0, 40.0, 50.0]))]
     for i in range(1, n + 1):
-        bodies.append(jaxtree.Body(
-            f"seg_{i}", mass, seg, parent=i - 1, axis=[0, 1, 0] if i % 2 else [0, 0, 1],
-            hinge_on_parent=[0.6, 0, 0] if i == 1 else [length / 2, 0, 0], hinge_on_body=[-length / 2, 0, 0],
-            joint=jaxtree.SpringDamper(k, 0.0)))
+        bodies.append(
+            jaxtree.Body(
+                f"seg_{i}",
+                mass,
+                seg,
+                parent=i - 1,
+                axis=[0, 1, 0] if i % 2 else [0, 0, 1],
+                hinge_on_parent=[0.6, 0, 0] if i == 1 else [length / 2, 0, 0],
+                hinge_on_body=[-length / 2, 0, 0],
+                joint=jaxtree.SpringDamper(k, 0.0),
+            )
+        )
     initial = {"gamma": [angle] * n, "gamma_dot": [0.0] * n, "omega0": [0.0, 0.0, 0.0]}
     return jaxtree.build_model(bodies, initial, name=name)
 
@@ -326,7 +345,7 @@ def lapack_flops(model):
     """Multiply-adds and adds of the dense Cholesky factorization and two triangular solves of Eq. (1):
     XLA's cost analysis does not count LAPACK custom calls, so this is added apart."""
     N = model.n + 3 - len(model.prescribed)
-    return N ** 3 / 3 + 2 * N ** 2
+    return N**3 / 3 + 2 * N**2
 
 
 def _assemble(model, dcm, omega0, gamma, gamma_dot, t):
@@ -344,8 +363,7 @@ def bench_scene(name, cfg):
     n = model.n
     args = initial_args(model)
     r = {"scene": name, "n": n, "bodies": n + 1, "massive": len(model.massive), "prescribed": len(model.prescribed)}
-    say(f"\n== {name}: {n + 1} bodies, {n} hinges ({len(model.massive)} massive, "
-        f"{len(model.prescribed)} prescribed)")
+    say(f"\n== {name}: {n + 1} bodies, {n} hinges ({len(model.massive)} massive, {len(model.prescribed)} prescribed)")
 
     # -- compile time, kept apart from run time; FLOPs
     compiled, r["lower_s"], r["compile_s"] = _lower_compile(_fresh_forward(), model, *args)
@@ -356,19 +374,25 @@ def bench_scene(name, cfg):
     f_loads, r["first_call_loads_s"] = _first_call(_fresh_forward(), loaded, *args)
     r["flops_loads"], r["bytes_loads"] = flops_of(f_loads.lower(loaded, *args).compile())
     r["single_loads_us"] = _latency_us(lambda: _block(f_loads(loaded, *args)), cfg)
-    say(f"  compile: first call of a fresh jit {r['first_call_s']:.2f} s; measured apart, lower {r['lower_s']:.2f} s "
-        f"+ compile {r['compile_s']:.2f} s; first call with loads {r['first_call_loads_s']:.2f} s")
-    say(f"  XLA cost analysis: {r['flops']:.4g} FLOPs without loads, {r['flops_loads']:.4g} with loads "
+    say(
+        f"  compile: first call of a fresh jit {r['first_call_s']:.2f} s; measured apart, lower {r['lower_s']:.2f} s "
+        f"+ compile {r['compile_s']:.2f} s; first call with loads {r['first_call_loads_s']:.2f} s"
+    )
+    say(
+        f"  XLA cost analysis: {r['flops']:.4g} FLOPs without loads, {r['flops_loads']:.4g} with loads "
         f"({r['bytes']:.3g} / {r['bytes_loads']:.3g} bytes accessed); not counted there, the LAPACK Cholesky "
-        f"and triangular solves: ~{r['lapack_flops_est']:.4g} FLOPs")
+        f"and triangular solves: ~{r['lapack_flops_est']:.4g} FLOPs"
+    )
 
     # -- one call at a time
     f_clo = jax.jit(lambda *a: jaxtree.forward_dynamics(model, *a))
     _block(f_clo(*args))
     r["single_closure_us"] = _latency_us(lambda: _block(f_clo(*args)), cfg)
-    say(f"  single call (median latency): {r['single_us']:.1f} us with the model as an argument, "
+    say(
+        f"  single call (median latency): {r['single_us']:.1f} us with the model as an argument, "
         f"{r['single_closure_us']:.1f} us with the model closed over, {r['single_loads_us']:.1f} us with loads "
-        f"(model as an argument)")
+        f"(model as an argument)"
+    )
 
     # -- vmapped over a batch, and where the batch spends its time
     bargs = batch_args(model, cfg.batch)
@@ -383,9 +407,11 @@ def bench_scene(name, cfg):
     r["vmap_first_run_s"] = time.perf_counter() - t0
     st = _batch_time(lambda: _block(cv(model, *bargs, t)), r["vmap_first_run_s"], cfg)
     r["vmap_batch_ms"], r["vmap_us_per_state"], r["vmap_stats"] = st["median"] * 1e3, st["median"] * 1e6 / B, st
-    say(f"  vmap over {B} states: compile {r['vmap_compile_s']:.2f} s; {r['vmap_batch_ms']:.2f} ms per batch "
+    say(
+        f"  vmap over {B} states: compile {r['vmap_compile_s']:.2f} s; {r['vmap_batch_ms']:.2f} ms per batch "
         f"= {r['vmap_us_per_state']:.2f} us per state ({st['count']} batches); "
-        f"{r['vmap_flops'] / B:.4g} FLOPs per state")
+        f"{r['vmap_flops'] / B:.4g} FLOPs per state"
+    )
     if cfg.breakdown:
         va = jax.jit(jax.vmap(_assemble, in_axes=(None, 0, 0, 0, 0, None)))
         t0 = time.perf_counter()
@@ -396,13 +422,17 @@ def bench_scene(name, cfg):
         vs = jax.jit(jax.vmap(_cholesky_solve))
         _block(vs(A, b))
         r["vmap_solve_us_per_state"] = _batch_time(lambda: _block(vs(A, b)), 0.0, cfg)["median"] * 1e6 / B
-        say(f"    of which: assembling Eq. (1) {r['vmap_assembly_us_per_state']:.2f} us per state, Cholesky solve "
-            f"{r['vmap_solve_us_per_state']:.2f} us per state (all hinges free; timed apart)")
+        say(
+            f"    of which: assembling Eq. (1) {r['vmap_assembly_us_per_state']:.2f} us per state, Cholesky solve "
+            f"{r['vmap_solve_us_per_state']:.2f} us per state (all hinges free; timed apart)"
+        )
 
     # -- inside a jitted loop: the cost of an evaluation without per-call dispatch
     r.update(in_loop(model, bargs, t, r["single_closure_us"], cfg))
-    say(f"  inside lax.map ({r['loop_length']} evaluations per call): {r['loop_us']:.1f} us per evaluation "
-        f"(compile {r['loop_compile_s']:.2f} s)")
+    say(
+        f"  inside lax.map ({r['loop_length']} evaluations per call): {r['loop_us']:.1f} us per evaluation "
+        f"(compile {r['loop_compile_s']:.2f} s)"
+    )
     r["wall_s"] = time.perf_counter() - wall
     say(f"  ({r['wall_s']:.0f} s for this scene)")
     return r
@@ -445,10 +475,12 @@ def bench_growth(n, cfg, cached=None):
     r["solve_flops"], _ = flops_of(solve.lower(A, b).compile())
     _block(solve(A, b))
     r["solve_us"] = _latency_us(lambda: _block(solve(A, b)), cfg, 0.5)
-    say(f"  chain n={n:3d}: call {r['single_closure_us']:8.1f} us, in-loop {r['loop_us']:8.1f} us, "
+    say(
+        f"  chain n={n:3d}: call {r['single_closure_us']:8.1f} us, in-loop {r['loop_us']:8.1f} us, "
         f"{r['flops']:10.4g} FLOPs | assembly {r['assembly_us']:8.1f} us {r['assembly_flops']:10.4g} FLOPs | "
         f"Cholesky solve {r['solve_us']:8.1f} us {r['solve_flops']:10.4g} FLOPs "
-        f"(+ LAPACK ~{r['lapack_flops_est']:.4g})")
+        f"(+ LAPACK ~{r['lapack_flops_est']:.4g})"
+    )
     r["flops_with_lapack"] = r["flops"] + r["lapack_flops_est"]
     return r
 
@@ -554,13 +586,19 @@ def bench_peer(kind, name, cfg):
     tree.set_state(omega0, gamma, gamma_dot, tau)
     w, g = tree.accelerations()
     scale = max(1.0, float(np.abs(g_ref).max()), float(np.abs(w_ref).max()))
-    r = {"scene": name, "n": model.n, "max_diff": float(max(np.abs(g - g_ref).max(), np.abs(w - w_ref).max())),
-         "scale": scale}
+    r = {
+        "scene": name,
+        "n": model.n,
+        "max_diff": float(max(np.abs(g - g_ref).max(), np.abs(w - w_ref).max())),
+        "scale": scale,
+    }
     # with the constant external loads
     loaded = with_loads(model)
     _, tau_l, w_ref_l, g_ref_l = reference_solution(loaded)
-    F, T = (np.asarray(x) for x in _constant_loads(0.0, jaxtree.State(*(jnp.asarray(x) for x in (
-        dcm, omega0, gamma, gamma_dot)))))
+    F, T = (
+        np.asarray(x)
+        for x in _constant_loads(0.0, jaxtree.State(*(jnp.asarray(x) for x in (dcm, omega0, gamma, gamma_dot))))
+    )
     bodies = (0, model.n)
     tree.set_state(omega0, gamma, gamma_dot, tau_l)
     if kind == "pinocchio":
@@ -589,8 +627,10 @@ def run_peers(kind, names, cfg):
         pkg = "pin" if kind == "pinocchio" else "mujoco"
         say(f"\n== {kind}: not installed (pip install {pkg}, or the 'peers' extra); skipped")
         return None
-    say(f"\n== {kind} {_version(kind)}: one call at a time in a Python loop "
-        + ("(pinocchio.aba)" if kind == "pinocchio" else "(mujoco.mj_forward)"))
+    say(
+        f"\n== {kind} {_version(kind)}: one call at a time in a Python loop "
+        + ("(pinocchio.aba)" if kind == "pinocchio" else "(mujoco.mj_forward)")
+    )
     out = {}
     for name in names:
         try:
@@ -599,11 +639,16 @@ def run_peers(kind, names, cfg):
             say(f"  {name}: failed: {type(e).__name__}: {e}")
             continue
         out[name] = r
-        extra = f"; massless bodies given mass {MUJOCO_TINY_MASS:g}: {r['tiny_mass_bodies']}" if r.get(
-            "tiny_mass_bodies") else ""
-        say(f"  {name:9s} n={r['n']:3d}: {r['us']:8.2f} us per call | accelerations vs jaxtree: max |diff| "
+        extra = (
+            f"; massless bodies given mass {MUJOCO_TINY_MASS:g}: {r['tiny_mass_bodies']}"
+            if r.get("tiny_mass_bodies")
+            else ""
+        )
+        say(
+            f"  {name:9s} n={r['n']:3d}: {r['us']:8.2f} us per call | accelerations vs jaxtree: max |diff| "
             f"{r['max_diff']:.2e} (no loads), {r['max_diff_loads']:.2e} (loads; they change the accelerations by "
-            f"{r['load_effect']:.2e}), largest acceleration {r['scale']:.3g}{extra}")
+            f"{r['load_effect']:.2e}), largest acceleration {r['scale']:.3g}{extra}"
+        )
     return out
 
 
@@ -617,33 +662,48 @@ def _fmt(x, spec):
 def summary(results):
     scenes, pin, mj = results["scenes"], results.get("pinocchio") or {}, results.get("mujoco") or {}
     say("\n== summary (times are medians; compile = first call of a fresh jit, including trace/lower/compile)")
-    head = (f"{'scene':9s} {'n':>4s} {'compile s':>9s} {'single us':>9s} {'closure us':>10s} {'in-loop us':>10s} "
-            f"{'vmap us/state':>13s} {'FLOPs':>10s} {'FLOPs loads':>11s} {'+LAPACK est':>11s} {'pinocchio us':>12s} "
-            f"{'mujoco us':>9s}")
+    head = (
+        f"{'scene':9s} {'n':>4s} {'compile s':>9s} {'single us':>9s} {'closure us':>10s} {'in-loop us':>10s} "
+        f"{'vmap us/state':>13s} {'FLOPs':>10s} {'FLOPs loads':>11s} {'+LAPACK est':>11s} {'pinocchio us':>12s} "
+        f"{'mujoco us':>9s}"
+    )
     say(head)
     say("-" * len(head))
     for name, r in scenes.items():
         p, m = pin.get(name, {}).get("us"), mj.get(name, {}).get("us")
-        say(f"{name:9s} {r['n']:4d} {r['first_call_s']:9.2f} {r['single_us']:9.1f} {r['single_closure_us']:10.1f} "
+        say(
+            f"{name:9s} {r['n']:4d} {r['first_call_s']:9.2f} {r['single_us']:9.1f} {r['single_closure_us']:10.1f} "
             f"{r['loop_us']:10.1f} {r['vmap_us_per_state']:13.2f} {r['flops']:10.4g} {r['flops_loads']:11.4g} "
-            f"{r['lapack_flops_est']:11.4g} {_fmt(p, '12.2f')} {_fmt(m, '9.2f')}")
-    say("(single: model passed as an argument; closure: model closed over; in-loop: one evaluation inside a jitted "
-        "lax.map; FLOPs: XLA's cost analysis, which leaves out the LAPACK calls estimated in '+LAPACK est')")
+            f"{r['lapack_flops_est']:11.4g} {_fmt(p, '12.2f')} {_fmt(m, '9.2f')}"
+        )
+    say(
+        "(single: model passed as an argument; closure: model closed over; in-loop: one evaluation inside a jitted "
+        "lax.map; FLOPs: XLA's cost analysis, which leaves out the LAPACK calls estimated in '+LAPACK est')"
+    )
     g = results["growth"]
     say(f"\ngrowth with n (chain {', '.join(str(x['n']) for x in g['points'])}): log-log slopes")
-    for key, label in (("single_closure_us", "per-call time"), ("loop_us", "in-loop time"),
-                       ("flops", "FLOPs (XLA count)"), ("flops_with_lapack", "FLOPs + LAPACK estimate"),
-                       ("assembly_us", "assembly time"), ("assembly_flops", "assembly FLOPs"),
-                       ("solve_us", "Cholesky solve time"), ("solve_flops", "Cholesky solve FLOPs"),
-                       ("pinocchio_us", "pinocchio time"), ("mujoco_us", "mujoco time")):
+    for key, label in (
+        ("single_closure_us", "per-call time"),
+        ("loop_us", "in-loop time"),
+        ("flops", "FLOPs (XLA count)"),
+        ("flops_with_lapack", "FLOPs + LAPACK estimate"),
+        ("assembly_us", "assembly time"),
+        ("assembly_flops", "assembly FLOPs"),
+        ("solve_us", "Cholesky solve time"),
+        ("solve_flops", "Cholesky solve FLOPs"),
+        ("pinocchio_us", "pinocchio time"),
+        ("mujoco_us", "mujoco time"),
+    ):
         if key in g["slopes"]:
             say(f"  {label:24s} {_fmt(g['slopes'][key], '5.2f')}")
 
     blas = results["machine"]["blas_threads"]["OPENBLAS_NUM_THREADS"]
     if blas == "unset":
-        say("\nnote: OPENBLAS_NUM_THREADS is unset, so the LAPACK Cholesky that jaxlib calls may run OpenBLAS "
+        say(
+            "\nnote: OPENBLAS_NUM_THREADS is unset, so the LAPACK Cholesky that jaxlib calls may run OpenBLAS "
             "threads beside XLA's; on a small busy machine that can inflate the n = 200 figures by orders of "
-            "magnitude (compare --blas-threads 1)")
+            "magnitude (compare --blas-threads 1)"
+        )
     say("\ngoal checks")
     checks = results["goals"] = []
 
@@ -654,8 +714,11 @@ def summary(results):
     for name, limit in GOALS["compile_s"].items():
         if name in scenes:
             c = scenes[name]["first_call_s"]
-            check(f"compile {name} <= {limit:g} s", c <= limit,
-                  f"{c:.2f} s (vmapped: {scenes[name]['vmap_compile_s']:.2f} s)")
+            check(
+                f"compile {name} <= {limit:g} s",
+                c <= limit,
+                f"{c:.2f} s (vmapped: {scenes[name]['vmap_compile_s']:.2f} s)",
+            )
     if "fig4" in scenes:
         ref = pin.get("fig4", {}).get("us")
         src = "measured"
@@ -663,10 +726,17 @@ def summary(results):
             ref, src = ANCHORS["pinocchio"]["fig4"], "anchor"
         v = scenes["fig4"]["vmap_us_per_state"]
         f = GOALS["vmap_vs_pinocchio"]
-        check(f"vmapped fig4 throughput >= {f:g} x Pinocchio one at a time", v <= ref / f,
-              f"{v:.2f} us per state vs Pinocchio {ref:.2f} us ({src}): {ref / v:.2f} x (goal: <= {ref / f:.2f} us)")
-    for key, label in (("single_closure_us", "per-call time"), ("loop_us", "in-loop time"),
-                       ("flops", "FLOPs (XLA count)"), ("flops_with_lapack", "FLOPs + LAPACK estimate")):
+        check(
+            f"vmapped fig4 throughput >= {f:g} x Pinocchio one at a time",
+            v <= ref / f,
+            f"{v:.2f} us per state vs Pinocchio {ref:.2f} us ({src}): {ref / v:.2f} x (goal: <= {ref / f:.2f} us)",
+        )
+    for key, label in (
+        ("single_closure_us", "per-call time"),
+        ("loop_us", "in-loop time"),
+        ("flops", "FLOPs (XLA count)"),
+        ("flops_with_lapack", "FLOPs + LAPACK estimate"),
+    ):
         s = g["slopes"].get(key)
         if s is not None and math.isfinite(s):
             check(f"{label} grows no faster than n^{GOALS['slope']:g}", s <= GOALS["slope"], f"slope {s:.2f}")
@@ -678,9 +748,11 @@ def summary(results):
         rel = {name: max(r["max_diff"], r["max_diff_loads"]) / r["scale"] for name, r in peer.items()}
         tol = {name: 1e-6 if r.get("tiny_mass_bodies") else 1e-8 for name, r in peer.items()}
         worst = max(rel, key=lambda k: rel[k] / tol[k])
-        check(f"{kind} accelerations agree with jaxtree ({len(peer)} trees, with and without loads)",
-              all(rel[k] <= tol[k] for k in rel),
-              f"worst {worst}: max |diff| / largest acceleration = {rel[worst]:.1e} (tolerance {tol[worst]:.0e})")
+        check(
+            f"{kind} accelerations agree with jaxtree ({len(peer)} trees, with and without loads)",
+            all(rel[k] <= tol[k] for k in rel),
+            f"worst {worst}: max |diff| / largest acceleration = {rel[worst]:.1e} (tolerance {tol[worst]:.0e})",
+        )
 
 
 def main(argv=None):
@@ -691,11 +763,19 @@ def main(argv=None):
     ap.add_argument("--growth", nargs="+", type=int, default=list(GROWTH), help="chain lengths for the growth fit")
     ap.add_argument("--batch", type=int, default=BATCH, help="states per vmapped batch")
     ap.add_argument("--no-peers", action="store_true", help="skip Pinocchio and MuJoCo even if installed")
-    ap.add_argument("--no-breakdown", dest="breakdown", action="store_false",
-                    help="skip timing the vmapped assembly and solve apart")
+    ap.add_argument(
+        "--no-breakdown",
+        dest="breakdown",
+        action="store_false",
+        help="skip timing the vmapped assembly and solve apart",
+    )
     ap.add_argument("--default-xla", action="store_true", help="keep XLA's default CPU emitters")
-    ap.add_argument("--blas-threads", metavar="N", help="set OPENBLAS_NUM_THREADS and OMP_NUM_THREADS to N "
-                    "(acts only when the script is run directly, before jax is imported)")
+    ap.add_argument(
+        "--blas-threads",
+        metavar="N",
+        help="set OPENBLAS_NUM_THREADS and OMP_NUM_THREADS to N "
+        "(acts only when the script is run directly, before jax is imported)",
+    )
     cfg = ap.parse_args(argv)
     cfg.budget = 0.3 if cfg.quick else 1.0  # seconds of single calls per figure
     cfg.budget_batch = 0.5 if cfg.quick else 2.0  # seconds of batches per figure
@@ -712,25 +792,52 @@ def main(argv=None):
     _block(nop(x))
     info["dispatch_floor_us"] = time_calls(lambda: _block(nop(x)), budget_s=cfg.budget, min_calls=100)["median"] * 1e6
     say("== jaxtree forward_dynamics benchmark")
-    for key in ("date", "cpu", "cores", "cores_usable", "platform", "python", "jax", "jaxlib", "equinox", "numpy",
-                "scipy", "jaxtree", "jaxtree_commit", "devices", "x64", "xla_flags", "blas_threads", "pinocchio",
-                "mujoco", "loadavg_start", "dispatch_floor_us"):
+    for key in (
+        "date",
+        "cpu",
+        "cores",
+        "cores_usable",
+        "platform",
+        "python",
+        "jax",
+        "jaxlib",
+        "equinox",
+        "numpy",
+        "scipy",
+        "jaxtree",
+        "jaxtree_commit",
+        "devices",
+        "x64",
+        "xla_flags",
+        "blas_threads",
+        "pinocchio",
+        "mujoco",
+        "loadavg_start",
+        "dispatch_floor_us",
+    ):
         v = info[key]
         if key == "dispatch_floor_us":
             v = f"{v:.1f} us (median latency of a trivial jitted call)"
         elif v is None and key in ("pinocchio", "mujoco"):
             v = "not installed"
         say(f"  {key:17s} {v}")
-    say(f"  mode              {'quick' if cfg.quick else 'full'}; batch {cfg.batch}; "
-        "compile times are measured apart from run times, each on a fresh function")
+    say(
+        f"  mode              {'quick' if cfg.quick else 'full'}; batch {cfg.batch}; "
+        "compile times are measured apart from run times, each on a fresh function"
+    )
 
-    results = {"machine": info, "config": {"quick": cfg.quick, "batch": cfg.batch, "scenes": cfg.scenes,
-                                           "growth": cfg.growth}, "scenes": {}}
+    results = {
+        "machine": info,
+        "config": {"quick": cfg.quick, "batch": cfg.batch, "scenes": cfg.scenes, "growth": cfg.growth},
+        "scenes": {},
+    }
     for name in cfg.scenes:
         results["scenes"][name] = bench_scene(name, cfg)
 
-    say("\n== growth with n: chains of n sprung segments (model closed over; assembly = Eq. (1) matrix and "
-        "right side, solve = Cholesky)")
+    say(
+        "\n== growth with n: chains of n sprung segments (model closed over; assembly = Eq. (1) matrix and "
+        "right side, solve = Cholesky)"
+    )
     points = []
     for n in cfg.growth:
         cached = results["scenes"].get(f"chain{n}")
@@ -743,8 +850,16 @@ def main(argv=None):
 
     ns = [p["n"] for p in points]
     slopes = {}
-    for key in ("single_closure_us", "loop_us", "flops", "flops_with_lapack", "assembly_us", "assembly_flops",
-                "solve_us", "solve_flops"):
+    for key in (
+        "single_closure_us",
+        "loop_us",
+        "flops",
+        "flops_with_lapack",
+        "assembly_us",
+        "assembly_flops",
+        "solve_us",
+        "solve_flops",
+    ):
         slopes[key] = loglog_slope(ns, [p[key] for p in points])
     for kind in ("pinocchio", "mujoco"):
         peer = results.get(kind) or {}

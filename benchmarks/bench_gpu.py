@@ -70,7 +70,9 @@ def _states(model, batch, seed=0):
 
 def bench_forward(scenes, batches, max_gib, repeats):
     say("\nforward_dynamics, vmapped over random states")
-    say(f"  {'scene':<9} {'dtype':<8} {'batch':>7} {'compile s':>10} {'batch ms':>10} {'ns/state':>10} {'states/s':>11}")
+    say(
+        f"  {'scene':<9} {'dtype':<8} {'batch':>7} {'compile s':>10} {'batch ms':>10} {'ns/state':>10} {'states/s':>11}"
+    )
     fd = lambda m, C, w, q, qd: jaxtree.forward_dynamics(m, C, w, q, qd)  # noqa: E731
     vf = jax.vmap(fd, in_axes=(None, 0, 0, 0, 0))
     rows = []
@@ -91,11 +93,21 @@ def bench_forward(scenes, batches, max_gib, repeats):
                 compile_s = time.perf_counter() - t0
                 _, _, run = timed(lambda: compiled(model, *args), repeats)
                 out[dtype] = np.concatenate([np.asarray(a, np.float64) for a in compiled(model, *args)], 1)
-                row = dict(scene=name, n=m64.n, dtype=dtype, batch=batch, compile_s=compile_s, batch_s=run,
-                           ns_per_state=run / batch * 1e9, states_per_s=batch / run)
+                row = dict(
+                    scene=name,
+                    n=m64.n,
+                    dtype=dtype,
+                    batch=batch,
+                    compile_s=compile_s,
+                    batch_s=run,
+                    ns_per_state=run / batch * 1e9,
+                    states_per_s=batch / run,
+                )
                 rows.append(row)
-                say(f"  {name:<9} {dtype:<8} {batch:>7} {compile_s:>10.2f} {run * 1e3:>10.3f} "
-                    f"{row['ns_per_state']:>10.1f} {row['states_per_s']:>11.3g}")
+                say(
+                    f"  {name:<9} {dtype:<8} {batch:>7} {compile_s:>10.2f} {run * 1e3:>10.3f} "
+                    f"{row['ns_per_state']:>10.1f} {row['states_per_s']:>11.3g}"
+                )
             rows[-1].update(_float32_error(name, m64, host, out["float64"], out["float32"]))
     return rows
 
@@ -108,13 +120,18 @@ def _float32_error(name, model, host, a64, a32, sample=256):
     k = min(sample, len(err))
     A = jax.jit(jax.vmap(lambda q: jaxtree.mass_matrix(model, q)))(jnp.asarray(host[2][:k]))
     cond = np.linalg.cond(np.asarray(A))
-    stats = dict(float32_error_median=float(np.median(err[finite])) if finite.any() else float("nan"),
-                 float32_error_p99=float(np.percentile(err[finite], 99)) if finite.any() else float("nan"),
-                 float32_nonfinite=int(np.sum(~finite)), cond_median=float(np.median(cond)),
-                 cond_max=float(np.max(cond)))
-    say(f"  {name:<9} float32: relative error median {stats['float32_error_median']:.1e}, 99th percentile "
+    stats = dict(
+        float32_error_median=float(np.median(err[finite])) if finite.any() else float("nan"),
+        float32_error_p99=float(np.percentile(err[finite], 99)) if finite.any() else float("nan"),
+        float32_nonfinite=int(np.sum(~finite)),
+        cond_median=float(np.median(cond)),
+        cond_max=float(np.max(cond)),
+    )
+    say(
+        f"  {name:<9} float32: relative error median {stats['float32_error_median']:.1e}, 99th percentile "
         f"{stats['float32_error_p99']:.1e}, non-finite {stats['float32_nonfinite']} of {len(err)}; "
-        f"cond(A) median {stats['cond_median']:.1e}, max {stats['cond_max']:.1e} (first {k} states)")
+        f"cond(A) median {stats['cond_median']:.1e}, max {stats['cond_max']:.1e} (first {k} states)"
+    )
     return stats
 
 
@@ -130,10 +147,12 @@ def bench_simulate(batches, repeats):
         dg = rng.normal(scale=0.05, size=(batch, m64.n))
         finals = {}
         for dtype, (model, tol) in settings.items():
+
             def run(dw, dg, model=model, tol=tol):
                 y0 = model.initial._replace(omega0=model.initial.omega0 + dw, gamma_dot=model.initial.gamma_dot + dg)
                 sol = jaxtree.simulate(model, SIM_T, y0=y0, rtol=tol, atol=tol, throw=False)
                 return sol.final.omega0, sol.final.gamma, sol.stats["num_steps"], sol.result._value
+
             f = jax.jit(jax.vmap(run))
             args = (jnp.asarray(dw, model.mass.dtype), jnp.asarray(dg, model.mass.dtype))
             t0 = time.perf_counter()
@@ -144,11 +163,21 @@ def bench_simulate(batches, repeats):
             w, g, steps, result = compiled(*args)
             ok = int(np.sum(np.asarray(result) == 0))
             finals[dtype] = np.concatenate([np.asarray(w, np.float64), np.asarray(g, np.float64)], 1)
-            row = dict(dtype=dtype, rtol=tol, batch=batch, compile_s=compile_s, batch_s=t, traj_per_s=batch / t,
-                       max_steps=int(np.max(steps)), successful=ok)
+            row = dict(
+                dtype=dtype,
+                rtol=tol,
+                batch=batch,
+                compile_s=compile_s,
+                batch_s=t,
+                traj_per_s=batch / t,
+                max_steps=int(np.max(steps)),
+                successful=ok,
+            )
             rows.append(row)
-            say(f"  {dtype:<8} {tol:>6.0e} {batch:>6} {compile_s:>10.2f} {t:>9.3f} {batch / t:>9.3g} "
-                f"{row['max_steps']:>10}{'' if ok == batch else f'  ({batch - ok} runs failed)'}")
+            say(
+                f"  {dtype:<8} {tol:>6.0e} {batch:>6} {compile_s:>10.2f} {t:>9.3f} {batch / t:>9.3g} "
+                f"{row['max_steps']:>10}{'' if ok == batch else f'  ({batch - ok} runs failed)'}"
+            )
         diff = float(np.max(np.abs(finals["float32"] - finals["float64"])))
         rows[-1]["float32_final_difference"] = diff
         say(f"  float32 vs float64: largest final |d(omega0, gamma)| = {diff:.2e} (batch {batch})")
@@ -166,8 +195,9 @@ def main():
     fwd = bench_forward(args.scenes, batches, args.max_gib, repeats) if batches != [0] else []
     sim = bench_simulate(sim_batches, 1) if sim_batches != [0] else []
     if args.json:
-        write_json(args.json, dict(machine=machine(), backend=jax.default_backend(), forward_dynamics=fwd,
-                                   simulate=sim))
+        write_json(
+            args.json, dict(machine=machine(), backend=jax.default_backend(), forward_dynamics=fwd, simulate=sim)
+        )
         say(f"wrote {args.json}")
 
 

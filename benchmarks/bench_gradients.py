@@ -83,11 +83,19 @@ def main():
     model = eqx.tree_at(lambda m: m.damping, model, model.damping.at[sprung].set(0.05))
     params, static = eqx.partition(model, eqx.is_inexact_array)
     rng = np.random.default_rng(0)
-    W = {k: rng.standard_normal(s) for k, s in [("omega0", (SAVES, 3)), ("gamma", (SAVES, 10)),
-                                                ("gamma_dot", (SAVES, 10)), ("energy", (SAVES,)),
-                                                ("angular_momentum", (SAVES, 3))]}
+    W = {
+        k: rng.standard_normal(s)
+        for k, s in [
+            ("omega0", (SAVES, 3)),
+            ("gamma", (SAVES, 10)),
+            ("gamma_dot", (SAVES, 10)),
+            ("energy", (SAVES,)),
+            ("angular_momentum", (SAVES, 3)),
+        ]
+    }
 
     for T in ARGS.horizons:
+
         def loss(p, adjoint=None):
             sol = jaxtree.simulate(eqx.combine(p, static), T, saveat=SAVES, adjoint=adjoint)
             return sum(jnp.sum(W[k] * getattr(sol, k)) for k in W), sol.stats["num_steps"]
@@ -95,8 +103,10 @@ def main():
         fwd = jax.jit(lambda p: loss(p)[0])
         steps = int(jax.jit(lambda p: loss(p)[1])(params))
         _, f_first, f_run = timed(fwd, params, repeats=ARGS.repeats)
-        say(f"\n[{T:g} s] {steps} steps; loss: first call {f_first:.2f} s, run {f_run * 1e3:.1f} ms; "
-            f"memory {memory(lambda p: loss(p)[0], params)[0]:.2f} MiB")
+        say(
+            f"\n[{T:g} s] {steps} steps; loss: first call {f_first:.2f} s, run {f_run * 1e3:.1f} ms; "
+            f"memory {memory(lambda p: loss(p)[0], params)[0]:.2f} MiB"
+        )
         row = {"steps": steps, "forward_s": f_run, "forward_first_s": f_first, "gradient": {}}
         for checkpoints in [None] + list(ARGS.checkpoints):
             adjoint = dfx.RecursiveCheckpointAdjoint(checkpoints=checkpoints)
@@ -105,11 +115,18 @@ def main():
             finite = all(bool(np.all(np.isfinite(np.asarray(x)))) for x in jax.tree_util.tree_leaves(out))
             total, temp = memory(jax.grad(lambda p: loss(p, adjoint)[0]), params)
             label = "default (sqrt(2 max_steps) = 631)" if checkpoints is None else str(checkpoints)
-            say(f"  gradient, checkpoints {label}: first call {g_first:.1f} s, run {g_run * 1e3:.1f} ms = "
+            say(
+                f"  gradient, checkpoints {label}: first call {g_first:.1f} s, run {g_run * 1e3:.1f} ms = "
                 f"{g_run / f_run:.1f}x the loss (goal <= 5x); memory {total:.2f} MiB (temporaries {temp:.2f}); "
-                f"finite {finite}")
-            row["gradient"][label] = {"run_s": g_run, "first_s": g_first, "ratio": g_run / f_run, "memory_mib": total,
-                                      "temp_mib": temp}
+                f"finite {finite}"
+            )
+            row["gradient"][label] = {
+                "run_s": g_run,
+                "first_s": g_first,
+                "ratio": g_run / f_run,
+                "memory_mib": total,
+                "temp_mib": temp,
+            }
         results[f"T={T:g}"] = row
 
     say("\n[where the time goes] one right side of Eq. (1) for fig4_free, in a jitted loop of 2000")
@@ -121,7 +138,9 @@ def main():
     N = 2000
 
     def loop(body):
-        return eqx.filter_jit(lambda prob, y: jax.lax.fori_loop(0, N, lambda i, c: body(prob, y + c, c), jnp.zeros_like(y)))
+        return eqx.filter_jit(
+            lambda prob, y: jax.lax.fori_loop(0, N, lambda i, c: body(prob, y + c, c), jnp.zeros_like(y))
+        )
 
     f = loop(lambda prob, y, c: c + 1e-9 * prob.vector_field(0.0, y))
     vjp = loop(lambda prob, y, c: c + 1e-9 * jax.vjp(lambda p, yy: p.vector_field(0.0, yy), prob, y)[1](y)[1])

@@ -33,6 +33,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxtree  # noqa: E402
+
 from _common import machine, timed, write_json  # noqa: E402
 
 HUB_GOAL, SMALL_GOAL = 1e-3, 1e-2
@@ -78,7 +79,7 @@ def pinocchio_rows(model, state, torque, t1, ts, ref, S, tols, repeats):
     fext = [pin.Force.Zero() for _ in range(pm.njoints)]
 
     def rhs(t, x):
-        w, g, gd, lin = x[:3], x[3:3 + n], x[3 + n:3 + 2 * n], x[3 + 2 * n:]
+        w, g, gd, lin = x[:3], x[3 : 3 + n], x[3 + n : 3 + 2 * n], x[3 + 2 * n :]
         q[iq] = g
         v[:3], v[3:6], v[iv] = lin, w, gd
         tau[iv] = -k * g - d * gd
@@ -94,8 +95,16 @@ def pinocchio_rows(model, state, torque, t1, ts, ref, S, tols, repeats):
         r = run()
         wall = min(_wall(run) for _ in range(repeats))
         Y = r.y.T
-        rows.append(dict(method="Pinocchio + DOP853", setting=f"rtol {tol:g}", compile=0.0, run=wall,
-                         steps=int(r.nfev), errors=errors(Y[:, :3], Y[:, 3:3 + n], ref, S)))
+        rows.append(
+            dict(
+                method="Pinocchio + DOP853",
+                setting=f"rtol {tol:g}",
+                compile=0.0,
+                run=wall,
+                steps=int(r.nfev),
+                errors=errors(Y[:, :3], Y[:, 3 : 3 + n], ref, S),
+            )
+        )
     return rows
 
 
@@ -122,17 +131,28 @@ def main():
     t0 = time.perf_counter()
     ref_sol = jaxtree.simulate(model, args.t1, y0=state, saveat=ts, rtol=1e-10, atol=1e-10)
     ref = dict(omega0=np.asarray(ref_sol.omega0), gamma=np.asarray(ref_sol.gamma))
-    print(f"{args.scene}: n = {model.n}, {len(small)} small hinges; slew torque {torque.tolist()} N m from 1 s to 3 s; "
-          f"reference (full Eq. 1, Dopri8, 1e-10): {int(ref_sol.stats['num_accepted_steps'])} steps, "
-          f"{time.perf_counter() - t0:.1f} s; peak hub rate {np.abs(ref['omega0']).max():.4g} rad/s, peak small angle "
-          f"{np.abs(ref['gamma'][:, S]).max():.4g} rad")
+    print(
+        f"{args.scene}: n = {model.n}, {len(small)} small hinges; slew torque {torque.tolist()} N m from 1 s to 3 s; "
+        f"reference (full Eq. 1, Dopri8, 1e-10): {int(ref_sol.stats['num_accepted_steps'])} steps, "
+        f"{time.perf_counter() - t0:.1f} s; peak hub rate {np.abs(ref['omega0']).max():.4g} rad/s, peak small angle "
+        f"{np.abs(ref['gamma'][:, S]).max():.4g} rad"
+    )
     rows = []
     full_tols = (1e-5, 1e-6) if args.quick else (1e-4, 1e-5, 1e-6, 1e-7)
     for tol in full_tols:
-        sol, first, run = timed(lambda: jaxtree.simulate(model, args.t1, y0=state, saveat=ts, rtol=tol, atol=tol),
-                                args.repeats)
-        rows.append(dict(method="jaxtree full Eq. (1)", setting=f"rtol {tol:g}", compile=first - run, run=run,
-                         steps=int(sol.stats["num_accepted_steps"]), errors=errors(sol.omega0, sol.gamma, ref, S)))
+        sol, first, run = timed(
+            lambda: jaxtree.simulate(model, args.t1, y0=state, saveat=ts, rtol=tol, atol=tol), args.repeats
+        )
+        rows.append(
+            dict(
+                method="jaxtree full Eq. (1)",
+                setting=f"rtol {tol:g}",
+                compile=first - run,
+                run=run,
+                steps=int(sol.stats["num_accepted_steps"]),
+                errors=errors(sol.omega0, sol.gamma, ref, S),
+            )
+        )
         print(rows[-1], flush=True)
     ks = (1, 2, 3, 4) if args.quick else (1, 2, 3, 4, 6, 8)
     hyb_tols = (1e-4, 1e-5) if args.quick else (1e-3, 1e-4, 1e-5, 1e-6)
@@ -144,22 +164,44 @@ def main():
         hm = jaxtree.hybrid_model(model, small, k, omega0=state.omega0)
         build2 = time.perf_counter() - t0
         for tol in hyb_tols:
-            sol, first, run = timed(lambda: jaxtree.simulate_hybrid(hm, args.t1, y0=state, saveat=ts, rtol=tol,
-                                                                    atol=tol), args.repeats)
-            rows.append(dict(method="jaxtree hybrid", setting=f"{k} modes per substructure ({hm.n_modes}), rtol {tol:g}",
-                             compile=first - run, run=run, steps=int(sol.stats["num_accepted_steps"]),
-                             errors=errors(sol.omega0, sol.gamma, ref, S), build=(build1, build2)))
+            sol, first, run = timed(
+                lambda: jaxtree.simulate_hybrid(hm, args.t1, y0=state, saveat=ts, rtol=tol, atol=tol), args.repeats
+            )
+            rows.append(
+                dict(
+                    method="jaxtree hybrid",
+                    setting=f"{k} modes per substructure ({hm.n_modes}), rtol {tol:g}",
+                    compile=first - run,
+                    run=run,
+                    steps=int(sol.stats["num_accepted_steps"]),
+                    errors=errors(sol.omega0, sol.gamma, ref, S),
+                    build=(build1, build2),
+                )
+            )
             print(rows[-1], flush=True)
     if not args.no_peers:
         try:
-            rows += pinocchio_rows(model, state, torque, args.t1, np.asarray(ts), ref, S,
-                                   (1e-5, 1e-6) if args.quick else (1e-4, 1e-5, 1e-6, 1e-7), args.repeats)
+            rows += pinocchio_rows(
+                model,
+                state,
+                torque,
+                args.t1,
+                np.asarray(ts),
+                ref,
+                S,
+                (1e-5, 1e-6) if args.quick else (1e-4, 1e-5, 1e-6, 1e-7),
+                args.repeats,
+            )
         except ImportError as e:
             print(f"Pinocchio not installed ({e}): pip install -e .[peers]")
-    print(f"\n{'method':22s} {'setting':44s} {'compile':>8s} {'run':>9s} {'steps':>6s} {'hub err':>9s} {'small err':>9s}")
+    print(
+        f"\n{'method':22s} {'setting':44s} {'compile':>8s} {'run':>9s} {'steps':>6s} {'hub err':>9s} {'small err':>9s}"
+    )
     for r in rows:
-        print(f"{r['method']:22s} {r['setting']:44s} {r['compile']:7.2f}s {1e3 * r['run']:7.1f}ms {r['steps']:6d} "
-              f"{r['errors'][0]:9.2e} {r['errors'][1]:9.2e}")
+        print(
+            f"{r['method']:22s} {r['setting']:44s} {r['compile']:7.2f}s {1e3 * r['run']:7.1f}ms {r['steps']:6d} "
+            f"{r['errors'][0]:9.2e} {r['errors'][1]:9.2e}"
+        )
     best = {}
     for r in rows:
         if r["errors"][0] <= HUB_GOAL and r["errors"][1] <= SMALL_GOAL:
@@ -174,8 +216,10 @@ def main():
     if h and p:
         print(f"hybrid / Pinocchio + DOP853: {p['run'] / h['run']:.1f}x faster (goal 10x)")
     if h:
-        print(f"build of the chosen hybrid model: {h['build'][0]:.2f} s first call, {h['build'][1]:.2f} s again "
-              "(goal: under 2 s after compilation)")
+        print(
+            f"build of the chosen hybrid model: {h['build'][0]:.2f} s first call, {h['build'][1]:.2f} s again "
+            "(goal: under 2 s after compilation)"
+        )
     if args.json:
         write_json(args.json, dict(machine=machine(), scene=args.scene, rows=rows))
 

@@ -26,10 +26,11 @@ if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from bench_dynamics import chain_model  # noqa: E402
 
 import jaxtree  # noqa: E402
+
 from _common import machine, write_json  # noqa: E402
-from bench_dynamics import chain_model  # noqa: E402
 
 CHAINS = (10, 25, 50, 100, 200)
 
@@ -47,6 +48,7 @@ def in_loop_us(model, calls, repeats):
         def body(i, acc):
             w, g = jaxtree.forward_dynamics(model, s.dcm, s.omega0, s.gamma + 1e-12 * acc, s.gamma_dot)
             return acc + g
+
         return jax.lax.fori_loop(0, calls, body, jnp.zeros(model.n))
 
     f = jax.jit(loop)
@@ -103,8 +105,10 @@ def main():
     except ImportError:
         overhead = None
         print("Pinocchio not installed (pip install -e .[peers]): no peer column")
-    print(f"\n{'tree':10s} {'n':>4s} {'method':12s} {'in loop':>10s} {'one call':>10s} {'compile':>8s} {'pin.aba':>9s} "
-          f"{'ratio':>6s}")
+    print(
+        f"\n{'tree':10s} {'n':>4s} {'method':12s} {'in loop':>10s} {'one call':>10s} {'compile':>8s} {'pin.aba':>9s} "
+        f"{'ratio':>6s}"
+    )
     for name in names:
         model = model_of(name)
         calls = max(50, int(20000 / model.n))
@@ -112,11 +116,23 @@ def main():
         for method in ("dense", "articulated"):
             m = model.with_method(method)
             loop_us, one_us, comp = in_loop_us(m, calls, repeats)
-            rows.append(dict(tree=name, n=model.n, method=method, in_loop_us=loop_us, one_call_us=one_us,
-                             compile_s=comp, pin_aba_us=peer))
+            rows.append(
+                dict(
+                    tree=name,
+                    n=model.n,
+                    method=method,
+                    in_loop_us=loop_us,
+                    one_call_us=one_us,
+                    compile_s=comp,
+                    pin_aba_us=peer,
+                )
+            )
             ratio = f"{loop_us / peer:6.2f}" if peer else "     -"
-            print(f"{name:10s} {model.n:4d} {method:12s} {loop_us:9.1f}us {one_us:9.1f}us {comp:7.2f}s "
-                  f"{(peer or float('nan')):8.1f}us {ratio}", flush=True)
+            print(
+                f"{name:10s} {model.n:4d} {method:12s} {loop_us:9.1f}us {one_us:9.1f}us {comp:7.2f}s "
+                f"{(peer or float('nan')):8.1f}us {ratio}",
+                flush=True,
+            )
     print("\nlog-log growth of the in-loop time from 50 to 200 bodies:")
     for method in ("dense", "articulated"):
         a = next(r for r in rows if r["tree"] == "chain50" and r["method"] == method)
@@ -126,8 +142,10 @@ def main():
     c200 = [r for r in rows if r["tree"] == "chain200"]
     if overhead is not None:
         best = min(c200, key=lambda r: r["in_loop_us"])
-        print(f"chain200: best in-loop {best['in_loop_us']:.1f} us ({best['method']}) = "
-              f"{best['in_loop_us'] / best['pin_aba_us']:.2f} x pin.aba's call (goal <= 2)")
+        print(
+            f"chain200: best in-loop {best['in_loop_us']:.1f} us ({best['method']}) = "
+            f"{best['in_loop_us'] / best['pin_aba_us']:.2f} x pin.aba's call (goal <= 2)"
+        )
     model = jaxtree.load_scene("chain200")
     for method in ("dense", "articulated"):
         m = model.with_method(method)
@@ -137,8 +155,10 @@ def main():
         t0 = time.perf_counter()
         jax.block_until_ready(jaxtree.simulate(m, 0.01, saveat=2, rtol=1e-6, atol=1e-6).gamma)
         again = time.perf_counter() - t0
-        print(f"simulate on chain200 ({method}): first call {first:.2f} s, again {again:.3f} s: compile ~{first - again:.2f} s "
-              "(goal <= 10 s)")
+        print(
+            f"simulate on chain200 ({method}): first call {first:.2f} s, again {again:.3f} s: compile ~{first - again:.2f} s "
+            "(goal <= 10 s)"
+        )
         rows.append(dict(tree="chain200", method=method, simulate_compile_s=first - again))
     if args.json:
         write_json(args.json, dict(machine=machine(), rows=rows))

@@ -40,8 +40,27 @@ T_END = 10.0
 N_SAVE = 101
 TARGETS = (1e-6, 1e-9)
 # the same tolerance grid for jaxtree and scipy; the brief's rtol = 1e-6 and 1e-9 are in it
-TOLS = (1e-6, 5e-7, 3e-7, 2e-7, 1e-7, 5e-8, 2e-8, 1e-8, 5e-9, 2e-9, 1e-9, 5e-10, 3e-10, 2e-10, 1.5e-10, 1e-10,
-        5e-11, 2e-11, 1e-11)
+TOLS = (
+    1e-6,
+    5e-7,
+    3e-7,
+    2e-7,
+    1e-7,
+    5e-8,
+    2e-8,
+    1e-8,
+    5e-9,
+    2e-9,
+    1e-9,
+    5e-10,
+    3e-10,
+    2e-10,
+    1.5e-10,
+    1e-10,
+    5e-11,
+    2e-11,
+    1e-11,
+)
 QUICK_TOLS = (1e-6, 2e-7, 1e-7, 1e-8, 1e-9, 2e-10, 1e-10)
 MUJOCO_STEPS_PER_SAVE = (10, 14, 20, 28, 40, 57, 80, 113, 160, 226, 320, 453, 640)  # dt = 0.1 s / k
 QUICK_STEPS = (10, 20, 40, 80, 160, 320)
@@ -53,10 +72,18 @@ def _args():
     p.add_argument("--quick", action="store_true", help="fewer repetitions and settings")
     p.add_argument("--default-xla", action="store_true", help="keep XLA's default CPU emitters")
     p.add_argument("--json", help="also write the figures to this JSON file")
-    p.add_argument("--scene", default="fig4_free", choices=["fig4_free", "panels95", "chain200", "chain50", "wings"],
-                   help="scene (default fig4_free; panels95 and chain200 for the large trees of issue 12)")
-    p.add_argument("--method", default=None, choices=["dense", "articulated"],
-                   help="how jaxtree solves Eq. (1) (default: the model's automatic choice)")
+    p.add_argument(
+        "--scene",
+        default="fig4_free",
+        choices=["fig4_free", "panels95", "chain200", "chain50", "wings"],
+        help="scene (default fig4_free; panels95 and chain200 for the large trees of issue 12)",
+    )
+    p.add_argument(
+        "--method",
+        default=None,
+        choices=["dense", "articulated"],
+        help="how jaxtree solves Eq. (1) (default: the model's automatic choice)",
+    )
     return p.parse_args()
 
 
@@ -68,8 +95,9 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxtree  # noqa: E402
-from _peers import MUJOCO_TINY_INERTIA, MUJOCO_TINY_MASS, mjcf, pinocchio_model  # noqa: E402
+
 from _common import write_json  # noqa: E402
+from _peers import MUJOCO_TINY_INERTIA, MUJOCO_TINY_MASS, mjcf, pinocchio_model  # noqa: E402
 
 
 def say(*a):
@@ -92,7 +120,10 @@ def machine():
     except (OSError, StopIteration):
         pass
     info = {
-        "cpu": cpu, "cores": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
         "load_average": os.getloadavg() if hasattr(os, "getloadavg") else None,
         "XLA_FLAGS": os.environ.get("XLA_FLAGS", ""),
     }
@@ -145,10 +176,17 @@ def jaxtree_runs(model, ref, tols, repeats, first):
     for tol in tols:
         sol = run(tol)
         wall = best_time(lambda: run(tol), repeats)
-        rows.append({"setting": f"rtol=atol={tol:g}", "tol": tol, "wall_s": wall,
-                     "error": error(np.asarray(sol.omega0), np.asarray(sol.gamma), ref),
-                     "steps": int(sol.stats["num_steps"]), "rhs": int(sol.stats["rhs_evaluations"]),
-                     "fn": (lambda tol=tol: run(tol))})
+        rows.append(
+            {
+                "setting": f"rtol=atol={tol:g}",
+                "tol": tol,
+                "wall_s": wall,
+                "error": error(np.asarray(sol.omega0), np.asarray(sol.gamma), ref),
+                "steps": int(sol.stats["num_steps"]),
+                "rhs": int(sol.stats["rhs_evaluations"]),
+                "fn": (lambda tol=tol: run(tol)),
+            }
+        )
     compile_s = first - next(r["wall_s"] for r in rows if r["tol"] == tols[0])
     return compile_s, rows
 
@@ -178,7 +216,7 @@ def pinocchio_runs(model, ref, tols, repeats):
     aba = pin.aba
 
     def rhs(t, x):
-        w, g, gd, lin = x[:3], x[3:3 + n], x[3 + n:3 + 2 * n], x[3 + 2 * n:]
+        w, g, gd, lin = x[:3], x[3 : 3 + n], x[3 + n : 3 + 2 * n], x[3 + 2 * n :]
         q[iq] = g
         v[:3], v[3:6], v[iv] = lin, w, gd
         tau[iv] = -stiffness * g - damping * gd
@@ -205,9 +243,16 @@ def pinocchio_runs(model, ref, tols, repeats):
         r = run(tol)
         wall = best_time(lambda: run(tol), repeats)
         Y = r.y.T
-        rows.append({"setting": f"DOP853 rtol=atol={tol:g}", "tol": tol, "wall_s": wall,
-                     "error": error(Y[:, :3], Y[:, 3:3 + n], ref), "rhs": int(r.nfev),
-                     "fn": (lambda tol=tol: run(tol))})
+        rows.append(
+            {
+                "setting": f"DOP853 rtol=atol={tol:g}",
+                "tol": tol,
+                "wall_s": wall,
+                "error": error(Y[:, :3], Y[:, 3 : 3 + n], ref),
+                "rhs": int(r.nfev),
+                "fn": (lambda tol=tol: run(tol)),
+            }
+        )
     return build, rows, run
 
 
@@ -246,8 +291,16 @@ def mujoco_runs(model, ref, steps_per_save, repeats):
         m, d, _ = build(dt)
         W, G = run(m, d, k)
         wall = best_time(lambda: run(m, d, k), repeats)
-        rows.append({"setting": f"RK4 dt={dt:.3g}", "dt": dt, "wall_s": wall, "error": error(W, G, ref),
-                     "rhs": 4 * k * (N_SAVE - 1), "fn": (lambda m=m, d=d, k=k: run(m, d, k))})
+        rows.append(
+            {
+                "setting": f"RK4 dt={dt:.3g}",
+                "dt": dt,
+                "wall_s": wall,
+                "error": error(W, G, ref),
+                "rhs": 4 * k * (N_SAVE - 1),
+                "fn": (lambda m=m, d=d, k=k: run(m, d, k)),
+            }
+        )
     return build_s, rows, tiny
 
 
@@ -302,23 +355,29 @@ def main():
     t = time.perf_counter()
     refsol = jaxtree.simulate(model, T_END, saveat=N_SAVE, rtol=reference_tol, atol=reference_tol)
     ref = (np.asarray(refsol.omega0), np.asarray(refsol.gamma))
-    say(f"reference: jaxtree Dopri8 rtol=atol={reference_tol:g}: {int(refsol.stats['num_steps'])} steps, "
-        f"{time.perf_counter() - t:.1f} s")
+    say(
+        f"reference: jaxtree Dopri8 rtol=atol={reference_tol:g}: {int(refsol.stats['num_steps'])} steps, "
+        f"{time.perf_counter() - t:.1f} s"
+    )
 
     results = {"machine": info}
     compile_s, rows = jaxtree_runs(model, ref, tols, repeats, first)
     results["jaxtree"] = {"compile_s": compile_s, "first_call_s": first, "first_call_cpu_s": first_cpu, "rows": rows}
-    say(f"jaxtree: first call {first:.2f} s = compile {compile_s:.2f} s + run (CPU time of the first call "
-        f"{first_cpu:.2f} s)")
+    say(
+        f"jaxtree: first call {first:.2f} s = compile {compile_s:.2f} s + run (CPU time of the first call "
+        f"{first_cpu:.2f} s)"
+    )
     table("jaxtree (diffrax Dopri8, PI control)", rows)
 
     peers = {}
     try:
         build, prow, prun = pinocchio_runs(model, ref, tols, repeats)
         r = prun(reference_tol)
-        check = error(r.y.T[:, :3], r.y.T[:, 3:3 + model.n], ref)
-        say(f"pinocchio: model built in {build * 1e3:.1f} ms; reference check (DOP853 at {reference_tol:g} vs "
-            f"jaxtree reference): {check:.2e}")
+        check = error(r.y.T[:, :3], r.y.T[:, 3 : 3 + model.n], ref)
+        say(
+            f"pinocchio: model built in {build * 1e3:.1f} ms; reference check (DOP853 at {reference_tol:g} vs "
+            f"jaxtree reference): {check:.2e}"
+        )
         table("Pinocchio ABA + scipy DOP853", prow)
         peers["pinocchio+scipy"] = prow
         results["pinocchio"] = {"build_s": build, "rows": prow, "reference_check": check}
@@ -328,15 +387,19 @@ def main():
         if large:
             raise ImportError  # MuJoCo's converter has no hinge damping: fig4_free only
         build, mrow, tiny = mujoco_runs(model, ref, QUICK_STEPS if ARGS.quick else MUJOCO_STEPS_PER_SAVE, repeats)
-        say(f"mujoco: model built in {build * 1e3:.1f} ms; massless bodies {tiny} given mass {MUJOCO_TINY_MASS:g} kg "
-            f"and inertia {MUJOCO_TINY_INERTIA:g} kg m^2")
+        say(
+            f"mujoco: model built in {build * 1e3:.1f} ms; massless bodies {tiny} given mass {MUJOCO_TINY_MASS:g} kg "
+            f"and inertia {MUJOCO_TINY_INERTIA:g} kg m^2"
+        )
         table("MuJoCo RK4", mrow)
         peers["mujoco-rk4"] = mrow
         results["mujoco"] = {"build_s": build, "rows": mrow, "tiny_mass_bodies": tiny}
     except ImportError:
         say("mujoco: not installed (pip install mujoco) or not this scene: skipped")
 
-    say("summary: wall time to reach the error, cheapest setting of each sweep (fewest right sides), timed again interleaved")
+    say(
+        "summary: wall time to reach the error, cheapest setting of each sweep (fewest right sides), timed again interleaved"
+    )
     checks = []
     methods = {"jaxtree": rows, **peers}
     for target in TARGETS:
@@ -361,8 +424,13 @@ def main():
             best_peer = min(peer_times)
             factor = goal
             ok = mine is not None and mine <= factor * best_peer
-            checks.append((f"jaxtree reaches {target:g} in <= {factor:g} x the best peer's time "
-                           f"({factor * best_peer * 1e3:.1f} ms): {'-' if mine is None else f'{mine * 1e3:.1f} ms'}", ok))
+            checks.append(
+                (
+                    f"jaxtree reaches {target:g} in <= {factor:g} x the best peer's time "
+                    f"({factor * best_peer * 1e3:.1f} ms): {'-' if mine is None else f'{mine * 1e3:.1f} ms'}",
+                    ok,
+                )
+            )
     limit = 10.0 if scene == "chain200" else 5.0
     checks.append((f"compile time {compile_s:.2f} s <= {limit:g} s", compile_s <= limit))
     for label, ok in checks:

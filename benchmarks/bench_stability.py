@@ -42,6 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxtree
+
 from _common import machine, timed, write_json
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
@@ -53,14 +54,24 @@ def say(*a):
 
 
 def tree_arrays(model):
-    return (list(model.topology.parents), np.asarray(model.mass), np.asarray(model.inertia),
-            np.asarray(model.axis), np.asarray(model.hinge_on_parent), np.asarray(model.hinge_on_body))
+    return (
+        list(model.topology.parents),
+        np.asarray(model.mass),
+        np.asarray(model.inertia),
+        np.asarray(model.axis),
+        np.asarray(model.hinge_on_parent),
+        np.asarray(model.hinge_on_body),
+    )
 
 
 def random_state(model, rng, scale=0.5):
     n = model.n
-    return jaxtree.State(jnp.eye(3), jnp.asarray(rng.normal(0, scale, 3)), jnp.asarray(rng.normal(0, scale, n)),
-                         jnp.asarray(rng.normal(0, scale, n)))
+    return jaxtree.State(
+        jnp.eye(3),
+        jnp.asarray(rng.normal(0, scale, 3)),
+        jnp.asarray(rng.normal(0, scale, n)),
+        jnp.asarray(rng.normal(0, scale, n)),
+    )
 
 
 def against_oracle(model, state):
@@ -69,14 +80,18 @@ def against_oracle(model, state):
     A, b = (np.asarray(x) for x in jaxtree.rotational_equations(model, state))
     w, g = jax.jit(jaxtree.forward_dynamics)(model, state.dcm, state.omega0, state.gamma, state.gamma_dot)
     x = np.concatenate([np.asarray(w), np.asarray(g)])
-    o = oracle_eom(*tree_arrays(model), np.asarray(state.omega0), np.asarray(state.gamma),
-                   np.asarray(state.gamma_dot), tau=tau)
+    o = oracle_eom(
+        *tree_arrays(model), np.asarray(state.omega0), np.asarray(state.gamma), np.asarray(state.gamma_dot), tau=tau
+    )
     Ao = np.asarray(o["mass_matrix"])
     xo = np.concatenate([np.asarray(o["omega0_dot"]), np.asarray(o["gamma_ddot"])])
     norm = lambda v: np.abs(v).max()
-    return dict(cond=float(np.linalg.cond(A)), matrix=float(norm(A - Ao) / norm(A)),
-                backward=float(norm(A @ x - b) / (norm(A) * norm(x) + norm(b))),
-                forward=float(norm(x - xo) / norm(xo)))
+    return dict(
+        cond=float(np.linalg.cond(A)),
+        matrix=float(norm(A - Ao) / norm(A)),
+        backward=float(norm(A @ x - b) / (norm(A) * norm(x) + norm(b))),
+        forward=float(norm(x - xo) / norm(xo)),
+    )
 
 
 def worst(rows):
@@ -90,12 +105,15 @@ def stiff_hinge(args, out):
     # moment of inertia of each segment about its own hinge axis (parallel axes), for damping ratios
     axis = np.asarray(base.axis)
     hob = np.asarray(base.hinge_on_body)
-    I_h = (np.einsum("ki,kij,kj->k", axis, np.asarray(base.inertia)[1:], axis)
-           + np.asarray(base.mass)[1:] * np.sum(np.cross(axis, hob) ** 2, 1))
+    I_h = np.einsum("ki,kij,kj->k", axis, np.asarray(base.inertia)[1:], axis) + np.asarray(base.mass)[1:] * np.sum(
+        np.cross(axis, hob) ** 2, 1
+    )
     k0 = np.asarray(base.stiffness)
     scales = (1.0, 1e3, 1e6) if args.quick else (1.0, 1e2, 1e4, 1e6)
-    say("\n1. one stiff, damped hinge in a soft chain: chain10, the tip hinge's spring x s (damping ratio 0.7), "
-        "the others as in the scene (damping ratio 0.02); 1 s, rtol = atol = 1e-6")
+    say(
+        "\n1. one stiff, damped hinge in a soft chain: chain10, the tip hinge's spring x s (damping ratio 0.7), "
+        "the others as in the scene (damping ratio 0.02); 1 s, rtol = atol = 1e-6"
+    )
     say(f"   {'s':>6} {'f_max Hz':>9} {'solver':>9} {'steps':>7} {'rejected':>8} {'run ms':>8} {'error':>9}")
     rows = []
     for s in scales:
@@ -106,19 +124,32 @@ def stiff_hinge(args, out):
         c = 2 * zeta * np.sqrt(k * I_h)
         model = eqx.tree_at(lambda m: (m.stiffness, m.damping), base, (jnp.asarray(k), jnp.asarray(c)))
         lin = jaxtree.linearize(model, small=tuple(range(1, n + 1)))
-        f_max = float(np.sqrt(np.max(np.linalg.eigvals(np.linalg.solve(np.asarray(lin.I), np.asarray(lin.K))).real))
-                      / (2 * np.pi))
+        f_max = float(
+            np.sqrt(np.max(np.linalg.eigvals(np.linalg.solve(np.asarray(lin.I), np.asarray(lin.K))).real)) / (2 * np.pi)
+        )
         ref = jaxtree.simulate(model, 1.0, saveat=11, rtol=1e-11, atol=1e-11, max_steps=2_000_000)
         for name, solver in (("Dopri8", dfx.Dopri8()), ("Kvaerno5", dfx.Kvaerno5())):
-            fn = lambda: jaxtree.simulate(model, 1.0, saveat=11, solver=solver, rtol=1e-6, atol=1e-6,
-                                          max_steps=1_000_000, throw=False)
+            fn = lambda: jaxtree.simulate(
+                model, 1.0, saveat=11, solver=solver, rtol=1e-6, atol=1e-6, max_steps=1_000_000, throw=False
+            )
             sol, first, best = timed(fn, args.repeats)
             err = float(np.abs(np.asarray(sol.gamma) - np.asarray(ref.gamma)).max()) if sol.ok else float("nan")
-            row = dict(s=s, f_max_hz=f_max, solver=name, ok=bool(sol.ok), steps=int(sol.stats["num_accepted_steps"]),
-                       rejected=int(sol.stats["num_rejected_steps"]), first_call_s=first, run_s=best, error=err)
+            row = dict(
+                s=s,
+                f_max_hz=f_max,
+                solver=name,
+                ok=bool(sol.ok),
+                steps=int(sol.stats["num_accepted_steps"]),
+                rejected=int(sol.stats["num_rejected_steps"]),
+                first_call_s=first,
+                run_s=best,
+                error=err,
+            )
             rows.append(row)
-            say(f"   {s:6.0e} {f_max:9.3g} {name:>9} {row['steps']:7d} {row['rejected']:8d} {1e3 * best:8.1f} "
-                f"{err:9.2e}{'' if sol.ok else '  FAILED: ' + str(sol.result)}")
+            say(
+                f"   {s:6.0e} {f_max:9.3g} {name:>9} {row['steps']:7d} {row['rejected']:8d} {1e3 * best:8.1f} "
+                f"{err:9.2e}{'' if sol.ok else '  FAILED: ' + str(sol.result)}"
+            )
     out["stiff_hinge"] = rows
 
 
@@ -127,13 +158,17 @@ def mass_ratios(args, out):
     base = jaxtree.load_scene("chain10")
     rng = np.random.default_rng(1)
     ratios = (1e3, 1.0, 1e-3, 1e-6, 1e-9)
-    say("\n2. mass ratios: chain10 with segment mass and inertia x r (hub 100 kg), random states; worst of "
-        f"{args.states}")
+    say(
+        "\n2. mass ratios: chain10 with segment mass and inertia x r (hub 100 kg), random states; worst of "
+        f"{args.states}"
+    )
     say(f"   {'r':>6} {'cond(A)':>9} {'|A-Ao|/|A|':>11} {'backward':>9} {'|x-xo|/|xo|':>11}")
     rows = []
     for r in ratios:
         scale = jnp.asarray(np.r_[1.0, np.full(base.n, r)])
-        model = eqx.tree_at(lambda m: (m.mass, m.inertia), base, (base.mass * scale, base.inertia * scale[:, None, None]))
+        model = eqx.tree_at(
+            lambda m: (m.mass, m.inertia), base, (base.mass * scale, base.inertia * scale[:, None, None])
+        )
         w = worst([against_oracle(model, random_state(model, rng)) for _ in range(args.states)])
         rows.append(dict(r=r, **w))
         say(f"   {r:6.0e} {w['cond']:9.2e} {w['matrix']:11.2e} {w['backward']:9.2e} {w['forward']:11.2e}")
@@ -183,8 +218,16 @@ def fast_spin(args, out):
         fn = lambda: jaxtree.simulate(base, 10.0, y0=y0, rtol=1e-10, atol=1e-10, max_steps=1_000_000)
         sol, first, best = timed(fn, args.repeats)
         dE, dH = drift(base, sol)
-        rows.append(dict(factor=f, rate=rate, steps=int(sol.stats["num_accepted_steps"]), run_s=best,
-                         energy_drift=dE, momentum_drift=dH))
+        rows.append(
+            dict(
+                factor=f,
+                rate=rate,
+                steps=int(sol.stats["num_accepted_steps"]),
+                run_s=best,
+                energy_drift=dE,
+                momentum_drift=dH,
+            )
+        )
         say(f"   {rate:10.1f} {rows[-1]['steps']:7d} {1e3 * best:8.1f} {dE:13.2e} {dH:15.2e}")
     out["fast_spin"] = rows
 
@@ -196,16 +239,26 @@ def many_bodies(args, out):
     say(f"\n5. many bodies: chain200 (n = {model.n})")
     t = time.perf_counter()
     w = worst([against_oracle(model, random_state(model, rng, 0.05)) for _ in range(2)])
-    say(f"   random states (angles and rates of scale 0.05): cond(A) {w['cond']:.2e}, |A-Ao|/|A| {w['matrix']:.2e}, "
-        f"backward {w['backward']:.2e}, |x-xo|/|xo| {w['forward']:.2e} ({time.perf_counter() - t:.0f} s with the oracle)")
+    say(
+        f"   random states (angles and rates of scale 0.05): cond(A) {w['cond']:.2e}, |A-Ao|/|A| {w['matrix']:.2e}, "
+        f"backward {w['backward']:.2e}, |x-xo|/|xo| {w['forward']:.2e} ({time.perf_counter() - t:.0f} s with the oracle)"
+    )
     fn = lambda: jaxtree.simulate(model, 1.0, rtol=1e-10, atol=1e-10, max_steps=1_000_000)
     sol, first, best = timed(fn, 1)
     dE, dH = drift(model, sol)
-    say(f"   1 s at rtol = atol = 1e-10: {int(sol.stats['num_accepted_steps'])} steps, compile+run {first:.1f} s, "
+    say(
+        f"   1 s at rtol = atol = 1e-10: {int(sol.stats['num_accepted_steps'])} steps, compile+run {first:.1f} s, "
         f"run {best:.2f} s; energy drift {dE:.2e}, angular momentum drift {dH:.2e} (H(0) = 0: relative to "
-        f"sqrt(2 E I_max))")
-    out["many_bodies"] = dict(w, steps=int(sol.stats["num_accepted_steps"]), first_call_s=first, run_s=best,
-                              energy_drift=dE, momentum_drift=dH)
+        f"sqrt(2 E I_max))"
+    )
+    out["many_bodies"] = dict(
+        w,
+        steps=int(sol.stats["num_accepted_steps"]),
+        first_call_s=first,
+        run_s=best,
+        energy_drift=dE,
+        momentum_drift=dH,
+    )
 
 
 def main():

@@ -40,30 +40,45 @@ def sweep(t):
 
 deploying = jaxtree.build_model(
     [dataclasses.replace(b, joint=jaxtree.Prescribed(sweep)) if k == 5 else b for k, b in enumerate(bodies)],
-    initial, name="fig4_deploying")
+    initial,
+    name="fig4_deploying",
+)
 latched = jaxtree.build_model(
-    [dataclasses.replace(b, joint=jaxtree.SpringDamper(K_LATCH, D_LATCH)) if k == 5 else b
-     for k, b in enumerate(bodies)], initial, name="fig4_latched")
+    [
+        dataclasses.replace(b, joint=jaxtree.SpringDamper(K_LATCH, D_LATCH)) if k == 5 else b
+        for k, b in enumerate(bodies)
+    ],
+    initial,
+    name="fig4_latched",
+)
 
 # Phase 1: deploy until hinge 5 crosses the latch angle (upward)
 latch_event = jaxtree.hinge_angle_event(5, LATCH, direction=True)
 deploy = jaxtree.simulate(deploying, 2 * SWEEP, event=latch_event, saveat=401, rtol=1e-10, atol=1e-10)
 t_latch = float(deploy.t_final)
 exact = SWEEP / np.pi * np.arccos(1 - 2 * (LATCH - STOWED) / (OVERSHOOT - STOWED))
-print(f"latched at t = {t_latch:.12f} s (inverse of the sweep: {exact:.12f} s, "
-      f"difference {abs(t_latch - exact):.1e} s)")
-print(f"  hinge 5 at the latch: angle {float(deploy.final.gamma[4]):+.3e} rad, "
-      f"rate {float(deploy.final.gamma_dot[4]):.4f} rad/s")
+print(
+    f"latched at t = {t_latch:.12f} s (inverse of the sweep: {exact:.12f} s, difference {abs(t_latch - exact):.1e} s)"
+)
+print(
+    f"  hinge 5 at the latch: angle {float(deploy.final.gamma[4]):+.3e} rad, "
+    f"rate {float(deploy.final.gamma_dot[4]):.4f} rad/s"
+)
 hold = np.asarray(deploy.hold_torque)
-print(f"  deployment motor torque (hold torque of hinge 5): max |tau_5| = {np.nanmax(np.abs(hold[:, 1])):.3f} N m; "
-      f"platform hinge 1: {np.nanmax(np.abs(hold[:, 0])):.3f} N m")
+print(
+    f"  deployment motor torque (hold torque of hinge 5): max |tau_5| = {np.nanmax(np.abs(hold[:, 1])):.3f} N m; "
+    f"platform hinge 1: {np.nanmax(np.abs(hold[:, 0])):.3f} N m"
+)
 
 # Phase 2: latched, released to the springs, from the latch state
-after = jaxtree.simulate(latched, t_latch + 20.0, t0=deploy.t_final, y0=deploy.final, saveat=401,
-                         rtol=1e-10, atol=1e-10)
+after = jaxtree.simulate(
+    latched, t_latch + 20.0, t0=deploy.t_final, y0=deploy.final, saveat=401, rtol=1e-10, atol=1e-10
+)
 print(jaxtree.summary("after the latch", after))
-print(f"  hinge 5 settles: |gamma_5| at the end {abs(float(after.final.gamma[4])):.2e} rad; "
-      f"panel hinges 6-10 at the end {np.round(np.asarray(after.final.gamma[5:]), 4)}")
+print(
+    f"  hinge 5 settles: |gamma_5| at the end {abs(float(after.final.gamma[4])):.2e} rad; "
+    f"panel hinges 6-10 at the end {np.round(np.asarray(after.final.gamma[5:]), 4)}"
+)
 
 runs = {"deploying": deploy, "latched": after}
 jaxtree.save_npz(out / "deploy_latch.npz", runs)
@@ -80,12 +95,22 @@ try:
     for name, sol in runs.items():
         h = jaxtree.histories(sol)
         for k in range(4, 10):
-            axes[0].plot(h["t"], h["gamma"][:, k], color=colors[k % len(colors)], lw=1,
-                         label=f"$\\gamma_{{{k + 1}}}$" if name == "deploying" else None)
+            axes[0].plot(
+                h["t"],
+                h["gamma"][:, k],
+                color=colors[k % len(colors)],
+                lw=1,
+                label=f"$\\gamma_{{{k + 1}}}$" if name == "deploying" else None,
+            )
     h1, h2 = jaxtree.histories(deploy), jaxtree.histories(after)
     axes[1].plot(h1["t"], h1["hold_torque"][:, -1], "k", lw=1, label="motor (hold torque of the prescription)")
-    axes[1].plot(h2["t"], -(K_LATCH * h2["gamma"][:, 4] + D_LATCH * h2["gamma_dot"][:, 4]), "r", lw=1,
-                 label="latch spring and damper")
+    axes[1].plot(
+        h2["t"],
+        -(K_LATCH * h2["gamma"][:, 4] + D_LATCH * h2["gamma_dot"][:, 4]),
+        "r",
+        lw=1,
+        label="latch spring and damper",
+    )
     for ax in axes:
         ax.axvline(t_latch, color="r", ls="--", lw=0.8)
     axes[0].set_title("panel hinge angles (rad); red: latch")

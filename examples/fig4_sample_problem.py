@@ -21,8 +21,10 @@ import jaxtree
 
 out = pathlib.Path(sys.argv[1] if len(sys.argv) > 1 else "results")
 model = jaxtree.load_scene("fig4")
-print(f"{model.name}: {model.n + 1} bodies, hinges {list(model.prescribed)} prescribed, "
-      f"initial rotor rate {float(model.initial.gamma_dot[3]):.4f} rad/s")
+print(
+    f"{model.name}: {model.n + 1} bodies, hinges {list(model.prescribed)} prescribed, "
+    f"initial rotor rate {float(model.initial.gamma_dot[3]):.4f} rad/s"
+)
 
 runs = {}
 for attitude in ("euler123", "quaternion"):
@@ -33,10 +35,12 @@ for attitude in ("euler123", "quaternion"):
     print(jaxtree.summary(attitude, sol, first=time.perf_counter() - t0))
 
 e, q = runs["euler123"], runs["quaternion"]
-print("max |difference| Euler vs quaternion run:",
-      f"gamma {np.abs(np.asarray(e.gamma - q.gamma)).max():.2e},",
-      f"omega0 {np.abs(np.asarray(e.omega0 - q.omega0)).max():.2e},",
-      f"C {np.abs(np.asarray(e.dcm - q.dcm)).max():.2e}")
+print(
+    "max |difference| Euler vs quaternion run:",
+    f"gamma {np.abs(np.asarray(e.gamma - q.gamma)).max():.2e},",
+    f"omega0 {np.abs(np.asarray(e.omega0 - q.omega0)).max():.2e},",
+    f"C {np.abs(np.asarray(e.dcm - q.dcm)).max():.2e}",
+)
 print("hinge-1 hold torque: max |tau_1| =", f"{np.abs(np.asarray(q.hold_torque)).max():.4f} N m")
 
 jaxtree.save_npz(out / "fig4_sample_problem.npz", runs)

@@ -37,10 +37,12 @@ import jaxtree
 SCENE = "wings"
 DURATION, RATE = 20.0, 10.0  # s, Hz
 SIGMA_GYRO, SIGMA_ANGLE = 2e-6, 2e-5  # rad/s, rad
-TRUTH = {"stiffness": (115.0, 85.0), "damping": (0.65, 0.40),  # (wing +, wing -)
-         "tip": (5.6, 0.47)}  # mass (kg) and I_yy (kg m^2) of the tip panel of wing +
-NAMES = ("stiffness wing +", "stiffness wing -", "damping wing +", "damping wing -", "tip panel mass",
-         "tip panel I_yy")
+TRUTH = {
+    "stiffness": (115.0, 85.0),
+    "damping": (0.65, 0.40),  # (wing +, wing -)
+    "tip": (5.6, 0.47),
+}  # mass (kg) and I_yy (kg m^2) of the tip panel of wing +
+NAMES = ("stiffness wing +", "stiffness wing -", "damping wing +", "damping wing -", "tip panel mass", "tip panel I_yy")
 TOL = 1e-10  # integration tolerance of the record and of the fit
 
 
@@ -70,8 +72,9 @@ def with_parameters(model, theta):
     b = tip_body(model)
     mass = model.mass.at[b].set(tip[0])
     inertia = model.inertia.at[b, 1, 1].set(tip[1])
-    return eqx.tree_at(lambda m: (m.stiffness, m.damping, m.mass, m.inertia), model,
-                       (stiffness, damping, mass, inertia))
+    return eqx.tree_at(
+        lambda m: (m.stiffness, m.damping, m.mass, m.inertia), model, (stiffness, damping, mass, inertia)
+    )
 
 
 def truth():
@@ -116,8 +119,11 @@ def nominal(model):
     """Log-parameters of the scene's own wings (the starting guess): all hinges alike there."""
     plus, _ = wing_hinges(model)
     b = tip_body(model)
-    return jnp.log(jnp.stack([model.stiffness[plus[0]]] * 2 + [model.damping[plus[0]]] * 2
-                             + [model.mass[b], model.inertia[b, 1, 1]]))
+    return jnp.log(
+        jnp.stack(
+            [model.stiffness[plus[0]]] * 2 + [model.damping[plus[0]]] * 2 + [model.mass[b], model.inertia[b, 1, 1]]
+        )
+    )
 
 
 def main():
@@ -138,8 +144,10 @@ def main():
     truth_ = np.exp(np.asarray(truth()))
     start, est = np.exp(np.asarray(theta0)), np.exp(np.asarray(theta))
     stderr = est * np.asarray(stderr_log)  # first order: d exp(theta) = exp(theta) d theta
-    print(f"{SCENE}: {model.n} hinges; record {DURATION:g} s at {RATE:g} Hz, "
-          f"{'no noise' if args.noise_free else f'noise {SIGMA_GYRO:g} rad/s (gyro), {SIGMA_ANGLE:g} rad (angles)'}")
+    print(
+        f"{SCENE}: {model.n} hinges; record {DURATION:g} s at {RATE:g} Hz, "
+        f"{'no noise' if args.noise_free else f'noise {SIGMA_GYRO:g} rad/s (gyro), {SIGMA_ANGLE:g} rad (angles)'}"
+    )
     print(f"Levenberg-Marquardt: {int(steps)} steps, {wall:.1f} s (compile included)")
     print(f"{'parameter':18s} {'start':>10s} {'estimate':>12s} {'std error':>10s} {'truth':>10s} {'off (sigma)':>11s}")
     for name, s0, e, se, tr in zip(names, start, est, stderr, truth_):

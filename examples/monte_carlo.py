@@ -76,8 +76,9 @@ def dispersed_models(model, d):
     stiffness[:, panels] *= d["stiffness"]
     dispersed = lambda m: (m.mass, m.inertia, m.stiffness)
     models = eqx.tree_at(dispersed, model, tuple(jnp.asarray(x, model.mass.dtype) for x in (mass, inertia, stiffness)))
-    in_axes = eqx.tree_at(dispersed, jax.tree_util.tree_map(lambda _: None, model), (0, 0, 0),
-                          is_leaf=lambda x: x is None)
+    in_axes = eqx.tree_at(
+        dispersed, jax.tree_util.tree_map(lambda _: None, model), (0, 0, 0), is_leaf=lambda x: x is None
+    )
     return models, in_axes
 
 
@@ -104,11 +105,18 @@ def campaign(models, in_axes, d, duration: float, saves: int = 301):
 
     dtype = models.mass.dtype
     return jax.jit(jax.vmap(one, in_axes=(in_axes, 0, 0)))(
-        models, jnp.asarray(d["omega0"], dtype), jnp.asarray(d["panel_rate"], dtype))
+        models, jnp.asarray(d["omega0"], dtype), jnp.asarray(d["panel_rate"], dtype)
+    )
 
 
-UNITS = {"peak_bus_rate": "rad/s", "attitude_excursion": "rad", "peak_motor_torque": "N m",
-         "panel_excursion": "rad", "momentum_drift": "", "steps": ""}
+UNITS = {
+    "peak_bus_rate": "rad/s",
+    "attitude_excursion": "rad",
+    "peak_motor_torque": "N m",
+    "panel_excursion": "rad",
+    "momentum_drift": "",
+    "steps": "",
+}
 
 
 def sample(key, model):
@@ -120,10 +128,14 @@ def sample(key, model):
     factors = 1 + SIGMA["bus_inertia"] * jax.random.normal(k[0], (3,), dtype)
     inertia = model.inertia.at[0].set((V * (w * factors)) @ V.T)
     mass = model.mass.at[0].multiply(1 + SIGMA["bus_mass"] * jax.random.normal(k[1], (), dtype))
-    stiffness = model.stiffness.at[panels].multiply(1 + SIGMA["stiffness"] * jax.random.normal(k[2], (len(panels),), dtype))
+    stiffness = model.stiffness.at[panels].multiply(
+        1 + SIGMA["stiffness"] * jax.random.normal(k[2], (len(panels),), dtype)
+    )
     s = model.initial
-    y0 = s._replace(omega0=s.omega0 + SIGMA["bus_rate"] * jax.random.normal(k[3], (3,), dtype),
-                    gamma_dot=s.gamma_dot.at[panels].add(SIGMA["panel_rate"] * jax.random.normal(k[4], (len(panels),), dtype)))
+    y0 = s._replace(
+        omega0=s.omega0 + SIGMA["bus_rate"] * jax.random.normal(k[3], (3,), dtype),
+        gamma_dot=s.gamma_dot.at[panels].add(SIGMA["panel_rate"] * jax.random.normal(k[4], (len(panels),), dtype)),
+    )
     return eqx.tree_at(lambda m: (m.mass, m.inertia, m.stiffness, m.initial), model, (mass, inertia, stiffness, y0))
 
 
@@ -145,19 +157,31 @@ def main_api(args):
     if args.float32:
         model = model.astype(jnp.float32)
     t = time.perf_counter()
-    ds = jaxtree.monte_carlo(model, sample, args.runs, args.duration, key=jax.random.key(args.seed), saveat=301,
-                             chunk_size=min(args.runs, 64), out=args.out)
+    ds = jaxtree.monte_carlo(
+        model,
+        sample,
+        args.runs,
+        args.duration,
+        key=jax.random.key(args.seed),
+        saveat=301,
+        chunk_size=min(args.runs, 64),
+        out=args.out,
+    )
     wall = time.perf_counter() - t
     ok = ds.status.values == "successful"
-    print(f"fig4 Monte Carlo (jaxtree.monte_carlo): {args.runs} runs of {args.duration:g} s, {ok.sum()} successful, "
-          f"{wall:.1f} s (compile included); chunk efficiency {np.round(ds.attrs['chunk_efficiency'], 3).tolist()}")
+    print(
+        f"fig4 Monte Carlo (jaxtree.monte_carlo): {args.runs} runs of {args.duration:g} s, {ok.sum()} successful, "
+        f"{wall:.1f} s (compile included); chunk efficiency {np.round(ds.attrs['chunk_efficiency'], 3).tolist()}"
+    )
     for status in sorted(set(ds.status.values[~ok])):
         print(f"  {np.sum(ds.status.values == status)} runs ended with {status}")
     err = pointing_error(ds, model)[ok]
     peak = err.max(axis=1)
-    print(f"platform pointing error, peak per run (mrad): mean {1e3 * peak.mean():.4g}, std {1e3 * peak.std():.4g}, "
-          f"median {1e3 * np.median(peak):.4g}, 99th percentile {1e3 * np.percentile(peak, 99):.4g}, "
-          f"max {1e3 * peak.max():.4g}")
+    print(
+        f"platform pointing error, peak per run (mrad): mean {1e3 * peak.mean():.4g}, std {1e3 * peak.std():.4g}, "
+        f"median {1e3 * np.median(peak):.4g}, 99th percentile {1e3 * np.percentile(peak, 99):.4g}, "
+        f"max {1e3 * peak.max():.4g}"
+    )
     H = ds.angular_momentum.values[ok]
     drift = np.linalg.norm(H - H[:, :1], axis=-1).max(axis=1) / np.linalg.norm(H[:, 0], axis=-1)
     print(f"angular momentum drift (no loads: conserved), largest over the runs: {drift.max():.2e}")
@@ -170,8 +194,15 @@ def main_api(args):
         ts = ds.time.values
         fig, ax = plt.subplots(figsize=(7, 3.5))
         for lo, hi, a in ((0, 100, 0.2), (5, 95, 0.35), (25, 75, 0.5)):
-            ax.fill_between(ts, 1e3 * np.percentile(err, lo, 0), 1e3 * np.percentile(err, hi, 0), color="C0", alpha=a,
-                            lw=0, label=f"{lo}-{hi} %")
+            ax.fill_between(
+                ts,
+                1e3 * np.percentile(err, lo, 0),
+                1e3 * np.percentile(err, hi, 0),
+                color="C0",
+                alpha=a,
+                lw=0,
+                label=f"{lo}-{hi} %",
+            )
         ax.plot(ts, 1e3 * np.median(err, 0), "C0", lw=1, label="median")
         ax.set_xlabel("t (s)"), ax.set_ylabel("pointing error (mrad)"), ax.legend(fontsize=8)
         ax.set_title(f"fig4: platform pointing error over {ok.sum()} dispersed runs")
@@ -189,7 +220,9 @@ def main():
     ap.add_argument("--float32", action="store_true", help="run the campaign in float32 (GPU batches)")
     ap.add_argument("--out", help="write the dataset to this Zarr store (*.zarr) or NetCDF file (*.nc); resumable")
     ap.add_argument("--plot", help="plot the pointing error's envelope to this PNG")
-    ap.add_argument("--manual", action="store_true", help="the hand-made jax.vmap campaign instead of jaxtree.monte_carlo")
+    ap.add_argument(
+        "--manual", action="store_true", help="the hand-made jax.vmap campaign instead of jaxtree.monte_carlo"
+    )
     args = ap.parse_args()
     if not args.manual:
         return main_api(args)
@@ -203,8 +236,10 @@ def main():
     t = time.perf_counter()
     out = jax.block_until_ready(campaign(models, in_axes, d, args.duration))
     wall = time.perf_counter() - t
-    print(f"fig4 Monte Carlo: {args.runs} runs of {args.duration:g} s ({jax.default_backend()}, "
-          f"{'float32' if args.float32 else 'float64'}), {wall:.1f} s for the campaign (compile included)")
+    print(
+        f"fig4 Monte Carlo: {args.runs} runs of {args.duration:g} s ({jax.default_backend()}, "
+        f"{'float32' if args.float32 else 'float64'}), {wall:.1f} s for the campaign (compile included)"
+    )
     print(f"{'figure':20s} {'mean':>11s} {'std':>11s} {'min':>11s} {'max':>11s}  unit")
     for k, v in out.items():
         v = np.asarray(v, float)

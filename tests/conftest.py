@@ -8,10 +8,10 @@ import os
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
-import jaxtree  # first: it sets the float64 and BLAS-thread defaults before JAX loads
-
 import jax
 import pytest
+
+import jaxtree  # first: it sets the float64 and BLAS-thread defaults before JAX loads
 
 jax.config.update("jax_enable_x64", True)
 

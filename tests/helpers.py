@@ -25,11 +25,13 @@ def random_state(model, rng, scale=1.0):
     q = rng.normal(size=4)
     q /= np.linalg.norm(q)
     w, x, y, z = q
-    dcm = np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)],
-        [2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)],
-        [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    dcm = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)],
+            [2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)],
+            [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     return jaxtree.State(
         jax.numpy.asarray(dcm),
         jax.numpy.asarray(scale * rng.normal(size=3)),
@@ -54,9 +56,9 @@ def appendix_c():
     np.testing.assert_allclose(np.asarray(model.hinge_on_body[1]), [0, L, 0])
     M = m0 + 2 * m
     R = m * L / M  # (C-3)
-    Jc = 4.0 / 3.0 * m * L ** 2  # (C-48)
+    Jc = 4.0 / 3.0 * m * L**2  # (C-48)
     c = Jc + M * R * r
-    extra = 2 * m * (r ** 2 + 2 * r * L + 4.0 / 3.0 * L ** 2)  # (C-52)
+    extra = 2 * m * (r**2 + 2 * r * L + 4.0 / 3.0 * L**2)  # (C-52)
     I1, I2, I3 = I0[0] + extra, I0[1], I0[2] + extra
     return model, dict(M=M, R=R, J=Jc, c=c, r=r, k=k, I1=I1, I2=I2, I3=I3)
 
@@ -87,9 +89,18 @@ def random_model(rng, parents, axes=None, hop=None, hob=None, inertia=None, damp
         joint = SpringDamper(rng.uniform(20.0, 60.0), damping)
         if k in prescribe:
             joint = jaxtree.PrescribedSine(0.1, 1.0)
-        bodies.append(Body(f"link{k}", mass, J, parent=parents[k - 1], axis=ax,
-                           hinge_on_parent=rng.normal(size=3) if hop is None else hop[k - 1],
-                           hinge_on_body=rng.normal(size=3) if hob is None else hob[k - 1], joint=joint))
+        bodies.append(
+            Body(
+                f"link{k}",
+                mass,
+                J,
+                parent=parents[k - 1],
+                axis=ax,
+                hinge_on_parent=rng.normal(size=3) if hop is None else hop[k - 1],
+                hinge_on_body=rng.normal(size=3) if hob is None else hob[k - 1],
+                joint=joint,
+            )
+        )
     return jaxtree.build_model(bodies)
 
 
@@ -137,16 +148,41 @@ TABLE_2 = """
 0 0 0 0 0 0 0 0 0 0 1
 """
 
-NEIGHBOURS = {0: {1, 5}, 1: {0, 2}, 2: {1, 3}, 3: {2, 4}, 4: {3}, 5: {0, 6}, 6: {5, 7, 10}, 7: {6, 8},
-              8: {7, 9}, 9: {8}, 10: {6}}
+NEIGHBOURS = {
+    0: {1, 5},
+    1: {0, 2},
+    2: {1, 3},
+    3: {2, 4},
+    4: {3},
+    5: {0, 6},
+    6: {5, 7, 10},
+    7: {6, 8},
+    8: {7, 9},
+    9: {8},
+    10: {6},
+}
 
 # Branch sets printed in Sec. II E (B_76 and B_87 with body 10 restored, see docs/errata.md).
 BRANCHES = {
-    (0, 1): {1, 2, 3, 4}, (0, 5): {5, 6, 7, 8, 9, 10}, (1, 0): {0, 5, 6, 7, 8, 9, 10}, (1, 2): {2, 3, 4},
-    (2, 1): {0, 1, 5, 6, 7, 8, 9, 10}, (2, 3): {3, 4}, (3, 2): {0, 1, 2, 5, 6, 7, 8, 9, 10}, (3, 4): {4},
-    (4, 3): {0, 1, 2, 3, 5, 6, 7, 8, 9, 10}, (5, 0): {0, 1, 2, 3, 4}, (5, 6): {6, 7, 8, 9, 10},
-    (6, 5): {0, 1, 2, 3, 4, 5}, (6, 7): {7, 8, 9}, (6, 10): {10}, (7, 6): {0, 1, 2, 3, 4, 5, 6, 10},
-    (7, 8): {8, 9}, (8, 7): {0, 1, 2, 3, 4, 5, 6, 7, 10}, (8, 9): {9}, (9, 8): {0, 1, 2, 3, 4, 5, 6, 7, 8, 10},
+    (0, 1): {1, 2, 3, 4},
+    (0, 5): {5, 6, 7, 8, 9, 10},
+    (1, 0): {0, 5, 6, 7, 8, 9, 10},
+    (1, 2): {2, 3, 4},
+    (2, 1): {0, 1, 5, 6, 7, 8, 9, 10},
+    (2, 3): {3, 4},
+    (3, 2): {0, 1, 2, 5, 6, 7, 8, 9, 10},
+    (3, 4): {4},
+    (4, 3): {0, 1, 2, 3, 5, 6, 7, 8, 9, 10},
+    (5, 0): {0, 1, 2, 3, 4},
+    (5, 6): {6, 7, 8, 9, 10},
+    (6, 5): {0, 1, 2, 3, 4, 5},
+    (6, 7): {7, 8, 9},
+    (6, 10): {10},
+    (7, 6): {0, 1, 2, 3, 4, 5, 6, 10},
+    (7, 8): {8, 9},
+    (8, 7): {0, 1, 2, 3, 4, 5, 6, 7, 10},
+    (8, 9): {9},
+    (9, 8): {0, 1, 2, 3, 4, 5, 6, 7, 8, 10},
     (10, 6): {0, 1, 2, 3, 4, 5, 6, 7, 8, 9},
 }
 

@@ -22,6 +22,7 @@ mass center. Everything is in {b^0} components; dcm is only used for H.
 Conventions: C^{kN} = cos(g) U - sin(g) tilde(a) + (1 - cos(g)) a a^T with v_(k) = C^{kN} v_(N);
 R_k = C^{0k} maps {b^k} components to {b^0} components: R_k = R_N C^{kN}^T.
 """
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -36,8 +37,7 @@ def tilde(a):
 
 def hinge_dcm(a, g):
     """C^{kN}: maps parent-frame components to child-frame components (rotation +g about a)."""
-    return (jnp.cos(g) * jnp.eye(3) - jnp.sin(g) * tilde(a)
-            + (1.0 - jnp.cos(g)) * jnp.outer(a, a))
+    return jnp.cos(g) * jnp.eye(3) - jnp.sin(g) * tilde(a) + (1.0 - jnp.cos(g)) * jnp.outer(a, a)
 
 
 def _model(parents, mass, inertia, axis, hinge_on_parent, hinge_on_body):
@@ -46,9 +46,15 @@ def _model(parents, mass, inertia, axis, hinge_on_parent, hinge_on_body):
     n = len(parents)
     assert all(0 <= p < k + 1 for k, p in enumerate(parents)), "need parents[k-1] < k"
     f = lambda x, s: jnp.asarray(x, dtype=jnp.float64).reshape(s)
-    return dict(parents=parents, n=n, mass=f(mass, (n + 1,)),
-                inertia=f(inertia, (n + 1, 3, 3)), axis=f(axis, (n, 3)),
-                hop=f(hinge_on_parent, (n, 3)), hob=f(hinge_on_body, (n, 3)))
+    return dict(
+        parents=parents,
+        n=n,
+        mass=f(mass, (n + 1,)),
+        inertia=f(inertia, (n + 1, 3, 3)),
+        axis=f(axis, (n, 3)),
+        hop=f(hinge_on_parent, (n, 3)),
+        hob=f(hinge_on_body, (n, 3)),
+    )
 
 
 def _kinematics(m, gamma):
@@ -78,8 +84,8 @@ def _velocities(m, gamma, u):
     body, both in {b^0} components, from the time derivative of the kinematics."""
     v, w0, gd = u[:3], u[3:6], u[6:]
     (R, r), (Rd, rd) = jax.jvp(lambda g: _kinematics(m, g), (gamma,), (gd,))
-    vel = v + jnp.cross(w0, r) + rd                 # transport theorem in rotating {b^0}
-    W = jnp.einsum("kij,klj->kil", Rd, R)           # Rdot R^T = tilde(w_rel) in {b^0}
+    vel = v + jnp.cross(w0, r) + rd  # transport theorem in rotating {b^0}
+    W = jnp.einsum("kij,klj->kil", Rd, R)  # Rdot R^T = tilde(w_rel) in {b^0}
     omg = w0 + jnp.stack([W[:, 2, 1], W[:, 0, 2], W[:, 1, 0]], axis=1)
     return R, r, vel, omg
 
@@ -87,16 +93,17 @@ def _velocities(m, gamma, u):
 def _kinetic_energy(m, gamma, u):
     """Total (inertial) kinetic energy: sum 1/2 m |v|^2 + 1/2 w_b^T I w_b."""
     R, _, vel, omg = _velocities(m, gamma, u)
-    wb = jnp.einsum("kji,kj->ki", R, omg)           # angular velocity in own frame
-    return 0.5 * jnp.sum(m["mass"] * jnp.sum(vel * vel, axis=1)) \
-        + 0.5 * jnp.sum(wb * jnp.einsum("kij,kj->ki", m["inertia"], wb))
+    wb = jnp.einsum("kji,kj->ki", R, omg)  # angular velocity in own frame
+    return 0.5 * jnp.sum(m["mass"] * jnp.sum(vel * vel, axis=1)) + 0.5 * jnp.sum(
+        wb * jnp.einsum("kij,kj->ki", m["inertia"], wb)
+    )
 
 
 def _full_system(m, gamma, u, tau, F, T):
     """Full (n+6) system M u_dot = b in speeds u = [v, omega0, gamma_dot]."""
     ke = lambda g, uu: _kinetic_energy(m, g, uu)
     mom = lambda g, uu: jax.grad(ke, argnums=1)(g, uu)
-    M = jax.jacfwd(mom, argnums=1)(gamma, u)        # p is linear in u: dp/du = M
+    M = jax.jacfwd(mom, argnums=1)(gamma, u)  # p is linear in u: dp/du = M
     p = mom(gamma, u)
     _, p_q = jax.jvp(lambda g: mom(g, u), (gamma,), (u[6:],))  # dp/dgamma gamma_dot
     dT_dg = jax.grad(ke, argnums=0)(gamma, u)
@@ -107,10 +114,10 @@ def _full_system(m, gamma, u, tau, F, T):
     ta = tau[:, None] * m["axis"]
     Tl = jnp.asarray(T).at[1:].add(ta).at[jnp.asarray(m["parents"])].add(-ta)
 
-    def power(uu):                                   # virtual power of all loads
+    def power(uu):  # virtual power of all loads
         R, _, vel, omg = _velocities(m, gamma, uu)
-        return jnp.sum(vel * jnp.einsum("kij,kj->ki", R, F)) \
-            + jnp.sum(omg * jnp.einsum("kij,kj->ki", R, Tl))
+        return jnp.sum(vel * jnp.einsum("kij,kj->ki", R, F)) + jnp.sum(omg * jnp.einsum("kij,kj->ki", R, Tl))
+
     Q = jax.grad(power)(u)
     return M, Q - p_q - h
 
@@ -134,19 +141,25 @@ def _relative_quantities(m, gamma, omega0, gamma_dot, dcm):
     mt = jnp.sum(m["mass"])
     rc, vc = m["mass"] @ r / mt, m["mass"] @ vel / mt
     ke = _kinetic_energy(m, gamma, u) - 0.5 * mt * vc @ vc
-    Ib = jnp.einsum("kij,kjl,kml->kim", R, m["inertia"], R)     # R I R^T
-    H0 = jnp.sum(m["mass"][:, None] * jnp.cross(r - rc, vel - vc), axis=0) \
-        + jnp.sum(jnp.einsum("kij,kj->ki", Ib, omg), axis=0)
-    return ke, dcm.T @ H0                             # {b^0} = C {i}: x_i = C^T x_0
+    Ib = jnp.einsum("kij,kjl,kml->kim", R, m["inertia"], R)  # R I R^T
+    H0 = jnp.sum(m["mass"][:, None] * jnp.cross(r - rc, vel - vc), axis=0) + jnp.sum(
+        jnp.einsum("kij,kj->ki", Ib, omg), axis=0
+    )
+    return ke, dcm.T @ H0  # {b^0} = C {i}: x_i = C^T x_0
 
 
-def _prep(parents, mass, inertia, axis, hinge_on_parent, hinge_on_body,
-          gamma, tau, F, T, dcm):
+def _prep(parents, mass, inertia, axis, hinge_on_parent, hinge_on_body, gamma, tau, F, T, dcm):
     m = _model(parents, mass, inertia, axis, hinge_on_parent, hinge_on_body)
     n = m["n"]
     a = lambda x, s: jnp.zeros(s) if x is None else jnp.asarray(x, dtype=jnp.float64).reshape(s)
-    return (m, a(gamma, (n,)), a(tau, (n,)), a(F, (n + 1, 3)), a(T, (n + 1, 3)),
-            jnp.eye(3) if dcm is None else a(dcm, (3, 3)))
+    return (
+        m,
+        a(gamma, (n,)),
+        a(tau, (n,)),
+        a(F, (n + 1, 3)),
+        a(T, (n + 1, 3)),
+        jnp.eye(3) if dcm is None else a(dcm, (3, 3)),
+    )
 
 
 @jax.jit
@@ -159,13 +172,34 @@ def _eom_core(parents, mass, inertia, axis, hop, hob, omega0, gamma, gamma_dot, 
     acc = jnp.linalg.lstsq(Mred, bred)[0]
     ke, H = _relative_quantities(m, gamma, omega0, gamma_dot, dcm)
     R = _kinematics(m, gamma)[0]
-    return dict(omega0_dot=acc[:3], gamma_ddot=acc[3:], mass_matrix=Mred, rhs=bred,
-                kinetic_energy=ke, angular_momentum=H, full_mass_matrix=M, full_rhs=b,
-                cm_acceleration=jnp.einsum("kij,kj->i", R, F) / jnp.sum(m["mass"]))
+    return dict(
+        omega0_dot=acc[:3],
+        gamma_ddot=acc[3:],
+        mass_matrix=Mred,
+        rhs=bred,
+        kinetic_energy=ke,
+        angular_momentum=H,
+        full_mass_matrix=M,
+        full_rhs=b,
+        cm_acceleration=jnp.einsum("kij,kj->i", R, F) / jnp.sum(m["mass"]),
+    )
 
 
-def oracle_eom(parents, mass, inertia, axis, hinge_on_parent, hinge_on_body,
-               omega0, gamma, gamma_dot, tau=None, F=None, T=None, dcm=None):
+def oracle_eom(
+    parents,
+    mass,
+    inertia,
+    axis,
+    hinge_on_parent,
+    hinge_on_body,
+    omega0,
+    gamma,
+    gamma_dot,
+    tau=None,
+    F=None,
+    T=None,
+    dcm=None,
+):
     """Rotational equations of motion of the free tree (system CM translation removed).
 
     Returns dict: omega0_dot (3,), gamma_ddot (n,), mass_matrix (n+3, n+3), rhs (n+3,)
@@ -177,16 +211,29 @@ def oracle_eom(parents, mass, inertia, axis, hinge_on_parent, hinge_on_body,
     (massless leaf bodies) yields the minimum-norm accelerations instead of NaN.
     Compiled once per number of bodies.
     """
-    m, gamma, tau, F, T, dcm = _prep(parents, mass, inertia, axis, hinge_on_parent,
-                                     hinge_on_body, gamma, tau, F, T, dcm)
+    m, gamma, tau, F, T, dcm = _prep(
+        parents, mass, inertia, axis, hinge_on_parent, hinge_on_body, gamma, tau, F, T, dcm
+    )
     omega0 = jnp.asarray(omega0, dtype=jnp.float64).reshape(3)
     gamma_dot = jnp.asarray(gamma_dot, dtype=jnp.float64).reshape(m["n"])
-    return _eom_core(jnp.asarray(m["parents"], dtype=jnp.int32).reshape(m["n"]), m["mass"], m["inertia"], m["axis"], m["hop"],
-                     m["hob"], omega0, gamma, gamma_dot, tau, F, T, dcm)
+    return _eom_core(
+        jnp.asarray(m["parents"], dtype=jnp.int32).reshape(m["n"]),
+        m["mass"],
+        m["inertia"],
+        m["axis"],
+        m["hop"],
+        m["hob"],
+        omega0,
+        gamma,
+        gamma_dot,
+        tau,
+        F,
+        T,
+        dcm,
+    )
 
 
-def oracle_body_states(parents, mass, axis, hinge_on_parent, hinge_on_body, gamma,
-                       omega0=None, gamma_dot=None):
+def oracle_body_states(parents, mass, axis, hinge_on_parent, hinge_on_body, gamma, omega0=None, gamma_dot=None):
     """Per-body kinematics in {b^0} components.
 
     R (n+1,3,3): C^{0k}, v_(0) = R[k] @ v_(k).  r (n+1,3): mass-center positions relative
@@ -214,45 +261,73 @@ def _random_tree(rng, parents):
     n = len(parents)
     A = rng.normal(size=(n + 1, 3, 3))
     ax = rng.normal(size=(n, 3))
-    return dict(parents=parents, mass=rng.uniform(0.5, 2.0, n + 1),
-                inertia=A @ A.transpose(0, 2, 1) + 0.3 * np.eye(3),
-                axis=ax / np.linalg.norm(ax, axis=1, keepdims=True),
-                hinge_on_parent=rng.normal(size=(n, 3)), hinge_on_body=rng.normal(size=(n, 3)))
+    return dict(
+        parents=parents,
+        mass=rng.uniform(0.5, 2.0, n + 1),
+        inertia=A @ A.transpose(0, 2, 1) + 0.3 * np.eye(3),
+        axis=ax / np.linalg.norm(ax, axis=1, keepdims=True),
+        hinge_on_parent=rng.normal(size=(n, 3)),
+        hinge_on_body=rng.normal(size=(n, 3)),
+    )
 
 
 def _self_check():
     from scipy.integrate import solve_ivp
+
     rng = np.random.default_rng(0)
     I0 = np.array([[3.0, 0.2, -0.1], [0.2, 2.0, 0.3], [-0.1, 0.3, 1.5]])
     w, Tq = rng.normal(size=3), rng.normal(size=3)
     euler = np.linalg.solve(I0, Tq - np.cross(w, I0 @ w))
     # 1a. n = 0: single rigid body, Euler's equations (force at CM must not matter)
-    o = oracle_eom([], [2.0], [I0], np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)),
-                   w, [], [], F=[[1.0, 2.0, 3.0]], T=[Tq])
+    o = oracle_eom(
+        [], [2.0], [I0], np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), w, [], [], F=[[1.0, 2.0, 3.0]], T=[Tq]
+    )
     print("1a Euler n=0 err:", np.abs(o["omega0_dot"] - euler).max())
     # 1b. n = 1 with massless, inertia-free child (hinge effectively locked)
-    o = oracle_eom([0], [2.0, 0.0], [I0, np.zeros((3, 3))], [[0, 0, 1.0]], [[1, 0, 0.]],
-                   [[0, 1, 0.]], w, [0.7], [1.3], F=[[1.0, 2.0, 3.0], [0, 0, 0]], T=[Tq, [0, 0, 0]])
-    print("1b Euler n=1 massless child err:", np.abs(o["omega0_dot"] - euler).max(),
-          "gamma_ddot:", np.asarray(o["gamma_ddot"]))
+    o = oracle_eom(
+        [0],
+        [2.0, 0.0],
+        [I0, np.zeros((3, 3))],
+        [[0, 0, 1.0]],
+        [[1, 0, 0.0]],
+        [[0, 1, 0.0]],
+        w,
+        [0.7],
+        [1.3],
+        F=[[1.0, 2.0, 3.0], [0, 0, 0]],
+        T=[Tq, [0, 0, 0]],
+    )
+    print(
+        "1b Euler n=1 massless child err:",
+        np.abs(o["omega0_dot"] - euler).max(),
+        "gamma_ddot:",
+        np.asarray(o["gamma_ddot"]),
+    )
     # 2. body + point mass m on massless rod of length L hinged (axis z) at body CM
     m0, mp, L, g = 2.0, 0.5, 1.5, 0.4
     mu, rr, ez = m0 * mp / (m0 + mp), L * np.array([np.cos(g), np.sin(g), 0.0]), np.eye(3)[2]
     J = mu * (L * L * np.eye(3) - np.outer(rr, rr))
     Mhand = np.block([[I0 + J, (J @ ez)[:, None]], [(ez @ J)[None, :], np.array([[mu * L * L]])]])
-    args2 = ([0], [m0, mp], [I0, np.zeros((3, 3))], [ez], [[0, 0, 0.]], [[-L, 0, 0.]])
+    args2 = ([0], [m0, mp], [I0, np.zeros((3, 3))], [ez], [[0, 0, 0.0]], [[-L, 0, 0.0]])
     o = oracle_eom(*args2, rng.normal(size=3), [g], [0.8])
     print("2  two-body mass matrix err vs hand:", np.abs(o["mass_matrix"] - Mhand).max())
-    o = oracle_eom(*args2, [0, 0, 1.1], [g], [0.8], tau=[0.6])   # planar: M const, rhs=[0,tau]
+    o = oracle_eom(*args2, [0, 0, 1.1], [g], [0.8], tau=[0.6])  # planar: M const, rhs=[0,tau]
     print("2  planar rhs (z, gamma) vs (0, 0.6):", np.asarray(o["rhs"][2:]))
 
     # random tree checks
     tree = _random_tree(rng, [0, 0, 1])
-    m = _model(tree["parents"], tree["mass"], tree["inertia"], tree["axis"],
-               tree["hinge_on_parent"], tree["hinge_on_body"])
+    m = _model(
+        tree["parents"], tree["mass"], tree["inertia"], tree["axis"], tree["hinge_on_parent"], tree["hinge_on_body"]
+    )
     n = m["n"]
-    targs = (tree["parents"], tree["mass"], tree["inertia"], tree["axis"],
-             tree["hinge_on_parent"], tree["hinge_on_body"])
+    targs = (
+        tree["parents"],
+        tree["mass"],
+        tree["inertia"],
+        tree["axis"],
+        tree["hinge_on_parent"],
+        tree["hinge_on_body"],
+    )
     gam, w0, gd = rng.normal(size=n), rng.normal(size=3), rng.normal(size=n)
     tau, F, T = rng.normal(size=n), rng.normal(size=(n + 1, 3)), rng.normal(size=(n + 1, 3))
     # 4. independence of the (arbitrary) reference translation speed v
@@ -270,8 +345,9 @@ def _self_check():
     Cd = -tilde(w0) @ C
     rel = jax.jit(lambda Cm, g, s: _relative_quantities(m, g, s[:3], s[3:], Cm))
     _, (dke, dH) = jax.jvp(rel, (C, gam, jnp.concatenate([w0, gd])), (Cd, gd, acc))
-    st = oracle_body_states(tree["parents"], tree["mass"], tree["axis"], tree["hinge_on_parent"],
-                            tree["hinge_on_body"], gam, w0, gd)
+    st = oracle_body_states(
+        tree["parents"], tree["mass"], tree["axis"], tree["hinge_on_parent"], tree["hinge_on_body"], gam, w0, gd
+    )
     F0, T0 = np.einsum("kij,kj->ki", st["R"], F), np.einsum("kij,kj->ki", st["R"], T)
     P = np.sum(F0 * st["v"]) + np.sum(T0 * st["omega"]) + tau @ gd
     Hd = C.T @ (np.cross(st["r"], F0).sum(0) + T0.sum(0))
@@ -280,19 +356,28 @@ def _self_check():
     # 3. conservation, free motion of a random 4-body tree
     @jax.jit
     def rhs(y):
-        Cm, g, s = y[:9].reshape(3, 3), y[9:9 + n], y[9 + n:]
-        Mr, br, _, _ = _reduced(m, g, s[:3], s[3:], jnp.zeros(n), jnp.zeros((n + 1, 3)),
-                                jnp.zeros((n + 1, 3)))
+        Cm, g, s = y[:9].reshape(3, 3), y[9 : 9 + n], y[9 + n :]
+        Mr, br, _, _ = _reduced(m, g, s[:3], s[3:], jnp.zeros(n), jnp.zeros((n + 1, 3)), jnp.zeros((n + 1, 3)))
         return jnp.concatenate([(-tilde(s[:3]) @ Cm).ravel(), s[3:], jnp.linalg.solve(Mr, br)])
+
     y0 = np.concatenate([np.eye(3).ravel(), gam, 2 * w0, 2 * gd])
-    sol = solve_ivp(lambda t, y: np.asarray(rhs(jnp.asarray(y))), (0, 5.0), y0,
-                    method="DOP853", rtol=1e-12, atol=1e-12, dense_output=False)
-    inv = [rel(y[:9].reshape(3, 3), y[9:9 + n], y[9 + n:]) for y in sol.y.T]
+    sol = solve_ivp(
+        lambda t, y: np.asarray(rhs(jnp.asarray(y))),
+        (0, 5.0),
+        y0,
+        method="DOP853",
+        rtol=1e-12,
+        atol=1e-12,
+        dense_output=False,
+    )
+    inv = [rel(y[:9].reshape(3, 3), y[9 : 9 + n], y[9 + n :]) for y in sol.y.T]
     ke = np.array([float(k) for k, _ in inv])
     H = np.array([np.asarray(h) for _, h in inv])
-    print(f"3  free motion {len(sol.t)} steps, t=5: rel KE drift {np.abs(ke / ke[0] - 1).max():.2e}"
-          f", |H| drift {np.abs(H - H[0]).max() / np.linalg.norm(H[0]):.2e}"
-          f", gamma moved {np.abs(sol.y[9:9 + n, -1] - gam).max():.2f} rad, KE {ke[0]:.3f}")
+    print(
+        f"3  free motion {len(sol.t)} steps, t=5: rel KE drift {np.abs(ke / ke[0] - 1).max():.2e}"
+        f", |H| drift {np.abs(H - H[0]).max() / np.linalg.norm(H[0]):.2e}"
+        f", gamma moved {np.abs(sol.y[9 : 9 + n, -1] - gam).max():.2f} rad, KE {ke[0]:.3f}"
+    )
 
 
 if __name__ == "__main__":

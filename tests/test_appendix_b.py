@@ -28,8 +28,15 @@ solve = jax.jit(jaxtree.solve_accelerations)
 def states(seed=0, count=6):
     rng = np.random.default_rng(seed)
     for _ in range(count):
-        yield (jaxtree.State(jnp.eye(3), jnp.asarray(rng.normal(size=3)), jnp.asarray(rng.uniform(-np.pi, np.pi, 2)),
-                             jnp.asarray(rng.normal(size=2) * 3)), jnp.asarray(rng.normal(size=2)))
+        yield (
+            jaxtree.State(
+                jnp.eye(3),
+                jnp.asarray(rng.normal(size=3)),
+                jnp.asarray(rng.uniform(-np.pi, np.pi, 2)),
+                jnp.asarray(rng.normal(size=2) * 3),
+            ),
+            jnp.asarray(rng.normal(size=2)),
+        )
 
 
 def test_coefficients_b22_to_b27(model):
@@ -37,7 +44,9 @@ def test_coefficients_b22_to_b27(model):
         g1 = float(s.gamma[0])
         sn, cs = np.sin(g1), np.cos(g1)
         A = np.asarray(jaxtree.mass_matrix(model, s.gamma))
-        a00 = np.array([[I1 + mL2, 0, 0], [0, I2 + mL2 * sn * sn, -mL2 * sn * cs], [0, -mL2 * sn * cs, I3 + mL2 * cs * cs]])
+        a00 = np.array(
+            [[I1 + mL2, 0, 0], [0, I2 + mL2 * sn * sn, -mL2 * sn * cs], [0, -mL2 * sn * cs, I3 + mL2 * cs * cs]]
+        )
         np.testing.assert_allclose(A[:3, :3], a00, rtol=0, atol=1e-12 * I1)  # B-22
         np.testing.assert_allclose(A[:3, 3], [mL2, 0, 0], atol=1e-12 * I1)  # B-23, B-24
         np.testing.assert_allclose(A[:3, 4], [J, 0, 0], atol=1e-12 * I1)  # B-25, B-26
@@ -54,15 +63,19 @@ def residuals(s, tau, acc, b35_sign=-1.0):
     t1, t2 = np.asarray(tau)
     sn, cs = np.sin(g1), np.cos(g1)
     common = w2 * w3 * (sn * sn - cs * cs) + (w2 * w2 - w3 * w3) * sn * cs
-    return np.array([
-        (I1 + mL2) * wd1 + mL2 * gdd1 + J * gdd2 - ((I2 - I3) * w2 * w3 + mL2 * common),  # B-33
-        (I2 + mL2 * sn * sn) * wd2 - mL2 * wd3 * sn * cs
-        - ((I3 - I1) * w3 * w1 - J * gd2 * w3 - mL2 * (w1 + 2 * gd1) * sn * (w3 * sn + w2 * cs)),  # B-34
-        (I3 + mL2 * cs * cs) * wd3 + b35_sign * mL2 * wd2 * sn * cs
-        - ((I1 - I2) * w1 * w2 + J * gd2 * w2 + mL2 * (w1 + 2 * gd1) * cs * (w3 * sn + w2 * cs)),  # B-35
-        mL2 * (wd1 + gdd1) - (mL2 * ((w2 * w2 - w3 * w3) * sn * cs + w2 * w3 * (sn * sn - cs * cs)) + t1),  # B-36
-        J * (wd1 + gdd2) - t2,  # B-37
-    ])
+    return np.array(
+        [
+            (I1 + mL2) * wd1 + mL2 * gdd1 + J * gdd2 - ((I2 - I3) * w2 * w3 + mL2 * common),  # B-33
+            (I2 + mL2 * sn * sn) * wd2
+            - mL2 * wd3 * sn * cs
+            - ((I3 - I1) * w3 * w1 - J * gd2 * w3 - mL2 * (w1 + 2 * gd1) * sn * (w3 * sn + w2 * cs)),  # B-34
+            (I3 + mL2 * cs * cs) * wd3
+            + b35_sign * mL2 * wd2 * sn * cs
+            - ((I1 - I2) * w1 * w2 + J * gd2 * w2 + mL2 * (w1 + 2 * gd1) * cs * (w3 * sn + w2 * cs)),  # B-35
+            mL2 * (wd1 + gdd1) - (mL2 * ((w2 * w2 - w3 * w3) * sn * cs + w2 * w3 * (sn * sn - cs * cs)) + t1),  # B-36
+            J * (wd1 + gdd2) - t2,  # B-37
+        ]
+    )
 
 
 def test_equations_b33_to_b37(model):

@@ -42,10 +42,21 @@ def against_oracle(model, state, rng, loads=True):
         model, F, T = with_loads(model, rng, rng.choice(model.n + 1, size=min(3, model.n + 1), replace=False))
     acc = accelerations(model, state, 0.0, jnp.asarray(tau))
     spring = np.asarray(jaxtree.hinge_torques(model, state.gamma, state.gamma_dot))
-    ref = oracle_eom(model.topology.parents, np.asarray(model.mass), np.asarray(model.inertia),
-                     np.asarray(model.axis), np.asarray(model.hinge_on_parent), np.asarray(model.hinge_on_body),
-                     np.asarray(state.omega0), np.asarray(state.gamma), np.asarray(state.gamma_dot),
-                     tau=tau + spring, F=F, T=T, dcm=np.asarray(state.dcm))
+    ref = oracle_eom(
+        model.topology.parents,
+        np.asarray(model.mass),
+        np.asarray(model.inertia),
+        np.asarray(model.axis),
+        np.asarray(model.hinge_on_parent),
+        np.asarray(model.hinge_on_body),
+        np.asarray(state.omega0),
+        np.asarray(state.gamma),
+        np.asarray(state.gamma_dot),
+        tau=tau + spring,
+        F=F,
+        T=T,
+        dcm=np.asarray(state.dcm),
+    )
     x = np.concatenate([acc.omega0_dot, acc.gamma_ddot])
     A, b = np.asarray(ref["mass_matrix"]), np.asarray(ref["rhs"])
     assert np.abs(A @ x - b).max() <= 1e-12 * np.abs(A).max() * np.abs(x).max()
@@ -157,7 +168,8 @@ def test_vmap_and_gradients(scenes):
     states = [random_state(model, rng) for _ in range(3)]
     batch = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *states)
     w, g = jax.jit(jax.vmap(jaxtree.forward_dynamics, (None, 0, 0, 0, 0)))(
-        model, batch.dcm, batch.omega0, batch.gamma, batch.gamma_dot)
+        model, batch.dcm, batch.omega0, batch.gamma, batch.gamma_dot
+    )
     for i, s in enumerate(states):
         a = accelerations(model, s, 0.0, None)
         assert rel(w[i], a.omega0_dot) < 1e-13 and rel(g[i], a.gamma_ddot) < 1e-13
@@ -169,11 +181,17 @@ def test_vmap_and_gradients(scenes):
 
     grads = jax.jit(jax.grad(objective))(model)
     f = jax.jit(objective)
-    for field, index in [("mass", 3), ("hinge_on_parent", (4, 0)), ("stiffness", 2), ("inertia", (6, 1, 1)),
-                         ("axis", (1, 2))]:
+    for field, index in [
+        ("mass", 3),
+        ("hinge_on_parent", (4, 0)),
+        ("stiffness", 2),
+        ("inertia", (6, 1, 1)),
+        ("axis", (1, 2)),
+    ]:
         h = 1e-6 * max(1.0, abs(float(getattr(model, field)[index])))
-        bump = lambda d: jaxtree._src.model.eqx.tree_at(lambda m: getattr(m, field), model,
-                                                    getattr(model, field).at[index].add(d))
+        bump = lambda d: jaxtree._src.model.eqx.tree_at(
+            lambda m: getattr(m, field), model, getattr(model, field).at[index].add(d)
+        )
         fd = (f(bump(h)) - f(bump(-h))) / (2 * h)
         assert abs(float(getattr(grads, field)[index] - fd)) <= 1e-6 * max(1.0, abs(float(fd))), field
 

@@ -32,14 +32,28 @@ def sample(key, model):
     mass = model.mass.at[0].multiply(1 + 0.02 * jax.random.normal(k[2]))
     inertia = model.inertia.at[1].multiply(1 + 0.05 * jax.random.normal(k[3]))
     stiffness = model.stiffness * (1 + 0.1 * jax.random.normal(k[4], model.stiffness.shape))
-    return eqx.tree_at(lambda m: (m.mass, m.inertia, m.stiffness, m.initial), model,
-                       (mass, inertia, stiffness, s._replace(omega0=omega0, gamma=gamma)))
+    return eqx.tree_at(
+        lambda m: (m.mass, m.inertia, m.stiffness, m.initial),
+        model,
+        (mass, inertia, stiffness, s._replace(omega0=omega0, gamma=gamma)),
+    )
 
 
 def run(**kw):
     model = jaxtree.load_scene("fig4_free")
-    return monte_carlo(model, sample, N, T1, key=jax.random.key(KEY), saveat=SAVES, rtol=TOL, atol=TOL,
-                       chunk_size=CHUNK, max_steps=MAX_STEPS, **kw)
+    return monte_carlo(
+        model,
+        sample,
+        N,
+        T1,
+        key=jax.random.key(KEY),
+        saveat=SAVES,
+        rtol=TOL,
+        atol=TOL,
+        chunk_size=CHUNK,
+        max_steps=MAX_STEPS,
+        **kw,
+    )
 
 
 def locked_members():
@@ -55,8 +69,15 @@ def campaign():
 def test_dataset_holds_each_member_as_run_alone_and_failed_members_apart(campaign):
     ds = campaign
     model = jaxtree.load_scene("fig4_free")
-    assert dict(ds.sizes) == {"run": N, "time": SAVES, "hinge": 10, "axis": 3, "quaternion": 4, "body": 11,
-                             "axis_j": 3}  # param.inertia (run, body, axis, axis_j)
+    assert dict(ds.sizes) == {
+        "run": N,
+        "time": SAVES,
+        "hinge": 10,
+        "axis": 3,
+        "quaternion": 4,
+        "body": 11,
+        "axis_j": 3,
+    }  # param.inertia (run, body, axis, axis_j)
     locked = locked_members()
     assert 0 < locked.sum() < N  # the seed gives both kinds
     # members in gimbal lock fail with a named status and NaN outputs; nothing raised
@@ -121,8 +142,19 @@ def test_store_is_written_chunk_by_chunk_and_a_rerun_resumes(campaign, tmp_path,
     assert again.attrs["chunks_run"] == 0 and again.omega0.equals(campaign.omega0)
     model = jaxtree.load_scene("fig4_free")
     with pytest.raises(ValueError, match="different campaign"):
-        monte_carlo(model, sample, N, 2 * T1, key=jax.random.key(KEY), saveat=SAVES, rtol=TOL, atol=TOL,
-                    chunk_size=CHUNK, max_steps=MAX_STEPS, out=out)
+        monte_carlo(
+            model,
+            sample,
+            N,
+            2 * T1,
+            key=jax.random.key(KEY),
+            saveat=SAVES,
+            rtol=TOL,
+            atol=TOL,
+            chunk_size=CHUNK,
+            max_steps=MAX_STEPS,
+            out=out,
+        )
 
 
 def test_chunks_split_over_two_forced_host_devices_give_the_same_numbers(campaign, tmp_path):
@@ -139,8 +171,10 @@ np.savez({str(tmp_path / "two.npz")!r}, omega0=ds.omega0.values, gamma=ds.gamma.
          failure=ds.failure.values)
 """
     # the child imports this module from this folder (PYTHONPATH, as pytest's rootdir does here)
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(pathlib.Path(__file__).parent),
-                                                                    os.environ.get("PYTHONPATH")])))
+    env = dict(
+        os.environ,
+        PYTHONPATH=os.pathsep.join(filter(None, [str(pathlib.Path(__file__).parent), os.environ.get("PYTHONPATH")])),
+    )
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, env=env)
     assert proc.returncode == 0, proc.stderr[-3000:]
     two = np.load(tmp_path / "two.npz")
@@ -153,8 +187,10 @@ np.savez({str(tmp_path / "two.npz")!r}, omega0=ds.omega0.values, gamma=ds.gamma.
 def test_a_dask_local_cluster_of_two_processes_gives_the_same_numbers(campaign):
     import distributed  # the test extra's dask[distributed]
 
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cl, \
-            distributed.Client(cl) as client:
+    with (
+        distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cl,
+        distributed.Client(cl) as client,
+    ):
         ds = run(client=client)
     assert ds.attrs["where"] == "dask"
     for v in campaign.data_vars:

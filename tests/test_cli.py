@@ -23,8 +23,20 @@ T1, POINTS, CHUNKS = "1", "21", "4"
 
 
 def _args(out, *extra):
-    return ["simulate", "wings", "--t1", T1, "--points", POINTS, "--chunks", CHUNKS, "--out", str(out),
-            "--no-progress", *extra]
+    return [
+        "simulate",
+        "wings",
+        "--t1",
+        T1,
+        "--points",
+        POINTS,
+        "--chunks",
+        CHUNKS,
+        "--out",
+        str(out),
+        "--no-progress",
+        *extra,
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -43,8 +55,18 @@ def test_simulate_writes_a_complete_result_within_its_error_estimate(run):
     a = ds.attrs
     assert a["complete"] == 1 and a["parts"] == 4 and a["result"] == "ok" and ds.sizes["time"] == int(POINTS)
     assert not out.with_name(out.name + ".parts").exists()
-    for key in ("solver", "rtol", "atol", "steps_accepted", "jaxtree_version", "jax_version", "diffrax_version",
-                "date", "scene", "command"):
+    for key in (
+        "solver",
+        "rtol",
+        "atol",
+        "steps_accepted",
+        "jaxtree_version",
+        "jax_version",
+        "diffrax_version",
+        "date",
+        "scene",
+        "command",
+    ):
         assert key in a, key
     assert a["solver"] == "Dopri8" and a["rtol"] == 1e-9
     # against an independent tight run: the error lies within the reported estimate (the
@@ -186,8 +208,13 @@ def test_no_subcommand_runs_the_sample_problem(monkeypatch):
 def test_check_command_prints_tree_tables_masses_and_condition(capsys):
     assert cli.main(["check", "fig4"]) == 0
     out = capsys.readouterr().out
-    for text in ("Table 1: network elements", "Table 2: path elements", "`-- 4 rotor", "total 1130 kg",
-                 "condition number of Eq. (1)"):
+    for text in (
+        "Table 1: network elements",
+        "Table 2: path elements",
+        "`-- 4 rotor",
+        "total 1130 kg",
+        "condition number of Eq. (1)",
+    ):
         assert text in out, text
     c = jaxtree.condition(jaxtree.load_scene("fig4"))
     assert f"{float(c.number):.3g}" in out
@@ -198,9 +225,16 @@ def modes_run(tmp_path_factory):
     """`jaxtree modes` of a hub with one offset panel (a scene file written here)."""
     folder = tmp_path_factory.mktemp("modes")
     hub = jaxtree.Body("hub", 100.0, np.diag([30.0, 40.0, 50.0]))
-    panel = jaxtree.Body("panel", 4.0, np.diag([0.2, 0.5, 0.6]), parent="hub", axis=[0, 1, 0],
-                         hinge_on_parent=[1.0, 0.0, 0.0], hinge_on_body=[-0.5, 0.0, 0.0],
-                         joint=jaxtree.SpringDamper(50.0))
+    panel = jaxtree.Body(
+        "panel",
+        4.0,
+        np.diag([0.2, 0.5, 0.6]),
+        parent="hub",
+        axis=[0, 1, 0],
+        hinge_on_parent=[1.0, 0.0, 0.0],
+        hinge_on_body=[-0.5, 0.0, 0.0],
+        joint=jaxtree.SpringDamper(50.0),
+    )
     scene = folder / "hub_panel.json"
     jaxtree.save_scene(jaxtree.build_model([hub, panel], name="hub_panel"), scene)
     out = folder / "m.nc"
@@ -248,8 +282,9 @@ def test_animate_passes_the_result_to_the_viewer(run, modes_run, tmp_path, monke
     np.testing.assert_array_equal(ts, ds["time"].values)
     np.testing.assert_array_equal(dcm, ds["dcm"].values)
     np.testing.assert_array_equal(gamma, ds["gamma"].values)
-    assert cli.main(["animate", str(modes_run), "-o", str(tmp_path / "m.html"), "--mode", "1",
-                     "--amplitude", "0.2"]) == 0
+    assert (
+        cli.main(["animate", str(modes_run), "-o", str(tmp_path / "m.html"), "--mode", "1", "--amplitude", "0.2"]) == 0
+    )
     kind, path, model, shape, freq, gamma0, amplitude, title = calls[-1]
     md = jaxtree.load_result(modes_run, as_dataset=True)
     assert kind == "mode" and model.name == "hub_panel" and amplitude == 0.2 and "mode 1" in title
@@ -292,13 +327,30 @@ def test_hybrid_simulation_follows_the_full_equations_at_small_amplitude(tmp_pat
     hinges): for wings' 0.05-0.08 rad panel motion it follows the full Eq. (1) to second order
     in the amplitude (observed 4e-4 rad), part after part."""
     out = tmp_path / "h.nc"
-    rc = cli.main(["simulate", "wings", "--t1", "0.5", "--points", "11", "--chunks", "2", "--hybrid-small", "1-4",
-                   "--out", str(out), "--no-plot", "--no-error-estimate", "--no-progress"])
+    rc = cli.main(
+        [
+            "simulate",
+            "wings",
+            "--t1",
+            "0.5",
+            "--points",
+            "11",
+            "--chunks",
+            "2",
+            "--hybrid-small",
+            "1-4",
+            "--out",
+            str(out),
+            "--no-plot",
+            "--no-error-estimate",
+            "--no-progress",
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     ds = jaxtree.load_result(out, as_dataset=True)
     assert ds.attrs["hybrid_small"] == "1-4" and ds["modal"].dims == ("time", "modal_coordinate")
     ref = jaxtree.simulate(jaxtree.load_scene("wings"), 0.5, saveat=11)
     amplitude = np.abs(np.asarray(ref.gamma)).max()
-    assert np.abs(ds["gamma"].values - np.asarray(ref.gamma)).max() < 0.5 * amplitude ** 2
-    assert np.abs(ds["omega0"].values - np.asarray(ref.omega0)).max() < 0.5 * amplitude ** 2
+    assert np.abs(ds["gamma"].values - np.asarray(ref.gamma)).max() < 0.5 * amplitude**2
+    assert np.abs(ds["omega0"].values - np.asarray(ref.omega0)).max() < 0.5 * amplitude**2
     capsys.readouterr()

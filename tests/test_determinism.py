@@ -37,8 +37,10 @@ def _digest(sol):
 def test_trajectories_are_bit_identical_in_one_process_and_across_processes():
     env = dict(os.environ, PYTHONHASHSEED="0")
     # two fresh processes, started first so that they run while this one computes
-    procs = [subprocess.Popen([sys.executable, "-c", RUN], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
-             for _ in range(2)]
+    procs = [
+        subprocess.Popen([sys.executable, "-c", RUN], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+        for _ in range(2)
+    ]
     model = jaxtree.load_scene("fig4_free")
     first = jaxtree.simulate(model, 1.0, rtol=1e-10, atol=1e-10)
     again = jaxtree.simulate(model, 1.0, rtol=1e-10, atol=1e-10)

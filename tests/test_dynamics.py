@@ -42,16 +42,27 @@ def rel(a, b):
 
 def oracle(model, state, tau=None, F=None, T=None):
     return oracle_eom(
-        model.topology.parents, np.asarray(model.mass), np.asarray(model.inertia), np.asarray(model.axis),
-        np.asarray(model.hinge_on_parent), np.asarray(model.hinge_on_body), np.asarray(state.omega0),
-        np.asarray(state.gamma), np.asarray(state.gamma_dot), tau=tau, F=F, T=T, dcm=np.asarray(state.dcm),
+        model.topology.parents,
+        np.asarray(model.mass),
+        np.asarray(model.inertia),
+        np.asarray(model.axis),
+        np.asarray(model.hinge_on_parent),
+        np.asarray(model.hinge_on_body),
+        np.asarray(state.omega0),
+        np.asarray(state.gamma),
+        np.asarray(state.gamma_dot),
+        tau=tau,
+        F=F,
+        T=T,
+        dcm=np.asarray(state.dcm),
     )
 
 
 def with_random_loads(model, rng, bodies):
     bodies = tuple(sorted(int(b) for b in bodies))
-    loads = ConstantLoads(bodies, jnp.asarray(rng.normal(size=(len(bodies), 3)) * 20),
-                          jnp.asarray(rng.normal(size=(len(bodies), 3)) * 5))
+    loads = ConstantLoads(
+        bodies, jnp.asarray(rng.normal(size=(len(bodies), 3)) * 20), jnp.asarray(rng.normal(size=(len(bodies), 3)) * 5)
+    )
     F = np.zeros((model.n + 1, 3))
     T = np.zeros((model.n + 1, 3))
     F[list(bodies)] = np.asarray(loads.force)
@@ -141,9 +152,14 @@ def test_angular_momentum_rate_equals_external_moment(scenes, name):
     acc = accelerations(model, state, 0.0, None)
     rate = jaxtree.State(jaxtree.dcm_rate(state.dcm, state.omega0), acc.omega0_dot, state.gamma_dot, acc.gamma_ddot)
     _, dH = jax.jvp(lambda s: jaxtree.angular_momentum(model, s), (state,), (rate,))
-    geo = oracle_body_states(model.topology.parents, np.asarray(model.mass), np.asarray(model.axis),
-                             np.asarray(model.hinge_on_parent), np.asarray(model.hinge_on_body),
-                             np.asarray(state.gamma))
+    geo = oracle_body_states(
+        model.topology.parents,
+        np.asarray(model.mass),
+        np.asarray(model.axis),
+        np.asarray(model.hinge_on_parent),
+        np.asarray(model.hinge_on_body),
+        np.asarray(state.gamma),
+    )
     R, r = np.asarray(geo["R"]), np.asarray(geo["r"])
     Fb0, Tb0 = np.einsum("kij,kj->ki", R, F), np.einsum("kij,kj->ki", R, T)
     moment = np.asarray(state.dcm).T @ (np.cross(r, Fb0) + Tb0).sum(0)
@@ -253,12 +269,22 @@ def test_relabelling_permutes_the_result(scenes, name):
 def test_massless_leaf_changes_nothing(scenes, attach):
     model = scenes["fig4_free"]
     d = jaxtree.scene_to_dict(model)
-    leaf = {"name": "probe", "mass": 0.0, "inertia": np.zeros((3, 3)).tolist(), "parent": attach,
-            "axis": [0.3, -0.5, 0.8], "hinge_on_parent": [0.2, 0.1, -0.3], "hinge_on_body": [0.0, 0.0, 0.0],
-            "joint": {"kind": "free"}}
+    leaf = {
+        "name": "probe",
+        "mass": 0.0,
+        "inertia": np.zeros((3, 3)).tolist(),
+        "parent": attach,
+        "axis": [0.3, -0.5, 0.8],
+        "hinge_on_parent": [0.2, 0.1, -0.3],
+        "hinge_on_body": [0.0, 0.0, 0.0],
+        "joint": {"kind": "free"},
+    }
     d["bodies"] = d["bodies"] + [leaf]
-    d["initial"] = {**d["initial"], "gamma": d["initial"]["gamma"] + [0.7],
-                    "gamma_dot": d["initial"]["gamma_dot"] + [-1.3]}
+    d["initial"] = {
+        **d["initial"],
+        "gamma": d["initial"]["gamma"] + [0.7],
+        "gamma_dot": d["initial"]["gamma_dot"] + [-1.3],
+    }
     bigger = jaxtree.scene_from_dict(d)
     assert bigger.inert == (model.n + 1,)
     rng = np.random.default_rng(attach)
@@ -321,8 +347,9 @@ def test_gradients_match_finite_differences(scenes):
     f = jax.jit(objective)
     for field, index in [("mass", 6), ("hinge_on_parent", (5, 0)), ("stiffness", 7), ("inertia", (4, 2, 2))]:
         h = 1e-6 * max(1.0, abs(float(getattr(model, field)[index])))
-        bump = lambda d: jaxtree._src.model.eqx.tree_at(lambda m: getattr(m, field), model,
-                                                    getattr(model, field).at[index].add(d))
+        bump = lambda d: jaxtree._src.model.eqx.tree_at(
+            lambda m: getattr(m, field), model, getattr(model, field).at[index].add(d)
+        )
         fd = (f(bump(h)) - f(bump(-h))) / (2 * h)
         # central differences with h ~ 1e-6 carry ~1e-9 relative truncation and rounding error
         assert abs(float(getattr(grads, field)[index] - fd)) <= 1e-6 * max(1.0, abs(float(fd))), field

@@ -33,14 +33,14 @@ def test_monte_carlo_campaign_runs_each_dispersed_vehicle_as_alone():
     assert np.all(np.asarray(out["momentum_drift"]) < 1e-7)
     assert np.ptp(np.asarray(out["peak_motor_torque"])) > 1e-3  # the dispersions do change the runs
     r = 2
-    alone = jax.tree_util.tree_map(lambda x, a: x if a is None else x[r], models, in_axes,
-                                   is_leaf=lambda x: x is None)
+    alone = jax.tree_util.tree_map(lambda x, a: x if a is None else x[r], models, in_axes, is_leaf=lambda x: x is None)
     s = alone.initial
     panels = np.asarray(model.sprung) - 1
     y0 = s._replace(omega0=s.omega0 + d["omega0"][r], gamma_dot=s.gamma_dot.at[panels].add(d["panel_rate"][r]))
     sol = jaxtree.simulate(alone, duration, y0=y0, saveat=21)
-    np.testing.assert_allclose(float(out["peak_bus_rate"][r]), float(np.linalg.norm(sol.omega0, axis=1).max()),
-                               rtol=1e-9)
+    np.testing.assert_allclose(
+        float(out["peak_bus_rate"][r]), float(np.linalg.norm(sol.omega0, axis=1).max()), rtol=1e-9
+    )
     np.testing.assert_allclose(float(out["peak_motor_torque"][r]), float(np.abs(sol.hold_torque).max()), rtol=1e-9)
 
 

@@ -29,17 +29,23 @@ from hypothesis import strategies as st
 import jaxtree
 from jaxtree import Body, SceneError, SceneWarning
 
-FUZZ = settings(derandomize=True, database=None, deadline=None, print_blob=True,
-                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
-                                       HealthCheck.function_scoped_fixture])
+FUZZ = settings(
+    derandomize=True,
+    database=None,
+    deadline=None,
+    print_blob=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.function_scoped_fixture],
+)
 
 
 def fuzz(examples):
     return settings(FUZZ, max_examples=examples)
 
+
 _TRACES = []
 jax.monitoring.register_event_duration_secs_listener(
-    lambda event, duration, **kw: _TRACES.append(event) if event == "/jax/core/compile/jaxpr_trace_duration" else None)
+    lambda event, duration, **kw: _TRACES.append(event) if event == "/jax/core/compile/jaxpr_trace_duration" else None
+)
 
 
 @contextlib.contextmanager
@@ -81,31 +87,54 @@ def scenes(draw, max_bodies=7):
         m = 0.0 if massless else float(rng.uniform(0.1, 100.0))
         q = rng.normal(size=4)
         w, x, y, z = q / np.linalg.norm(q)
-        R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        R = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+            ]
+        )
         J = R @ _box(m, *rng.uniform(0.05, 3.0, 3)) @ R.T
-        d = {"name": f"b{k}_{rng.choice(['hub', 'arm', 'rotor', 'panel'])}", "mass": m,
-             "inertia": (0.5 * (J + J.T)).tolist()}
+        d = {
+            "name": f"b{k}_{rng.choice(['hub', 'arm', 'rotor', 'panel'])}",
+            "mass": m,
+            "inertia": (0.5 * (J + J.T)).tolist(),
+        }
         if k > 0:
             axis = rng.normal(size=3)
-            d.update(parent=int(rng.integers(0, k)), axis=(axis / np.linalg.norm(axis)).tolist(),
-                     hinge_on_parent=rng.uniform(-1, 1, 3).tolist(), hinge_on_body=rng.uniform(-1, 1, 3).tolist(),
-                     joint={"kind": "free"})
+            d.update(
+                parent=int(rng.integers(0, k)),
+                axis=(axis / np.linalg.norm(axis)).tolist(),
+                hinge_on_parent=rng.uniform(-1, 1, 3).tolist(),
+                hinge_on_body=rng.uniform(-1, 1, 3).tolist(),
+                joint={"kind": "free"},
+            )
         bodies.append(d)
     heavy = [any(bodies[j]["mass"] > 0 for j in _subtree(bodies, k)) for k in range(nb)]
     for k in range(1, nb):
         kind = rng.choice(["free", "spring_damper", "prescribed"])
         if kind == "spring_damper" and heavy[k]:
-            bodies[k]["joint"] = {"kind": "spring_damper", "stiffness": float(rng.uniform(0, 500)),
-                                  "damping": float(rng.uniform(0, 5))}
+            bodies[k]["joint"] = {
+                "kind": "spring_damper",
+                "stiffness": float(rng.uniform(0, 500)),
+                "damping": float(rng.uniform(0, 5)),
+            }
         elif kind == "prescribed":
             A, W, P = rng.uniform([-1, 0, -3], [1, 3, 3])
-            bodies[k]["joint"] = {"kind": "prescribed", "function": "sine", "amplitude": float(A),
-                                  "frequency": float(W), "phase": float(P)}
+            bodies[k]["joint"] = {
+                "kind": "prescribed",
+                "function": "sine",
+                "amplitude": float(A),
+                "frequency": float(W),
+                "phase": float(P),
+            }
     n = nb - 1
-    initial = {"gamma": rng.uniform(-3, 3, n).tolist(), "gamma_dot": rng.uniform(-3, 3, n).tolist(),
-               "omega0": rng.uniform(-1, 1, 3).tolist(), "attitude_dcm": np.eye(3).tolist()}
+    initial = {
+        "gamma": rng.uniform(-3, 3, n).tolist(),
+        "gamma_dot": rng.uniform(-3, 3, n).tolist(),
+        "omega0": rng.uniform(-1, 1, 3).tolist(),
+        "attitude_dcm": np.eye(3).tolist(),
+    }
     return {"format": "jaxtree-scene/1", "name": "fuzz", "description": "", "bodies": bodies, "initial": initial}
 
 
@@ -122,8 +151,10 @@ def build(doc, builder):
     records, numpy arrays)."""
     if not builder:
         return jaxtree.scene_from_dict(doc)
-    bodies = [Body(**{k: (_array(v) if isinstance(v, list) and k != "name" else v) for k, v in b.items()})
-              for b in doc["bodies"]]
+    bodies = [
+        Body(**{k: (_array(v) if isinstance(v, list) and k != "name" else v) for k, v in b.items()})
+        for b in doc["bodies"]
+    ]
     return jaxtree.build_model(bodies, doc.get("initial"), name=doc.get("name", ""))
 
 
@@ -150,14 +181,43 @@ def malformed(draw):
     k = draw(st.integers(0, nb - 1))
     b = bodies[k]
     hinge = k > 0
-    what = draw(st.sampled_from([
-        "type", "shape", "nonfinite", "negative_mass", "inertia_asymmetric", "inertia_indefinite",
-        "inertia_triangle", "massless_inertia", "axis_zero", "axis_nonfinite", "parent_self", "parent_later",
-        "parent_negative", "parent_name_later", "parent_unknown", "parent_float", "missing", "joint_kind",
-        "joint_no_kind", "joint_missing", "joint_negative", "joint_nonfinite", "massless_spring", "duplicate_name",
-        "reference_hinge", "initial_length", "initial_nonfinite", "initial_type", "initial_dcm", "all_massless",
-        "name_type",
-    ]))
+    what = draw(
+        st.sampled_from(
+            [
+                "type",
+                "shape",
+                "nonfinite",
+                "negative_mass",
+                "inertia_asymmetric",
+                "inertia_indefinite",
+                "inertia_triangle",
+                "massless_inertia",
+                "axis_zero",
+                "axis_nonfinite",
+                "parent_self",
+                "parent_later",
+                "parent_negative",
+                "parent_name_later",
+                "parent_unknown",
+                "parent_float",
+                "missing",
+                "joint_kind",
+                "joint_no_kind",
+                "joint_missing",
+                "joint_negative",
+                "joint_nonfinite",
+                "massless_spring",
+                "duplicate_name",
+                "reference_hinge",
+                "initial_length",
+                "initial_nonfinite",
+                "initial_type",
+                "initial_dcm",
+                "all_massless",
+                "name_type",
+            ]
+        )
+    )
     fields = hinge_fields = ["axis", "hinge_on_parent", "hinge_on_body"]
     numeric = ["mass", "inertia"] + (hinge_fields if hinge else [])
     if what == "type":
@@ -207,9 +267,14 @@ def malformed(draw):
         b["axis"] = [0.0, 0.0, 0.0] if what == "axis_zero" else [0.0, draw(st.sampled_from(NONFINITE)), 1.0]
         fields = ["axis"]
     elif what.startswith("parent") and hinge:
-        b["parent"] = {"parent_self": k, "parent_later": nb + draw(st.integers(0, 3)), "parent_negative": -1,
-                       "parent_name_later": bodies[-1]["name"] if k < nb - 1 else k, "parent_unknown": "nowhere",
-                       "parent_float": 0.5}[what]
+        b["parent"] = {
+            "parent_self": k,
+            "parent_later": nb + draw(st.integers(0, 3)),
+            "parent_negative": -1,
+            "parent_name_later": bodies[-1]["name"] if k < nb - 1 else k,
+            "parent_unknown": "nowhere",
+            "parent_float": 0.5,
+        }[what]
         fields = ["parent"]
     elif what == "missing":
         f = draw(st.sampled_from(["name", "mass", "inertia"] + (hinge_fields + ["parent"] if hinge else [])))
@@ -224,12 +289,17 @@ def malformed(draw):
         elif what == "joint_no_kind":
             b["joint"] = {"stiffness": 1.0}
         elif what == "joint_missing":
-            b["joint"] = draw(st.sampled_from([{"kind": "spring_damper", "damping": 1.0},
-                                               {"kind": "prescribed", "function": "sine", "frequency": 1.0},
-                                               {"kind": "prescribed", "function": "sine", "amplitude": 1.0},
-                                               {"kind": "prescribed", "function": "cosine", "amplitude": 1.0,
-                                                "frequency": 1.0},
-                                               {"kind": "prescribed", "amplitude": 1.0, "frequency": 1.0}]))
+            b["joint"] = draw(
+                st.sampled_from(
+                    [
+                        {"kind": "spring_damper", "damping": 1.0},
+                        {"kind": "prescribed", "function": "sine", "frequency": 1.0},
+                        {"kind": "prescribed", "function": "sine", "amplitude": 1.0},
+                        {"kind": "prescribed", "function": "cosine", "amplitude": 1.0, "frequency": 1.0},
+                        {"kind": "prescribed", "amplitude": 1.0, "frequency": 1.0},
+                    ]
+                )
+            )
         elif what == "joint_negative":
             b["mass"] = max(b["mass"], 1.0)
             b["inertia"] = np.diag([1.0, 1.0, 1.5]).tolist()
@@ -251,7 +321,9 @@ def malformed(draw):
             if j != k and bodies[j]["joint"]["kind"] == "spring_damper":
                 bodies[j]["joint"] = {"kind": "free"}
         for j in range(1, k):  # an ancestor left with only massless bodies outboard loses its spring
-            if bodies[j]["joint"]["kind"] == "spring_damper" and all(bodies[i]["mass"] == 0 for i in _subtree(bodies, j)):
+            if bodies[j]["joint"]["kind"] == "spring_damper" and all(
+                bodies[i]["mass"] == 0 for i in _subtree(bodies, j)
+            ):
                 bodies[j]["joint"] = {"kind": "free"}
         b["joint"] = {"kind": "spring_damper", "stiffness": 10.0}
         if sum(x["mass"] for x in bodies) == 0:
@@ -263,8 +335,12 @@ def malformed(draw):
     elif what == "reference_hinge":
         k, b = 0, bodies[0]
         f = draw(st.sampled_from(["parent", "axis", "hinge_on_parent", "joint"]))
-        b[f] = {"parent": 0, "axis": [0.0, 0.0, 1.0], "hinge_on_parent": [0.0, 0.0, 0.0],
-                "joint": {"kind": "spring_damper", "stiffness": 1.0}}[f]
+        b[f] = {
+            "parent": 0,
+            "axis": [0.0, 0.0, 1.0],
+            "hinge_on_parent": [0.0, 0.0, 0.0],
+            "joint": {"kind": "spring_damper", "stiffness": 1.0},
+        }[f]
         fields = [f]
     elif what == "name_type":
         b["name"] = draw(st.sampled_from([3, None, "", ["a"], 1.5]))
@@ -289,8 +365,9 @@ def malformed(draw):
         elif what == "initial_type":
             doc["initial"][f] = draw(st.sampled_from(BAD_TYPES[1:]))
         else:
-            doc["initial"][f] = draw(st.sampled_from([np.diag([1.0, 1.0, -1.0]), 1.01 * np.eye(3),
-                                                      np.ones((3, 3))])).tolist()
+            doc["initial"][f] = draw(
+                st.sampled_from([np.diag([1.0, 1.0, -1.0]), 1.01 * np.eye(3), np.ones((3, 3))])
+            ).tolist()
         k, fields = None, ["initial", f]
     else:
         # an option that does not apply to the reference body: a non-numeric mass instead
@@ -320,15 +397,44 @@ def test_malformed_scenes_are_rejected_naming_body_and_field(case):
 
 
 @fuzz(150)
-@given(scenes(), st.sampled_from(["body", "joint", "initial", "scene"]),
-       st.text("abcdefghijklmnopqrstuvwxyz_", min_size=1, max_size=12), st.data())
+@given(
+    scenes(),
+    st.sampled_from(["body", "joint", "initial", "scene"]),
+    st.text("abcdefghijklmnopqrstuvwxyz_", min_size=1, max_size=12),
+    st.data(),
+)
 def test_unknown_keys_warn_naming_the_key(doc, where, key, data):
-    if key in {"name", "mass", "inertia", "parent", "axis", "hinge_on_parent", "hinge_on_body", "joint", "kind",
-               "stiffness", "damping", "function", "amplitude", "frequency", "phase", "gamma", "gamma_dot",
-               "omega0", "dcm", "attitude_dcm", "format", "description", "bodies", "initial"}:
+    if key in {
+        "name",
+        "mass",
+        "inertia",
+        "parent",
+        "axis",
+        "hinge_on_parent",
+        "hinge_on_body",
+        "joint",
+        "kind",
+        "stiffness",
+        "damping",
+        "function",
+        "amplitude",
+        "frequency",
+        "phase",
+        "gamma",
+        "gamma_dot",
+        "omega0",
+        "dcm",
+        "attitude_dcm",
+        "format",
+        "description",
+        "bodies",
+        "initial",
+    }:
         key = key + "_x"
     k = data.draw(st.integers(1, len(doc["bodies"]) - 1))
-    target = {"body": doc["bodies"][k], "joint": doc["bodies"][k]["joint"], "initial": doc["initial"], "scene": doc}[where]
+    target = {"body": doc["bodies"][k], "joint": doc["bodies"][k]["joint"], "initial": doc["initial"], "scene": doc}[
+        where
+    ]
     target[key] = 1.0
     # no no_tracing() here: the scene is valid and loads, and loading converts its arrays to JAX
     # arrays (eager dispatch of convert_element_type, cached per shape: traced or not depending on
@@ -342,14 +448,31 @@ def test_unknown_keys_warn_naming_the_key(doc, where, key, data):
 
 
 @fuzz(60)
-@given(st.sampled_from([None, 3, "x", [1, 2], {"format": "other"}, {"format": "jaxtree-scene/1"},
-                        {"format": "jaxtree-scene/1", "bodies": {}},
-                        {"format": "jaxtree-scene/1", "bodies": []},
-                        {"format": "jaxtree-scene/1", "bodies": [3]},
-                        {"format": "jaxtree-scene/1", "bodies": [{"name": "a", "mass": 1, "inertia": np.eye(3).tolist()}],
-                         "initial": [1, 2]},
-                        {"format": "jaxtree-scene/1", "bodies": [{"name": "a", "mass": 1, "inertia": np.eye(3).tolist()}],
-                         "name": 5}]))
+@given(
+    st.sampled_from(
+        [
+            None,
+            3,
+            "x",
+            [1, 2],
+            {"format": "other"},
+            {"format": "jaxtree-scene/1"},
+            {"format": "jaxtree-scene/1", "bodies": {}},
+            {"format": "jaxtree-scene/1", "bodies": []},
+            {"format": "jaxtree-scene/1", "bodies": [3]},
+            {
+                "format": "jaxtree-scene/1",
+                "bodies": [{"name": "a", "mass": 1, "inertia": np.eye(3).tolist()}],
+                "initial": [1, 2],
+            },
+            {
+                "format": "jaxtree-scene/1",
+                "bodies": [{"name": "a", "mass": 1, "inertia": np.eye(3).tolist()}],
+                "name": 5,
+            },
+        ]
+    )
+)
 def test_malformed_documents_are_rejected(doc):
     rejected(lambda: jaxtree.scene_from_dict(copy.deepcopy(doc)), r"scene|bod|initial|name")
 
@@ -360,8 +483,12 @@ def test_builder_arguments_are_checked():
     rejected(lambda: jaxtree.build_model("hub"), "bodies")
     rejected(lambda: jaxtree.build_model(ok, name=3), "name")
     rejected(lambda: jaxtree.build_model(ok, [0.0]), "initial")
-    rejected(lambda: jaxtree.build_model(ok, jaxtree.State(np.eye(3), np.zeros(3), np.zeros(2), np.zeros(1))),
-             "initial", "'gamma'", "length 1")
+    rejected(
+        lambda: jaxtree.build_model(ok, jaxtree.State(np.eye(3), np.zeros(3), np.zeros(2), np.zeros(1))),
+        "initial",
+        "'gamma'",
+        "length 1",
+    )
     rejected(lambda: jaxtree.build_model(ok, loads=object()), "loads")
     arm = Body("arm", 1.0, np.eye(3), 0, [0, 0, 1], [1, 0, 0], [0, 0, 0], jaxtree.SpringDamper("stiff"))
     rejected(lambda: jaxtree.build_model([ok[0], arm]), r"body 1\b", "joint.stiffness")
@@ -383,9 +510,18 @@ BATCH_FAULTS = {
     # leaf, body offset (hinge leaves are indexed by hinge k - 1), the field named, and the fault
     "mass_nan": ("mass", 0, "'mass'", lambda x, rng: np.nan),
     "mass_negative": ("mass", 0, "'mass'", lambda x, rng: -rng.uniform(0.1, 10)),
-    "inertia_nan": ("inertia", 0, "'inertia'", lambda x, rng: np.where(np.arange(9).reshape(3, 3) == rng.integers(9),
-                                                                        rng.choice([np.nan, np.inf]), x)),
-    "inertia_asymmetric": ("inertia", 0, "'inertia'", lambda x, rng: x + np.triu(np.full((3, 3), rng.uniform(0.5, 5)), 1)),
+    "inertia_nan": (
+        "inertia",
+        0,
+        "'inertia'",
+        lambda x, rng: np.where(np.arange(9).reshape(3, 3) == rng.integers(9), rng.choice([np.nan, np.inf]), x),
+    ),
+    "inertia_asymmetric": (
+        "inertia",
+        0,
+        "'inertia'",
+        lambda x, rng: x + np.triu(np.full((3, 3), rng.uniform(0.5, 5)), 1),
+    ),
     "inertia_indefinite": ("inertia", 0, "'inertia'", lambda x, rng: np.diag([1.0, -rng.uniform(0.1, 2), 1.5])),
     "inertia_triangle": ("inertia", 0, "'inertia'", lambda x, rng: np.diag([1.0, 1.0, 2.0 + rng.uniform(0.01, 5)])),
     "axis_not_unit": ("axis", 1, "'axis'", lambda x, rng: x * rng.uniform(1.01, 3)),
@@ -404,15 +540,20 @@ def test_dispersed_batches_are_rejected_naming_run_body_and_field(fig4, fault, r
     values = np.tile(np.asarray(getattr(fig4, leaf)), (runs,) + (1,) * getattr(fig4, leaf).ndim)
     mass = np.tile(np.asarray(fig4.mass), (runs, 1)) * rng.uniform(0.95, 1.05, (runs, fig4.n + 1))
     massive = list(fig4.massive)
-    candidates = {"mass": massive, "inertia": [k for k in massive],
-                  "stiffness": [k for k in fig4.sprung], "damping": [k for k in fig4.sprung]}.get(
-        leaf, list(range(1, fig4.n + 1)))
+    candidates = {
+        "mass": massive,
+        "inertia": [k for k in massive],
+        "stiffness": [k for k in fig4.sprung],
+        "damping": [k for k in fig4.sprung],
+    }.get(leaf, list(range(1, fig4.n + 1)))
     k = data.draw(st.sampled_from(candidates))
     r = data.draw(st.integers(0, runs - 1))
     values[r, k - offset] = corrupt(values[r, k - offset], rng)
     mass[:, [k for k in range(fig4.n + 1) if k not in massive]] = 0.0
     leaves = {"mass": mass, leaf: values} if leaf != "mass" else {"mass": values}
-    batch = eqx.tree_at(lambda m: tuple(getattr(m, f) for f in leaves), fig4, tuple(jnp.asarray(v) for v in leaves.values()))
+    batch = eqx.tree_at(
+        lambda m: tuple(getattr(m, f) for f in leaves), fig4, tuple(jnp.asarray(v) for v in leaves.values())
+    )
     rejected(lambda: jaxtree.validate_model(batch), rf"^run \({r},\): body {k} ", field)
 
 
@@ -492,8 +633,11 @@ LINEARIZE_BAD = {
 
 
 @fuzz(150)
-@given(st.sampled_from(["linearize", "linearize_vehicle", "hybrid_model"]), st.sampled_from(sorted(LINEARIZE_BAD)),
-       st.data())
+@given(
+    st.sampled_from(["linearize", "linearize_vehicle", "hybrid_model"]),
+    st.sampled_from(sorted(LINEARIZE_BAD)),
+    st.data(),
+)
 def test_bad_linearize_and_hybrid_arguments_are_named_before_tracing(small, fn, argument, data):
     value = data.draw(st.sampled_from(LINEARIZE_BAD[argument]))
     if argument == "t" and fn == "hybrid_model":
@@ -504,8 +648,13 @@ def test_bad_linearize_and_hybrid_arguments_are_named_before_tracing(small, fn, 
     kwargs[argument] = value
     model = kwargs.pop("model", small)
     call = getattr(jaxtree, fn)
-    rejected(lambda: call(model, **kwargs), fn, r"\bmodel\b" if argument == "model" else
-             ("hinge|set A|body|small" if argument == "small" else rf"\b{argument}\b"))
+    rejected(
+        lambda: call(model, **kwargs),
+        fn,
+        r"\bmodel\b"
+        if argument == "model"
+        else ("hinge|set A|body|small" if argument == "small" else rf"\b{argument}\b"),
+    )
 
 
 HYBRID_BAD = {

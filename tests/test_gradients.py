@@ -28,9 +28,17 @@ def _model():
     return model.with_loads(thruster)
 
 
-WEIGHTS = {k: np.random.default_rng(3).standard_normal(s) for k, s in [
-    ("omega0", (SAVES, 3)), ("gamma", (SAVES, 10)), ("gamma_dot", (SAVES, 10)), ("energy", (SAVES,)),
-    ("angular_momentum", (SAVES, 3)), ("dcm", (SAVES, 3, 3))]}
+WEIGHTS = {
+    k: np.random.default_rng(3).standard_normal(s)
+    for k, s in [
+        ("omega0", (SAVES, 3)),
+        ("gamma", (SAVES, 10)),
+        ("gamma_dot", (SAVES, 10)),
+        ("energy", (SAVES,)),
+        ("angular_momentum", (SAVES, 3)),
+        ("dcm", (SAVES, 3, 3)),
+    ]
+}
 SCALE = {"omega0": 1.0, "gamma": 1.0, "gamma_dot": 0.1, "energy": 1e-3, "angular_momentum": 1e-2, "dcm": 1.0}
 
 
@@ -86,11 +94,13 @@ def _directions(params, seed=0):
 
 def _perturbed(params, direction, h, name_dcm=".initial.dcm"):
     """params + h direction; the direction cosines rotated exactly: C(h) = expm(h W) C with W C = dC."""
+
     def move(path, p, d):
         if jax.tree_util.keystr(path) == name_dcm:
             W = d @ p.T  # d = W C, W skew
             return jax.scipy.linalg.expm(h * W) @ p
         return p + h * d
+
     return jax.tree_util.tree_map_with_path(move, params, direction)
 
 
@@ -166,8 +176,9 @@ def test_gradient_is_finite_with_a_prescribed_hinge():
     """fig4: the platform hinge follows a sine (its amplitude, frequency and phase are leaves too)."""
     model = jaxtree.load_scene("fig4")
     s = model.initial
-    model = eqx.tree_at(lambda m: m.initial, model,
-                        jaxtree.State(s.dcm, jnp.zeros(3), jnp.zeros(model.n), jnp.zeros(model.n)))
+    model = eqx.tree_at(
+        lambda m: m.initial, model, jaxtree.State(s.dcm, jnp.zeros(3), jnp.zeros(model.n), jnp.zeros(model.n))
+    )
     params, static = eqx.partition(model, eqx.is_inexact_array)
 
     def L(p):

@@ -17,7 +17,6 @@ of an 8th-order method, each with a local error below TOL times the state size (
 1 to 30), observed at 1e-11 .. 2e-10 on these runs; ``SAME`` = 2e-8 leaves a margin of 100.
 """
 
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -43,7 +42,7 @@ FIG4_SPIN = [0.0, 0.0, 0.3]  # nominal omega0 of the modes: spinning, so the mod
 def eq1_rhs(model, t, x):
     """Full nonlinear Eq. (1) with Eq. (3): x = [C (9), omega0, gamma (n), gamma_dot (n)]."""
     n = model.n
-    C, w, g, gd = x[:9].reshape(3, 3), x[9:12], x[12:12 + n], x[12 + n:]
+    C, w, g, gd = x[:9].reshape(3, 3), x[9:12], x[12 : 12 + n], x[12 + n :]
     wd, gdd = jaxtree.forward_dynamics(model, C, w, g, gd, t)
     return jnp.concatenate([(-tilde(w) @ C).ravel(), wd, gd, gdd])
 
@@ -65,10 +64,11 @@ def eq30_accelerations(model, small, large, t, C, w, gL, gdL, y, yd):
     rows = np.concatenate([np.arange(3), L + 3, S + 3])
 
     def residual(x):
-        gdd = jnp.zeros(n).at[L].set(x[3:3 + len(L)]).at[G].set(gddG)
-        lin = jaxtree.linearized_equations(model, small, State(C, w, gamma, gamma_dot), omega0_dot=x[:3],
-                                           gamma_ddot=gdd, t=t)
-        r = lin.residual + lin.accel @ x[3 + len(L):] + lin.rate @ yd + lin.angle @ y
+        gdd = jnp.zeros(n).at[L].set(x[3 : 3 + len(L)]).at[G].set(gddG)
+        lin = jaxtree.linearized_equations(
+            model, small, State(C, w, gamma, gamma_dot), omega0_dot=x[:3], gamma_ddot=gdd, t=t
+        )
+        r = lin.residual + lin.accel @ x[3 + len(L) :] + lin.rate @ yd + lin.angle @ y
         return r[rows]
 
     r = jax.vmap(residual)(jnp.concatenate([jnp.zeros((1, nx)), jnp.eye(nx)]))
@@ -85,17 +85,18 @@ def eq30_rhs(model, small, large):
     o = np.cumsum([0, 9, 3, nl, nl, nu, nu])
 
     def rhs(t, x):
-        C, w, gL, gdL, y, yd = (x[o[i]:o[i + 1]] for i in range(6))
+        C, w, gL, gdL, y, yd = (x[o[i] : o[i + 1]] for i in range(6))
         C = C.reshape(3, 3)
         acc = np.asarray(eq30_acc(model, small, large, jnp.asarray(t), C, w, gL, gdL, y, yd))
-        return np.concatenate([(-np.asarray(tilde(w)) @ C).ravel(), acc[:3], gdL, acc[3:3 + nl], yd, acc[3 + nl:]])
+        return np.concatenate([(-np.asarray(tilde(w)) @ C).ravel(), acc[:3], gdL, acc[3 : 3 + nl], yd, acc[3 + nl :]])
 
     return rhs
 
 
 def integrate(fun, x0, T, ts):
-    sol = solve_ivp(lambda t, x: np.asarray(fun(t, x)), (0.0, T), np.asarray(x0), t_eval=ts,
-                    method="DOP853", rtol=TOL, atol=TOL)
+    sol = solve_ivp(
+        lambda t, x: np.asarray(fun(t, x)), (0.0, T), np.asarray(x0), t_eval=ts, method="DOP853", rtol=TOL, atol=TOL
+    )
     assert sol.success, sol.message
     return sol.y.T
 
@@ -158,7 +159,7 @@ def full_history(model, state, T, ts):
     x0 = jnp.concatenate([state.dcm.ravel(), state.omega0, state.gamma, state.gamma_dot])
     X = integrate(lambda t, x: eq1_rhs(model, jnp.asarray(t), x), x0, T, ts)
     n = model.n
-    return dict(dcm=X[:, :9].reshape(-1, 3, 3), omega0=X[:, 9:12], gamma=X[:, 12:12 + n])
+    return dict(dcm=X[:, :9].reshape(-1, 3, 3), omega0=X[:, 9:12], gamma=X[:, 12 : 12 + n])
 
 
 def hybrid_history(hm, state, T, ts):
@@ -194,19 +195,23 @@ def hybrid_physical_accelerations(hm, t, y):
     """[omega0_dot, gamma_ddot_L, y''] and the rebuilt y' from the hybrid right side."""
     dy = rhs_jit(t, y, hm)
     a, nl = hm.attitude.size, len(hm.large)
-    ds = dy[a + 3 + 2 * nl:]
+    ds = dy[a + 3 + 2 * nl :]
     if hm.form == "real":
         k = hm.n_modes
         ydd, yd = hm.accel @ ds[k:], hm.positions[:, :k] @ ds[:k]  # s = [eta; eta'], ds = [eta'; eta'']
     else:
         ydd, yd = hm.rates @ ds, hm.positions @ ds
-    return jnp.concatenate([dy[a:a + 3], dy[a + 3 + nl:a + 3 + 2 * nl], ydd]), yd
+    return jnp.concatenate([dy[a : a + 3], dy[a + 3 + nl : a + 3 + 2 * nl], ydd]), yd
 
 
 def random_state(model, rng, scale=0.3):
     q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
-    return State(jnp.asarray(q * np.sign(np.linalg.det(q))), jnp.asarray(rng.normal(size=3) * 0.5),
-                 jnp.asarray(rng.normal(size=model.n) * scale), jnp.asarray(rng.normal(size=model.n) * scale))
+    return State(
+        jnp.asarray(q * np.sign(np.linalg.det(q))),
+        jnp.asarray(rng.normal(size=3) * 0.5),
+        jnp.asarray(rng.normal(size=model.n) * scale),
+        jnp.asarray(rng.normal(size=model.n) * scale),
+    )
 
 
 mass_matrix_jvp = eqx.filter_jit(lambda m, g, dg: jax.jvp(lambda q: jaxtree.mass_matrix(m, q), (g,), (dg,)))
@@ -226,8 +231,18 @@ def check_rhs_against_eq30(hm, rng, trials=2):
         got, yd = hybrid_physical_accelerations(hm, t, y)
         S = np.asarray(hm.small) - 1
         L = np.asarray(hm.large, dtype=int) - 1
-        want = eq30_acc(model, hm.small, hm.large, t, st.dcm, st.omega0, st.gamma[L], st.gamma_dot[L],
-                        st.gamma[S] - hm.gamma_nominal[S], st.gamma_dot[S])
+        want = eq30_acc(
+            model,
+            hm.small,
+            hm.large,
+            t,
+            st.dcm,
+            st.omega0,
+            st.gamma[L],
+            st.gamma_dot[L],
+            st.gamma[S] - hm.gamma_nominal[S],
+            st.gamma_dot[S],
+        )
         # Round-off of a solve with condition ~1e4 on O(100) entries: ~1e-11 of the largest entry.
         tol = 1e-10 * float(np.abs(want).max())
         np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=tol)
@@ -291,8 +306,7 @@ def test_nominal_modal_block_and_left_eigenvector_scaling(fig4):
     B = np.block([[np.zeros((nu, nu)), np.eye(nu)], [-np.linalg.solve(I, K), -np.linalg.solve(I, J)]])
     sigma = np.sort(np.abs(sla.eigvals(B).imag))[::2]
     np.testing.assert_allclose(np.asarray(hm.frequencies), sigma, rtol=1e-9)
-    np.testing.assert_allclose(np.asarray(hm.frequencies), np.asarray(md.frequencies)[list(hm.mode_index)],
-                               rtol=1e-14)
+    np.testing.assert_allclose(np.asarray(hm.frequencies), np.asarray(md.frequencies)[list(hm.mode_index)], rtol=1e-14)
     # Eq. (116) as printed: Phi'^T A_kk Phi with the nominal A_kk = diag(U, a_bar) of (30d)
     R, Lf = np.asarray(md.right), np.asarray(md.left)
     Pu = sla.block_diag(np.eye(nu), I)
@@ -340,17 +354,20 @@ def test_all_modes_reproduce_integrated_eq30(fig4, fig4_run):
     state, hyb, sol = fig4_run
     S = np.asarray(FIG4_SMALL) - 1
     L = np.asarray(hm.large) - 1
-    x0 = jnp.concatenate([state.dcm.ravel(), state.omega0, state.gamma[L], state.gamma_dot[L], state.gamma[S],
-                          state.gamma_dot[S]])
+    x0 = jnp.concatenate(
+        [state.dcm.ravel(), state.omega0, state.gamma[L], state.gamma_dot[L], state.gamma[S], state.gamma_dot[S]]
+    )
     X = integrate(eq30_rhs(model, FIG4_SMALL, hm.large), x0, T, ts)
     nl = len(L)
     ref = dict(dcm=X[:, :9].reshape(-1, 3, 3), omega0=X[:, 9:12], gamma=np.zeros((ts.size, model.n)))
-    ref["gamma"][:, L] = X[:, 12:12 + nl]
-    ref["gamma"][:, S] = X[:, 12 + 2 * nl:12 + 2 * nl + len(S)]
+    ref["gamma"][:, L] = X[:, 12 : 12 + nl]
+    ref["gamma"][:, S] = X[:, 12 + 2 * nl : 12 + 2 * nl + len(S)]
     cols = np.concatenate([L, S])
     d = max_diff(hyb, ref, cols=cols)
-    print(f"hybrid (all modes) vs integrated Eq. (30): max difference {d:.3g} "
-          f"({int(sol.stats['num_accepted_steps'])} steps)")
+    print(
+        f"hybrid (all modes) vs integrated Eq. (30): max difference {d:.3g} "
+        f"({int(sol.stats['num_accepted_steps'])} steps)"
+    )
     assert d < SAME
     # the motion is not trivial: the panels move by their amplitude, the gimbal by much more
     assert np.abs(ref["gamma"][:, S]).max() > 0.04 and np.ptp(ref["gamma"][:, L[0]]) > 0.05
@@ -398,9 +415,11 @@ def test_small_amplitude_approaches_nonlinear_eq1(fig4):
         large.append(max_diff(hyb, full, keys=("dcm", "omega0", "gamma"), cols=L))
         small.append(max_diff(hyb, full, keys=("gamma",), cols=S))
         assert np.abs(full["gamma"][:, L[:2]]).max() > 0.2 * amp  # the gimbal does respond
-    print(f"(a) hybrid vs Eq. (1), amplitude 0.02 / 0.01: large variables {large[0]:.3g} / {large[1]:.3g} "
-          f"(ratio {large[0] / large[1]:.2f}), panels {small[0]:.3g} / {small[1]:.3g} "
-          f"(ratio {small[0] / small[1]:.2f})")
+    print(
+        f"(a) hybrid vs Eq. (1), amplitude 0.02 / 0.01: large variables {large[0]:.3g} / {large[1]:.3g} "
+        f"(ratio {large[0] / large[1]:.2f}), panels {small[0]:.3g} / {small[1]:.3g} "
+        f"(ratio {small[0] / small[1]:.2f})"
+    )
     assert 3.2 < large[0] / large[1] < 4.8
     assert small[0] / small[1] > 3.2
     assert max(large[1], small[1]) < 0.01 * 0.01
@@ -433,8 +452,8 @@ def test_truncation_error_decreases(fig4, fig4_run):
         rates.append(rms(out["omega0"] - ref["omega0"]))
     panels.append(0.0), rates.append(0.0)  # k = 6: all modes, the reference itself
     print("frequencies:", np.asarray(hm.frequencies))
-    print("rms error of the panel angles, k = 1..6:", ["%.3g" % e for e in panels])
-    print("rms error of omega0,           k = 1..6:", ["%.3g" % e for e in rates])
+    print("rms error of the panel angles, k = 1..6:", [f"{e:.3g}" for e in panels])
+    print("rms error of omega0,           k = 1..6:", [f"{e:.3g}" for e in rates])
     # (The maximum error is not monotone: k = 3 adds a 4.9 rad/s mode whose truncated partner
     # errors peak at other times; the rms over the run is.)
     for errs in (panels, rates):
@@ -444,9 +463,14 @@ def test_truncation_error_decreases(fig4, fig4_run):
     small3 = jaxtree.hybrid_model(model, FIG4_SMALL, 3, omega0=FIG4_SPIN, basis="set")
     np.testing.assert_allclose(np.asarray(small3.frequencies), np.asarray(hm.frequencies)[:3], rtol=1e-14)
     act = np.concatenate([np.arange(3), 6 + np.arange(3)])  # active columns of the masked model
-    for a, b in ((small3.positions, hm.positions[:, act]), (small3.rates, hm.rates[:, act]),
-                 (small3.rows, hm.rows[:, act]), (small3.kin, hm.kin[np.ix_(act, act)]),
-                 (small3.kin_rhs, hm.kin_rhs[np.ix_(act, act)]), (small3.project, hm.project[act])):
+    for a, b in (
+        (small3.positions, hm.positions[:, act]),
+        (small3.rates, hm.rates[:, act]),
+        (small3.rows, hm.rows[:, act]),
+        (small3.kin, hm.kin[np.ix_(act, act)]),
+        (small3.kin_rhs, hm.kin_rhs[np.ix_(act, act)]),
+        (small3.project, hm.project[act]),
+    ):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-12 * float(np.abs(np.asarray(b)).max()))
     # a frequency cutoff keeps the modes below it
     cut = jaxtree.hybrid_model(model, FIG4_SMALL, cutoff=12.0, omega0=FIG4_SPIN, basis="set")
@@ -461,14 +485,15 @@ def c70_c73(p, w0, eta0, etad0, T, ts):
 
     def rhs(t, x):
         w1, w2, w3, e, ed = x
-        E = np.array([[I1, 0, 0, c],
-                      [0, I2, -c * e, 0],
-                      [0, -c * e, I3, 0],
-                      [2 * c, 0, 0, J]])
-        F = np.array([(I2 - I3) * w2 * w3 + c * (w2 ** 2 - w3 ** 2) * e,
-                      (I3 - I1) * w3 * w1 - c * w1 * w2 * e,
-                      (I1 - I2) * w1 * w2 + 2 * c * w2 * ed + c * w1 * w3 * e,
-                      -2 * c * w2 * w3 + (J * (w2 ** 2 - w3 ** 2) - M * R * r * (w1 ** 2 + w3 ** 2) - k) * e])
+        E = np.array([[I1, 0, 0, c], [0, I2, -c * e, 0], [0, -c * e, I3, 0], [2 * c, 0, 0, J]])
+        F = np.array(
+            [
+                (I2 - I3) * w2 * w3 + c * (w2**2 - w3**2) * e,
+                (I3 - I1) * w3 * w1 - c * w1 * w2 * e,
+                (I1 - I2) * w1 * w2 + 2 * c * w2 * ed + c * w1 * w3 * e,
+                -2 * c * w2 * w3 + (J * (w2**2 - w3**2) - M * R * r * (w1**2 + w3**2) - k) * e,
+            ]
+        )
         a = np.linalg.solve(E, F)
         return [a[0], a[1], a[2], ed, a[3]]
 
@@ -547,7 +572,9 @@ def test_failures_are_reported_with_time_and_state_and_tolerances_may_be_traced(
     ref = jaxtree.simulate_hybrid(hm, 12.0, y0=state, saveat=2, rtol=TOL, atol=TOL)
     assert float(ref.t_final) == 12.0
     tols = jnp.asarray([1e-5, 1e-8])
-    ends = jax.vmap(lambda tol: jaxtree.simulate_hybrid(hm, 12.0, y0=state, saveat=2, rtol=tol, atol=tol).gamma[-1])(tols)
+    ends = jax.vmap(lambda tol: jaxtree.simulate_hybrid(hm, 12.0, y0=state, saveat=2, rtol=tol, atol=tol).gamma[-1])(
+        tols
+    )
     err = np.abs(np.asarray(ends) - np.asarray(ref.gamma[-1])).max(1)
     assert np.all(err < 1e3 * np.asarray(tols)) and err[1] < err[0]
 
@@ -588,8 +615,10 @@ def test_substructure_modes_with_all_modes_reproduce_eq30(fig4):
     Fig. 4's panels (gyroscopic, spinning) and the two damped wings (general first-order modes)."""
     rng = np.random.default_rng(21)
     model, _ = fig4
-    for hm in (jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN),
-               jaxtree.hybrid_model(_wings(), tuple(range(1, 9)), omega0=[0.0, 0.0, 0.3])):
+    for hm in (
+        jaxtree.hybrid_model(model, FIG4_SMALL, omega0=FIG4_SPIN),
+        jaxtree.hybrid_model(_wings(), tuple(range(1, 9)), omega0=[0.0, 0.0, 0.3]),
+    ):
         assert hm.basis == "substructure"
         worst, _ = check_rhs_against_eq30(hm, rng)
         assert worst < 1e-10
@@ -600,13 +629,13 @@ def test_held_base_modes_are_the_cantilever_modes():
     billion times heavier (jaxtree.linearize, checked against the Lagrange oracle elsewhere): the
     base then does not move. Non-spinning and spinning nominal; frequencies to 1e-6."""
     model = _wings(damping=False)
-    heavy = eqx.tree_at(lambda m: (m.mass, m.inertia), model,
-                        (model.mass.at[0].multiply(1e9), model.inertia.at[0].multiply(1e9)))
+    heavy = eqx.tree_at(
+        lambda m: (m.mass, m.inertia), model, (model.mass.at[0].multiply(1e9), model.inertia.at[0].multiply(1e9))
+    )
     for spin in ([0.0, 0.0, 0.0], [0.0, 0.0, 0.4]):
         hm = jaxtree.hybrid_model(model, (1, 2, 3, 4), omega0=spin)
         ref = jaxtree.modes(jaxtree.linearize(heavy, (1, 2, 3, 4), omega0=spin))
-        np.testing.assert_allclose(np.sort(np.asarray(hm.frequencies)), np.sort(np.asarray(ref.frequencies)),
-                                   rtol=1e-6)
+        np.testing.assert_allclose(np.sort(np.asarray(hm.frequencies)), np.sort(np.asarray(ref.frequencies)), rtol=1e-6)
 
 
 def test_truncation_under_a_slew_falls_as_modes_are_added():
@@ -614,7 +643,8 @@ def test_truncation_under_a_slew_falls_as_modes_are_added():
     truncated model against the all-mode one falls as modes are added per wing and vanishes with
     all of them; a repeated frequency (the two identical wings) is never split."""
     model = _wings(damping=False).with_loads(
-        jaxtree.BodyTorque(0, [0.0, 8.0, 3.0], lambda t: jaxtree._src.loads.thruster_pulse(t, 0.5, 1.0, rise=0.1)))
+        jaxtree.BodyTorque(0, [0.0, 8.0, 3.0], lambda t: jaxtree._src.loads.thruster_pulse(t, 0.5, 1.0, rise=0.1))
+    )
     state = model.initial._replace(gamma=jnp.zeros(model.n), gamma_dot=jnp.zeros(model.n))
     small = tuple(range(1, 9))
     full = jaxtree.hybrid_model(model, small)
@@ -637,8 +667,11 @@ def test_truncation_under_a_slew_falls_as_modes_are_added():
     H = np.asarray(ref.angular_momentum)[after]
     assert np.abs(H - H[0]).max() < 1e-3 * np.abs(H[0]).max()
     # the hybrid model's energy at t = 0 is the vehicle's (kinetic energy + springs)
-    e0 = float(jaxtree.kinetic_energy(model, ref.final._replace(gamma=state.gamma, gamma_dot=state.gamma_dot,
-                                                                 omega0=state.omega0, dcm=state.dcm)))
+    e0 = float(
+        jaxtree.kinetic_energy(
+            model, ref.final._replace(gamma=state.gamma, gamma_dot=state.gamma_dot, omega0=state.omega0, dcm=state.dcm)
+        )
+    )
     assert abs(float(ref.energy[0]) - e0) < 1e-12 * max(1.0, abs(e0))
 
 
@@ -714,11 +747,20 @@ def test_gross_deformation_of_a_chain_limits_eq30():
         hyb = jaxtree.simulate_hybrid(hm, 2.0, y0=s, saveat=ts, rtol=1e-10, atol=1e-10)
         nu = I.shape[0]  # three attitude angles, then the hinges
         x0 = np.concatenate([np.zeros(3), g, np.zeros(nu)])
-        r = solve_ivp(lambda t, x: np.concatenate([x[nu:], -Ii @ (J @ x[nu:] + K @ x[:nu])]), (0.0, 2.0), x0,
-                      t_eval=ts, rtol=1e-10, atol=1e-10, method="DOP853")
+        r = solve_ivp(
+            lambda t, x: np.concatenate([x[nu:], -Ii @ (J @ x[nu:] + K @ x[:nu])]),
+            (0.0, 2.0),
+            x0,
+            t_eval=ts,
+            rtol=1e-10,
+            atol=1e-10,
+            method="DOP853",
+        )
         scale = np.abs(G).max()
-        out[theta] = (float(np.abs(np.asarray(hyb.gamma) - G).max() / scale),
-                      float(np.abs(r.y[3:nu].T - G).max() / scale))
+        out[theta] = (
+            float(np.abs(np.asarray(hyb.gamma) - G).max() / scale),
+            float(np.abs(r.y[3:nu].T - G).max() / scale),
+        )
     print("relative error of the hinge angles (Eq. 30, all-linear):", out)
     (e30_small, _), (e30_big, lin_big) = out[0.25], out[1.0]
     assert e30_small < 0.02 and e30_big > 0.05

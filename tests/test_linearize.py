@@ -14,17 +14,26 @@ import pytest
 import jaxtree
 from jaxtree import State
 from jaxtree._src.barycentric import barycentric
+
 from helpers import ALL, PARENTS, appendix_c, planar_model, principal_moments, random_model
 from oracle import oracle_eom
-
-
 
 
 def oracle_residual(model, omega0, gamma, gamma_dot, acc):
     """Residual of Eq. (1), [a] x - rhs, from the independent Lagrange oracle (springs/dampers as tau)."""
     tau = -np.asarray(model.stiffness) * gamma - np.asarray(model.damping) * gamma_dot
-    o = oracle_eom(model.topology.parents, model.mass, model.inertia, model.axis, model.hinge_on_parent,
-                   model.hinge_on_body, omega0, gamma, gamma_dot, tau=tau)
+    o = oracle_eom(
+        model.topology.parents,
+        model.mass,
+        model.inertia,
+        model.axis,
+        model.hinge_on_parent,
+        model.hinge_on_body,
+        omega0,
+        gamma,
+        gamma_dot,
+        tau=tau,
+    )
     return np.asarray(o["mass_matrix"]) @ acc - np.asarray(o["rhs"])
 
 
@@ -48,7 +57,11 @@ def fd_ijk(model, small, omega0, gamma, h=1e-5):
 
 
 def dkj(model):
-    return np.asarray(barycentric(model).Dkj), float(barycentric(model).total_mass), np.asarray(barycentric(model).Phi_kk)
+    return (
+        np.asarray(barycentric(model).Dkj),
+        float(barycentric(model).total_mass),
+        np.asarray(barycentric(model).Phi_kk),
+    )
 
 
 def eps(model):
@@ -109,8 +122,7 @@ def test_ijk_against_finite_differences_of_oracle():
     r0 = oracle_residual(model, omega0, gamma, np.zeros(model.n), np.zeros(model.n + 3))
     np.testing.assert_allclose(np.asarray(lin.bias), -r0[[3 + k - 1 for k in small]], atol=1e-10)
     # the damper gives J its symmetric part d_i delta_ij (Eq. 46); the rest of J is skew here
-    np.testing.assert_allclose(0.5 * (J + J.T), np.diag(np.asarray(model.damping)[np.array(small) - 1]),
-                               atol=1e-12)
+    np.testing.assert_allclose(0.5 * (J + J.T), np.diag(np.asarray(model.damping)[np.array(small) - 1]), atol=1e-12)
 
 
 def test_external_loads_enter_through_the_derivative():
@@ -139,8 +151,7 @@ def test_external_loads_enter_through_the_derivative():
     res = lambda g, gd, acc: np.asarray(_res(model, jnp.asarray(g), jnp.asarray(gd), jnp.asarray(acc)))
 
     h = 1e-5
-    Kfd = np.stack([(res(h * e, 0 * e, np.zeros(6)) - res(-h * e, 0 * e, np.zeros(6))) / (2 * h)
-                    for e in np.eye(3)], 1)
+    Kfd = np.stack([(res(h * e, 0 * e, np.zeros(6)) - res(-h * e, 0 * e, np.zeros(6))) / (2 * h) for e in np.eye(3)], 1)
     np.testing.assert_allclose(K, Kfd, atol=1e-7 * np.abs(Kfd).max())  # same FD budget as above
     st = jaxtree.structure(I, J, K)
     assert not st.K_symmetric and st.kind == "general"
@@ -168,8 +179,12 @@ def test_nonspinning_elastic_eq51_and_36d():
     for a, i in enumerate(small):
         for b, k in enumerate(small):
             v = sum(e[i, r] * e[k, r] * g[i] @ Phi[r] @ g[k] for r in P)
-            v -= M * sum(e[i, r] * e[k, s] * g[i] @ ((D[s, r] @ D[r, s]) * np.eye(3) - np.outer(D[s, r], D[r, s]))
-                         @ g[k] for r in P for s in P if s != r)
+            v -= M * sum(
+                e[i, r] * e[k, s] * g[i] @ ((D[s, r] @ D[r, s]) * np.eye(3) - np.outer(D[s, r], D[r, s])) @ g[k]
+                for r in P
+                for s in P
+                if s != r
+            )
             I36[a, b] = v
     I0 = np.asarray(jaxtree.linearize(model, small).I)
     np.testing.assert_allclose(I0, I36, rtol=1e-12, atol=1e-12 * np.abs(I36).max())
@@ -194,11 +209,19 @@ def test_transverse_case_eqs_55_58():
     K58 = np.diag(np.asarray(model.stiffness))
     for i in P:
         for j in P:
-            J55[i - 1, j - 1] = 2 * M * Omega * sum(e[i, k] * e[j, s] * g @ np.cross(D[k, s], D[s, k])
-                                                    for k in P for s in P if s != k)
-            K58[i - 1, j - 1] += -M * Omega ** 2 * sum(
-                e[i, k] * (e[j, s] - e[j, k]) * g @ np.cross(D[k, s], gt @ gt @ gt @ D[s, k])
-                for k in P for s in B if s != k)
+            J55[i - 1, j - 1] = (
+                2 * M * Omega * sum(e[i, k] * e[j, s] * g @ np.cross(D[k, s], D[s, k]) for k in P for s in P if s != k)
+            )
+            K58[i - 1, j - 1] += (
+                -M
+                * Omega**2
+                * sum(
+                    e[i, k] * (e[j, s] - e[j, k]) * g @ np.cross(D[k, s], gt @ gt @ gt @ D[s, k])
+                    for k in P
+                    for s in B
+                    if s != k
+                )
+            )
     scale = np.abs(K).max()
     np.testing.assert_allclose(J, J55, atol=1e-12 * scale)
     np.testing.assert_allclose(K, K58, atol=1e-12 * scale)
@@ -213,8 +236,9 @@ def test_rectilinear_transverse_case_J_zero():
     g = np.array([0.0, 0.0, 1.0])
     x = np.array([1.0, 0.0, 0.0])
     side = {1: 1, 2: 1, 3: 1, 4: -1, 5: -1, 6: 1}
-    model = planar_model(rng, PARENTS, g, lambda k: (rng.uniform(0.3, 1.0) * x * side[k],
-                                                      -rng.uniform(0.3, 1.0) * x * side[k]))
+    model = planar_model(
+        rng, PARENTS, g, lambda k: (rng.uniform(0.3, 1.0) * x * side[k], -rng.uniform(0.3, 1.0) * x * side[k])
+    )
     I, J, K = (np.asarray(x) for x in jaxtree.linearize(model, ALL, omega0=1.3 * g))
     st = jaxtree.structure(I, J, K)
     assert st.J_zero and st.K_symmetric and st.kind == "real"
@@ -247,12 +271,14 @@ def test_meridional_case_eqs_66_67():
     I67 = np.zeros((n, n))
     for i in P:
         for j in P:
-            printed[i - 1, j - 1] += Omega ** 2 * sum(e[i, q] * e[j, q] * (Phi[q, 0, 0] - Phi[q, 2, 2]) for q in P)
-            corrected[i - 1, j - 1] += Omega ** 2 * sum(
+            printed[i - 1, j - 1] += Omega**2 * sum(e[i, q] * e[j, q] * (Phi[q, 0, 0] - Phi[q, 2, 2]) for q in P)
+            corrected[i - 1, j - 1] += Omega**2 * sum(
                 e[i, q] * e[j, q] * (Phi[q, 0, 0] - Phi[q, 2, 2] - M * sum(Dz[q, s] * Dz[s, q] for s in B if s != q))
-                for q in P)
-            I67[i - 1, j - 1] = (sum(e[i, r] * e[j, r] * Phi[r, 1, 1] for r in P)
-                                 - M * sum(e[i, r] * e[j, s] * Dz[s, r] * Dz[r, s] for r in P for s in P if s != r))
+                for q in P
+            )
+            I67[i - 1, j - 1] = sum(e[i, r] * e[j, r] * Phi[r, 1, 1] for r in P) - M * sum(
+                e[i, r] * e[j, s] * Dz[s, r] * Dz[r, s] for r in P for s in P if s != r
+            )
     scale = np.abs(K).max()
     np.testing.assert_allclose(K, corrected, atol=1e-12 * scale)
     np.testing.assert_allclose(I, I67, atol=1e-12 * np.abs(I67).max())
@@ -268,19 +294,22 @@ def _appendix_c_expected(p, w, wd):
     I1, I2, I3 = p["I1"], p["I2"], p["I3"]
     w1, w2, w3 = w
     d1, d2, d3 = wd
-    res = np.array([I1 * d1 - (I2 - I3) * w2 * w3,  # C-61
-                    I2 * d2 - (I3 - I1) * w3 * w1,  # C-62
-                    I3 * d3 - (I1 - I2) * w1 * w2,  # C-63
-                    c * d1 + c * w2 * w3,  # C-64
-                    c * d1 + c * w2 * w3])  # C-65
-    acc = np.array([[c, c], [0, 0], [0, 0], [J - M * R ** 2, M * R ** 2], [M * R ** 2, J - M * R ** 2]])
+    res = np.array(
+        [
+            I1 * d1 - (I2 - I3) * w2 * w3,  # C-61
+            I2 * d2 - (I3 - I1) * w3 * w1,  # C-62
+            I3 * d3 - (I1 - I2) * w1 * w2,  # C-63
+            c * d1 + c * w2 * w3,  # C-64
+            c * d1 + c * w2 * w3,
+        ]
+    )  # C-65
+    acc = np.array([[c, c], [0, 0], [0, 0], [J - M * R**2, M * R**2], [M * R**2, J - M * R**2]])
     rate = np.array([[0, 0], [0, 0], [-2 * c * w2] * 2, [0, 0], [0, 0]])
-    diag = -(J * (w2 ** 2 - w3 ** 2) - M * R ** 2 * (w1 ** 2 + w2 ** 2) - M * R * r * (w1 ** 2 + w3 ** 2)) + k
-    off = -M * R ** 2 * (w1 ** 2 + w2 ** 2)
-    ang = np.array([[-c * (w2 ** 2 - w3 ** 2)] * 2,
-                    [-c * d3 + c * w1 * w2] * 2,
-                    [-c * d2 - c * w1 * w3] * 2,
-                    [diag, off], [off, diag]])
+    diag = -(J * (w2**2 - w3**2) - M * R**2 * (w1**2 + w2**2) - M * R * r * (w1**2 + w3**2)) + k
+    off = -M * R**2 * (w1**2 + w2**2)
+    ang = np.array(
+        [[-c * (w2**2 - w3**2)] * 2, [-c * d3 + c * w1 * w2] * 2, [-c * d2 - c * w1 * w3] * 2, [diag, off], [off, diag]]
+    )
     return res, acc, rate, ang
 
 
@@ -291,8 +320,9 @@ def test_appendix_c_linearized_equations_c61_c65():
     rng = np.random.default_rng(1)
     for _ in range(3):
         w, wd = rng.normal(size=3), rng.normal(size=3)
-        lin = jaxtree.linearized_equations(model, (1, 2), State(jnp.eye(3), w, jnp.zeros(2), jnp.zeros(2)),
-                                           omega0_dot=wd)
+        lin = jaxtree.linearized_equations(
+            model, (1, 2), State(jnp.eye(3), w, jnp.zeros(2), jnp.zeros(2)), omega0_dot=wd
+        )
         exp = _appendix_c_expected(p, w, wd)
         for got, want in zip(lin, exp):
             np.testing.assert_allclose(np.asarray(got), want, atol=1e-12 * max(1.0, np.abs(want).max()))
@@ -311,18 +341,25 @@ def test_appendix_c_transformation_c69_c74():
     w, wd = rng.normal(size=3), rng.normal(size=3)
     w1, w2, w3 = w
     d1, d2, d3 = wd
-    lin = jaxtree.linearized_equations(model, (1, 2), State(jnp.eye(3), w, jnp.zeros(2), jnp.zeros(2)),
-                                       omega0_dot=wd)
+    lin = jaxtree.linearized_equations(model, (1, 2), State(jnp.eye(3), w, jnp.zeros(2), jnp.zeros(2)), omega0_dot=wd)
     res = rows @ np.asarray(lin.residual)
     acc, rate, ang = (rows @ np.asarray(x) @ T for x in (lin.accel, lin.rate, lin.angle))
-    exp_res = [I1 * d1 - (I2 - I3) * w2 * w3, I2 * d2 - (I3 - I1) * w3 * w1, I3 * d3 - (I1 - I2) * w1 * w2,
-               2 * c * d1 + 2 * c * w2 * w3, 0.0]  # C-70..C-74
-    exp_acc = [[c, 0], [0, 0], [0, 0], [J, 0], [0, J - 2 * M * R ** 2]]
+    exp_res = [
+        I1 * d1 - (I2 - I3) * w2 * w3,
+        I2 * d2 - (I3 - I1) * w3 * w1,
+        I3 * d3 - (I1 - I2) * w1 * w2,
+        2 * c * d1 + 2 * c * w2 * w3,
+        0.0,
+    ]  # C-70..C-74
+    exp_acc = [[c, 0], [0, 0], [0, 0], [J, 0], [0, J - 2 * M * R**2]]
     exp_rate = [[0, 0], [0, 0], [-2 * c * w2, 0], [0, 0], [0, 0]]
-    exp_ang = [[-c * (w2 ** 2 - w3 ** 2), 0], [-c * d3 + c * w1 * w2, 0], [-c * d2 - c * w1 * w3, 0],
-               [-(J * (w2 ** 2 - w3 ** 2) - M * R * r * (w1 ** 2 + w3 ** 2) - k), 0],
-               [0, -(J * (w2 ** 2 - w3 ** 2) - 2 * M * R ** 2 * (w1 ** 2 + w2 ** 2)
-                     - M * R * r * (w1 ** 2 + w3 ** 2) - k)]]
+    exp_ang = [
+        [-c * (w2**2 - w3**2), 0],
+        [-c * d3 + c * w1 * w2, 0],
+        [-c * d2 - c * w1 * w3, 0],
+        [-(J * (w2**2 - w3**2) - M * R * r * (w1**2 + w3**2) - k), 0],
+        [0, -(J * (w2**2 - w3**2) - 2 * M * R**2 * (w1**2 + w2**2) - M * R * r * (w1**2 + w3**2) - k)],
+    ]
     for got, want in ((res, exp_res), (acc, exp_acc), (rate, exp_rate), (ang, exp_ang)):
         np.testing.assert_allclose(got, np.asarray(want, float), atol=1e-12 * 100)
 
@@ -335,8 +372,8 @@ def test_appendix_c_structure_and_eq66_extra_term():
     I, J, K = (np.asarray(x) for x in jaxtree.linearize(model, (1, 2), omega0=[0.0, 0.0, Om]))
     st = jaxtree.structure(I, J, K)
     assert st.kind == "real" and st.J_zero and st.K_symmetric
-    np.testing.assert_allclose(K, np.diag([p["k"] + p["c"] * Om ** 2] * 2), rtol=1e-13)
-    assert abs(K[0, 0] - (p["k"] + (p["J"] - p["M"] * p["R"] ** 2) * Om ** 2)) > 1.0
+    np.testing.assert_allclose(K, np.diag([p["k"] + p["c"] * Om**2] * 2), rtol=1e-13)
+    assert abs(K[0, 0] - (p["k"] + (p["J"] - p["M"] * p["R"] ** 2) * Om**2)) > 1.0
 
 
 def test_vehicle_linearization_structure_and_fd():
@@ -364,9 +401,17 @@ def test_vehicle_linearization_structure_and_fd():
 
     h = 1e-5
     z = np.zeros(5)
-    cols = {name: np.stack([(r(*[(h * e if a == name else z) for a in "pvq"])
-                             - r(*[(-h * e if a == name else z) for a in "pvq"])) / (2 * h)
-                            for e in np.eye(5)], 1) for name in "pvq"}
+    cols = {
+        name: np.stack(
+            [
+                (r(*[(h * e if a == name else z) for a in "pvq"]) - r(*[(-h * e if a == name else z) for a in "pvq"]))
+                / (2 * h)
+                for e in np.eye(5)
+            ],
+            1,
+        )
+        for name in "pvq"
+    }
     # "q" = accelerations, "v" = rates, "p" = angles; same FD budget as above
     for got, name in ((I, "q"), (J, "v"), (K, "p")):
         np.testing.assert_allclose(got, cols[name], atol=1e-7 * np.abs(cols[name]).max())

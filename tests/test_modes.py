@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 
 import jaxtree
 from jaxtree import Body, SpringDamper
+
 from helpers import ALL, PARENTS, appendix_c, planar_model, random_model
 
 
@@ -36,11 +37,21 @@ def check_biorthogonality(md, tol=1e-10):
 def rod_on_base(m0=50.0, m=2.0, L=1.5, r=0.8, k=30.0):
     """A uniform thin rod (mass m, length 2L) hinged at its end, axis b1, to a rim point r b2 of a base."""
     rod = np.diag([m * (2 * L) ** 2 / 12, 0.0, m * (2 * L) ** 2 / 12])
-    return jaxtree.build_model([
-        Body("base", m0, np.diag([10.0, 12.0, 14.0])),
-        Body("rod", m, rod, parent=0, axis=[1, 0, 0], hinge_on_parent=[0, r, 0], hinge_on_body=[0, -L, 0],
-             joint=SpringDamper(k)),
-    ])
+    return jaxtree.build_model(
+        [
+            Body("base", m0, np.diag([10.0, 12.0, 14.0])),
+            Body(
+                "rod",
+                m,
+                rod,
+                parent=0,
+                axis=[1, 0, 0],
+                hinge_on_parent=[0, r, 0],
+                hinge_on_body=[0, -L, 0],
+                joint=SpringDamper(k),
+            ),
+        ]
+    )
 
 
 # ----------------------------------------------------------------------------- closed forms
@@ -51,19 +62,20 @@ def test_rod_on_massive_base_closed_form():
     D^{01} = (1 - m/M) r b2 (Defs. 33, 35; the base is not at the system mass center with one rod).
     A very massive base gives the clamped rod, sigma^2 = k / J."""
     m0, m, L, r, k = 50.0, 2.0, 1.5, 0.8, 30.0
-    M, J = m0 + m, 4.0 / 3.0 * m * L ** 2
+    M, J = m0 + m, 4.0 / 3.0 * m * L**2
     R = m * L / M
     model = rod_on_base(m0, m, L, r, k)
     for Om in (0.0, 0.7):
         md = jaxtree.modes(jaxtree.linearize(model, ("rod",), omega0=[0, 0, Om]))
         assert md.kind == "real"
-        np.testing.assert_allclose(md.frequencies, [np.sqrt((k + (J - M * R ** 2 + (M - m) * R * r) * Om ** 2)
-                                                    / (J - M * R ** 2))],
-                                   rtol=1e-13)
+        np.testing.assert_allclose(
+            md.frequencies, [np.sqrt((k + (J - M * R**2 + (M - m) * R * r) * Om**2) / (J - M * R**2))], rtol=1e-13
+        )
         assert md.labels == ("rod 100%",)
     heavy = rod_on_base(1e9, m, L, r, k)
-    np.testing.assert_allclose(jaxtree.modes(jaxtree.linearize(heavy, (1,))).frequencies, [np.sqrt(k / J)],
-                               rtol=1e-8)  # the base mass 1e9 leaves m/M ~ 1e-9
+    np.testing.assert_allclose(
+        jaxtree.modes(jaxtree.linearize(heavy, (1,))).frequencies, [np.sqrt(k / J)], rtol=1e-8
+    )  # the base mass 1e9 leaves m/M ~ 1e-9
 
 
 def test_appendix_c_modes_held_base():
@@ -75,8 +87,8 @@ def test_appendix_c_modes_held_base():
         lin = jaxtree.linearize(model, (1, 2), omega0=[0, 0, Om])
         md = jaxtree.modes(lin)
         assert md.kind == "real"
-        s1 = np.sqrt((p["k"] + p["c"] * Om ** 2) / p["J"])
-        s2 = np.sqrt((p["k"] + p["c"] * Om ** 2) / (p["J"] - 2 * p["M"] * p["R"] ** 2))
+        s1 = np.sqrt((p["k"] + p["c"] * Om**2) / p["J"])
+        s2 = np.sqrt((p["k"] + p["c"] * Om**2) / (p["J"] - 2 * p["M"] * p["R"] ** 2))
         order = np.argsort([s1, s2])
         np.testing.assert_allclose(md.frequencies, np.array([s1, s2])[order], rtol=1e-13)
         phi = np.asarray(md.shapes)
@@ -97,15 +109,15 @@ def _dw_system(p, Om):
     E = np.eye(7)
     F = np.zeros((7, 7))
     E[0, 0], E[0, 5] = I1, c  # C-70: I1 dw1' + c eta1'' = (I2 - I3) Om dw2 - c Om^2 eta1
-    F[0, 1], F[0, 3] = (I2 - I3) * Om, -c * Om ** 2
+    F[0, 1], F[0, 3] = (I2 - I3) * Om, -c * Om**2
     E[1, 1] = I2  # C-71: I2 dw2' = (I3 - I1) Om dw1
     F[1, 0] = (I3 - I1) * Om
     E[2, 2] = I3  # C-72: I3 dw3' = 0 (to first order)
     F[3, 5] = F[4, 6] = 1.0
     E[5, 5], E[5, 0] = J, 2 * c  # C-73
-    F[5, 1], F[5, 3] = -2 * c * Om, -(J + M * R * r) * Om ** 2 - k
-    E[6, 6] = J - 2 * M * R ** 2  # C-74
-    F[6, 4] = -(J + M * R * r) * Om ** 2 - k
+    F[5, 1], F[5, 3] = -2 * c * Om, -(J + M * R * r) * Om**2 - k
+    E[6, 6] = J - 2 * M * R**2  # C-74
+    F[6, 4] = -(J + M * R * r) * Om**2 - k
     lam = np.linalg.eigvals(np.linalg.solve(E, F))
     assert np.abs(lam.real).max() < 1e-10
     return np.sort(np.abs(lam.imag))
@@ -186,12 +198,16 @@ def test_real_solution_eq95(transverse):
     for t in (0.0, 0.37, 2.1):
         y = 2 * (a * phi * np.exp(lam * t)).real
         yd = 2 * (a * lam * phi * np.exp(lam * t)).real
-        ydd = 2 * (a * lam ** 2 * phi * np.exp(lam * t)).real
+        ydd = 2 * (a * lam**2 * phi * np.exp(lam * t)).real
         np.testing.assert_allclose(I @ ydd + J @ yd + K @ y, 0, atol=1e-10 * np.abs(K @ y).max())
-        fixed = 2 * np.exp(al * t) * (phi.real * (c * np.cos(s * t) - d * np.sin(s * t))
-                                      - phi.imag * (d * np.cos(s * t) + c * np.sin(s * t)))
-        printed = np.exp(al * t) * (phi.real * (c * np.cos(s * t) + d * np.sin(s * t))
-                                    + phi.imag * (d * np.cos(s * t) - c * np.sin(s * t)))
+        fixed = (
+            2
+            * np.exp(al * t)
+            * (phi.real * (c * np.cos(s * t) - d * np.sin(s * t)) - phi.imag * (d * np.cos(s * t) + c * np.sin(s * t)))
+        )
+        printed = np.exp(al * t) * (
+            phi.real * (c * np.cos(s * t) + d * np.sin(s * t)) + phi.imag * (d * np.cos(s * t) - c * np.sin(s * t))
+        )
         np.testing.assert_allclose(fixed, y, atol=1e-14 * np.abs(y).max() + 1e-15)
         assert np.abs(printed - y).max() > 0.1 * np.abs(y).max()
 
@@ -224,11 +240,12 @@ def test_minor_axis_spin_is_stable_with_indefinite_K():
     I1, I2, I3, Om = 5.0, 4.0, 2.0, 1.5
     I = np.diag([I1, I2])
     J = Om * (I3 - I1 - I2) * np.array([[0.0, 1.0], [-1.0, 0.0]])
-    K = Om ** 2 * np.diag([I3 - I2, I3 - I1])
+    K = Om**2 * np.diag([I3 - I2, I3 - I1])
     md = jaxtree.modes(I, J, K)
     assert md.kind == "general"  # K indefinite: no Hermitian form, but stable
-    np.testing.assert_allclose(md.frequencies, sorted([Om, Om * np.sqrt((I1 - I3) * (I2 - I3) / (I1 * I2))]),
-                               rtol=1e-10)
+    np.testing.assert_allclose(
+        md.frequencies, sorted([Om, Om * np.sqrt((I1 - I3) * (I2 - I3) / (I1 * I2))]), rtol=1e-10
+    )
     assert np.abs(np.asarray(md.eigenvalues).real).max() < 1e-10
     check_biorthogonality(md)
 
@@ -293,11 +310,12 @@ def test_modal_damping_real_and_spinning(transverse):
     md = jaxtree.modes(lin, damping=zeta)
     s = np.asarray(md0.frequencies)
     np.testing.assert_allclose(md.frequencies, s)
-    up = -zeta * s + 1j * s * np.sqrt(1 - zeta ** 2)
+    up = -zeta * s + 1j * s * np.sqrt(1 - zeta**2)
     np.testing.assert_allclose(md.eigenvalues, np.concatenate([up, up.conj()]), rtol=1e-13)
     B = np.asarray(md.B)
-    np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(B)), np.sort_complex(np.asarray(md.eigenvalues)),
-                               rtol=1e-10)
+    np.testing.assert_allclose(
+        np.sort_complex(np.linalg.eigvals(B)), np.sort_complex(np.asarray(md.eigenvalues)), rtol=1e-10
+    )
     I = np.asarray(lin.I)
     C = -I @ B[2:, 2:]
     phi = np.asarray(md.shapes)
@@ -311,18 +329,22 @@ def test_modal_damping_real_and_spinning(transverse):
     np.testing.assert_allclose(md.eigenvalues, np.concatenate([up, up.conj()]), rtol=1e-13)
     B = np.asarray(md.B)
     assert B.dtype.kind == "f"
-    np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(B)), np.sort_complex(np.asarray(md.eigenvalues)),
-                               rtol=1e-9)
+    np.testing.assert_allclose(
+        np.sort_complex(np.linalg.eigvals(B)), np.sort_complex(np.asarray(md.eigenvalues)), rtol=1e-9
+    )
 
 
 # ----------------------------------------------------------------------------- gradients
 def _freq_fn(model, small, omega0, kind):
     def f(p):
-        m = eqx.tree_at(lambda m: (m.stiffness, m.mass, m.hinge_on_body), model,
-                        (model.stiffness.at[0].set(p[0]), model.mass.at[1].set(p[1]),
-                         model.hinge_on_body.at[0, 1].set(p[2])))
+        m = eqx.tree_at(
+            lambda m: (m.stiffness, m.mass, m.hinge_on_body),
+            model,
+            (model.stiffness.at[0].set(p[0]), model.mass.at[1].set(p[1]), model.hinge_on_body.at[0, 1].set(p[2])),
+        )
         I, J, K = jaxtree.linearize(m, small, omega0=omega0)
         return jaxtree.modes(I, J, K, kind=kind).frequencies
+
     return f
 
 
@@ -340,8 +362,9 @@ def test_frequency_gradients_match_finite_differences(case, transverse):
     p0 = jnp.array([float(model.stiffness[0]), float(model.mass[1]), float(model.hinge_on_body[0, 1])])
     ad = np.asarray(jax.jit(jax.jacfwd(f))(p0))
     h = 1e-5 * np.maximum(np.abs(np.asarray(p0)), 1.0)
-    fd = np.stack([(np.asarray(f(p0.at[i].add(h[i]))) - np.asarray(f(p0.at[i].add(-h[i])))) / (2 * h[i])
-                   for i in range(3)], 1)
+    fd = np.stack(
+        [(np.asarray(f(p0.at[i].add(h[i]))) - np.asarray(f(p0.at[i].add(-h[i])))) / (2 * h[i]) for i in range(3)], 1
+    )
     # central differences with h = 1e-5 relative: truncation ~ h^2 ~ 1e-10, round-off ~ 1e-16 / h ~ 1e-11
     # relative to sigma; 1e-7 of the largest sensitivity leaves a wide margin.
     np.testing.assert_allclose(ad, fd, atol=1e-7 * np.abs(fd).max())
@@ -360,8 +383,15 @@ def _simulate(model, f, C0, w0, g0, gd0, T, ts):
     def rhs(t, x):
         C, w, g, gd = x[:9].reshape(3, 3), x[9:12], x[12:14], x[14:16]
         wd, gdd = f(model, C, w, g, gd)
-        return np.concatenate([(-jaxtree_tilde(w) @ C).ravel(),  # Eq. (3)
-                               np.asarray(wd), gd, np.asarray(gdd)])
+        return np.concatenate(
+            [
+                (-jaxtree_tilde(w) @ C).ravel(),  # Eq. (3)
+                np.asarray(wd),
+                gd,
+                np.asarray(gdd),
+            ]
+        )
+
     x0 = np.concatenate([C0.ravel(), w0, g0, gd0])
     return solve_ivp(rhs, (0, T), x0, t_eval=ts, method="DOP853", rtol=1e-12, atol=1e-13).y
 

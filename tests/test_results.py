@@ -47,7 +47,7 @@ def test_condition_names_the_gimbal_lock_direction_that_moves_no_mass():
     assert c.singular and float(c.number) > 1e12
     named = dict(c.named_direction())
     assert set(named) == {"hinge 2 (gimbal_outer)", "hinge 4 (rotor)"}
-    np.testing.assert_allclose(abs(named["hinge 2 (gimbal_outer)"]), 2 ** -0.5, rtol=1e-6)
+    np.testing.assert_allclose(abs(named["hinge 2 (gimbal_outer)"]), 2**-0.5, rtol=1e-6)
     v = np.asarray(c.direction)
     rates = np.zeros(model.n)
     rates[np.asarray(model.unknown_hinges) - 1] = v[3:]
@@ -116,8 +116,18 @@ def test_result_file_round_trip_with_units_dimensions_and_provenance(short_run, 
     assert ds["gamma"].dims == ("time", "hinge") and ds["body_position"].dims == ("time", "body", "axis")
     assert ds["gamma"].attrs["units"] == "rad" and ds["energy"].attrs["units"] == "J"
     a = ds.attrs
-    for key in ("scene", "solver", "rtol", "atol", "steps_accepted", "result", "jaxtree_version", "jax_version",
-                "diffrax_version", "date"):
+    for key in (
+        "scene",
+        "solver",
+        "rtol",
+        "atol",
+        "steps_accepted",
+        "result",
+        "jaxtree_version",
+        "jax_version",
+        "diffrax_version",
+        "date",
+    ):
         assert key in a, key
     assert a["result"] == "ok" and a["steps_accepted"] == int(sol.stats["num_accepted_steps"])
     # the scene attribute rebuilds the model
@@ -192,10 +202,16 @@ def test_modes_result_round_trip(tmp_path):
 # ----------------------------------------------------------------------------- plots
 def _hub_and_panel(offset=True):
     hub = jaxtree.Body("hub", 100.0, np.diag([30.0, 40.0, 50.0]))
-    panel = jaxtree.Body("panel", 4.0, np.diag([0.2, 0.5, 0.6]), parent="hub", axis=[0, 1, 0],
-                         hinge_on_parent=[1.0, 0.0, 0.2] if offset else [0, 0, 0],
-                         hinge_on_body=[-0.5, 0.0, 0.0] if offset else [0, 0, 0],
-                         joint=jaxtree.SpringDamper(50.0))
+    panel = jaxtree.Body(
+        "panel",
+        4.0,
+        np.diag([0.2, 0.5, 0.6]),
+        parent="hub",
+        axis=[0, 1, 0],
+        hinge_on_parent=[1.0, 0.0, 0.2] if offset else [0, 0, 0],
+        hinge_on_body=[-0.5, 0.0, 0.0] if offset else [0, 0, 0],
+        joint=jaxtree.SpringDamper(50.0),
+    )
     return jaxtree.build_model([hub, panel], name="hub_panel")
 
 
@@ -227,8 +243,9 @@ def test_plots_draw_the_given_data(short_run, tmp_path):
     fig = plots.plot_drift(sol, tmp_path / "d.png")
     E = np.asarray(sol.energy)
     np.testing.assert_allclose(fig.axes[0].lines[0].get_ydata(), (E - E[0]) / abs(E[0]))
-    fig = plots.plot_work_precision({"a": ([1e-6, 1e-3, 1e-9], [0.2, 0.1, 0.4]), "b": {"error": [1e-4], "time": [0.3]}},
-                                    tmp_path / "w.png")
+    fig = plots.plot_work_precision(
+        {"a": ([1e-6, 1e-3, 1e-9], [0.2, 0.1, 0.4]), "b": {"error": [1e-4], "time": [0.3]}}, tmp_path / "w.png"
+    )
     ax = fig.axes[0]
     assert ax.get_xscale() == "log" and ax.get_yscale() == "log"
     np.testing.assert_array_equal(ax.lines[0].get_xdata(), [0.1, 0.2, 0.4])

@@ -13,8 +13,17 @@ from helpers import SHARED_SCENES
 
 def test_bundled_scenes_are_the_shared_reference_scenes():
     bundled = set(jaxtree.list_scenes())
-    assert {"fig4", "fig4_free", "appendix_b", "appendix_c", "chain10", "chain50", "chain200", "panels95",
-            "wings"} <= bundled
+    assert {
+        "fig4",
+        "fig4_free",
+        "appendix_b",
+        "appendix_c",
+        "chain10",
+        "chain50",
+        "chain200",
+        "panels95",
+        "wings",
+    } <= bundled
     if SHARED_SCENES.exists():  # in a checkout beside ../shared the copies must be identical
         shared = {p.stem for p in SHARED_SCENES.glob("*.json")}
         assert shared == bundled
@@ -56,10 +65,26 @@ def test_builder_matches_json():
     model = jaxtree.build_model(
         [
             jaxtree.Body("hub", 100.0, np.diag([30.0, 40.0, 50.0])),
-            jaxtree.Body("boom", 2.0, seg, parent="hub", axis=[0, 2, 0], hinge_on_parent=[0.6, 0, 0],
-                         hinge_on_body=[-0.25, 0, 0], joint=jaxtree.SpringDamper(400.0, 1.0)),
-            jaxtree.Body("tip", 2.0, seg, parent=1, axis=[0, 0, 1], hinge_on_parent=[0.25, 0, 0],
-                         hinge_on_body=[-0.25, 0, 0], joint=jaxtree.PrescribedSine(0.1, 2.0)),
+            jaxtree.Body(
+                "boom",
+                2.0,
+                seg,
+                parent="hub",
+                axis=[0, 2, 0],
+                hinge_on_parent=[0.6, 0, 0],
+                hinge_on_body=[-0.25, 0, 0],
+                joint=jaxtree.SpringDamper(400.0, 1.0),
+            ),
+            jaxtree.Body(
+                "tip",
+                2.0,
+                seg,
+                parent=1,
+                axis=[0, 0, 1],
+                hinge_on_parent=[0.25, 0, 0],
+                hinge_on_body=[-0.25, 0, 0],
+                joint=jaxtree.PrescribedSine(0.1, 2.0),
+            ),
         ],
         {"gamma": [0.1, 0.0]},
     )
@@ -85,12 +110,14 @@ def _expect(mutate, *fragments):
 def _set(k, field, value):
     def mutate(d):
         d["bodies"][k][field] = value
+
     return mutate
 
 
 def _delete(k, field):
     def mutate(d):
         del d["bodies"][k][field]
+
     return mutate
 
 
@@ -104,26 +131,43 @@ CASES = {
     "axis_nan": (_set(5, "axis", [0, float("nan"), 1]), "body 5", "'axis'", "finite"),
     "negative_mass": (_set(4, "mass", -1.0), "body 4 ('rotor')", "'mass'", ">= 0"),
     "infinite_mass": (_set(4, "mass", float("inf")), "body 4 ('rotor')", "'mass'", "finite"),
-    "inertia_asymmetric": (_set(1, "inertia", [[4, 1, 0], [0, 4, 0], [0, 0, 2]]), "body 1 ('platform')",
-                           "'inertia'", "symmetric"),
-    "inertia_indefinite": (_set(1, "inertia", [[4, 0, 0], [0, -1, 0], [0, 0, 2]]), "body 1", "'inertia'",
-                           "positive semidefinite"),
-    "inertia_triangle": (_set(1, "inertia", [[1, 0, 0], [0, 1, 0], [0, 0, 5]]), "body 1", "'inertia'",
-                         "triangle inequality"),
+    "inertia_asymmetric": (
+        _set(1, "inertia", [[4, 1, 0], [0, 4, 0], [0, 0, 2]]),
+        "body 1 ('platform')",
+        "'inertia'",
+        "symmetric",
+    ),
+    "inertia_indefinite": (
+        _set(1, "inertia", [[4, 0, 0], [0, -1, 0], [0, 0, 2]]),
+        "body 1",
+        "'inertia'",
+        "positive semidefinite",
+    ),
+    "inertia_triangle": (
+        _set(1, "inertia", [[1, 0, 0], [0, 1, 0], [0, 0, 5]]),
+        "body 1",
+        "'inertia'",
+        "triangle inequality",
+    ),
     "inertia_shape": (_set(1, "inertia", [[1, 0], [0, 1]]), "body 1", "'inertia'", "3x3"),
-    "massless_with_inertia": (_set(2, "inertia", [[1, 0, 0], [0, 1, 0], [0, 0, 1]]), "body 2 ('gimbal_outer')",
-                              "massless", "'inertia'"),
+    "massless_with_inertia": (
+        _set(2, "inertia", [[1, 0, 0], [0, 1, 0], [0, 0, 1]]),
+        "body 2 ('gimbal_outer')",
+        "massless",
+        "'inertia'",
+    ),
     "hinge_vector_length": (_set(6, "hinge_on_parent", [0.5, 0]), "body 6 ('panel_2')", "'hinge_on_parent'"),
     "hinge_vector_missing": (_delete(6, "hinge_on_body"), "body 6 ('panel_2')", "'hinge_on_body'"),
     "unknown_joint": (_set(7, "joint", {"kind": "ball"}), "body 7 ('panel_3')", "unknown joint kind 'ball'"),
-    "unknown_function": (_set(1, "joint", {"kind": "prescribed", "function": "cosine"}), "body 1",
-                         "'joint.function'"),
-    "stiffness_nan": (_set(7, "joint", {"kind": "spring_damper", "stiffness": None}), "body 7",
-                      "'joint.stiffness'"),
+    "unknown_function": (_set(1, "joint", {"kind": "prescribed", "function": "cosine"}), "body 1", "'joint.function'"),
+    "stiffness_nan": (_set(7, "joint", {"kind": "spring_damper", "stiffness": None}), "body 7", "'joint.stiffness'"),
     "duplicate_name": (_set(7, "name", "panel_2"), "body 7", "'name'", "duplicates body 6"),
     "gamma_length": (lambda d: d["initial"].__setitem__("gamma", [0.0] * 9), "initial", "'gamma'", "length 10"),
-    "dcm_not_rotation": (lambda d: d["initial"].__setitem__("attitude_dcm", [[1, 0, 0], [0, 1, 0], [0, 0, -1]]),
-                         "initial", "'attitude_dcm'"),
+    "dcm_not_rotation": (
+        lambda d: d["initial"].__setitem__("attitude_dcm", [[1, 0, 0], [0, 1, 0], [0, 0, -1]]),
+        "initial",
+        "'attitude_dcm'",
+    ),
     "wrong_format": (lambda d: d.__setitem__("format", "other/2"), "'format'"),
     "reference_with_parent": (_set(0, "parent", 0), "body 0 ('bus')", "'parent'"),
 }
@@ -153,7 +197,9 @@ def _batch(model, runs, **leaves):
     tiled = {k: np.tile(np.asarray(getattr(model, k)), (runs,) + (1,) * getattr(model, k).ndim) for k in names}
     for k, fn in leaves.items():
         fn(tiled[k])
-    return eqx.tree_at(lambda m: tuple(getattr(m, k) for k in names), model, tuple(jnp.asarray(tiled[k]) for k in names))
+    return eqx.tree_at(
+        lambda m: tuple(getattr(m, k) for k in names), model, tuple(jnp.asarray(tiled[k]) for k in names)
+    )
 
 
 def test_validate_model_checks_a_batch_of_dispersed_models_and_names_the_run():
@@ -168,7 +214,9 @@ def test_validate_model_checks_a_batch_of_dispersed_models_and_names_the_run():
 
     with pytest.raises(SceneError, match=r"run \(4,\): body 0 \('bus'\): field 'inertia' violates the triangle"):
         jaxtree.validate_model(_batch(model, 6, inertia=flat_bus))
-    with pytest.raises(SceneError, match=r"run \(2,\): body 3 \('gimbal_inner'\): fields 'mass' / 'inertia' must stay zero"):
+    with pytest.raises(
+        SceneError, match=r"run \(2,\): body 3 \('gimbal_inner'\): fields 'mass' / 'inertia' must stay zero"
+    ):
         jaxtree.validate_model(_batch(model, 6, mass=lambda m: m.__setitem__((2, 3), 1.0)))
     with pytest.raises(SceneError, match=r"run \(1,\): body 5 \('panel_root'\): field 'axis' must be a unit vector"):
         jaxtree.validate_model(_batch(model, 3, axis=lambda a: a.__setitem__((1, 4), a[1, 4] * 1.01)))

@@ -42,8 +42,9 @@ I1 = np.diag([0.5, 0.6, 0.7])
 I_EFF = I0[2, 2] * I1[2, 2] / (I0[2, 2] + I1[2, 2])
 
 
-def coaxial(joint=jaxtree.Free(), gamma0=0.0, omega0=(0.0, 0.0, 0.0), loads=None):
+def coaxial(joint=None, gamma0=0.0, omega0=(0.0, 0.0, 0.0), loads=None):
     """Base and arm on a hinge along z through both mass centers: gamma_ddot = tau / I_EFF."""
+    joint = jaxtree.Free() if joint is None else joint
     bodies = [
         jaxtree.Body("base", 10.0, I0),
         jaxtree.Body("arm", 2.0, I1, 0, [0.0, 0.0, 1.0], [0.0, 0.0, 0.5], [0.0, 0.0, -0.5], joint),
@@ -91,12 +92,18 @@ def test_trajectory_matches_the_lagrange_oracle_with_scipy_dop853(scenes):
     """The independent oracle of tests/oracle.py integrated by scipy's DOP853 (1 s of fig4_free)."""
     model = scenes["fig4_free"]
     n = model.n
-    tree = (list(model.topology.parents), np.asarray(model.mass), np.asarray(model.inertia),
-            np.asarray(model.axis), np.asarray(model.hinge_on_parent), np.asarray(model.hinge_on_body))
+    tree = (
+        list(model.topology.parents),
+        np.asarray(model.mass),
+        np.asarray(model.inertia),
+        np.asarray(model.axis),
+        np.asarray(model.hinge_on_parent),
+        np.asarray(model.hinge_on_body),
+    )
     k = np.asarray(model.stiffness)
 
     def rhs(t, x):
-        C, w, g, gd = x[:9].reshape(3, 3), x[9:12], x[12:12 + n], x[12 + n:]
+        C, w, g, gd = x[:9].reshape(3, 3), x[9:12], x[12 : 12 + n], x[12 + n :]
         o = oracle_eom(*tree, w, g, gd, tau=-k * g)
         Cdot = -np.cross(w, C, axisa=0, axisb=0, axisc=0)  # Eq. (3), column by column
         return np.concatenate([Cdot.ravel(), np.asarray(o["omega0_dot"]), gd, np.asarray(o["gamma_ddot"])])
@@ -109,8 +116,8 @@ def test_trajectory_matches_the_lagrange_oracle_with_scipy_dop853(scenes):
     assert np.allclose(np.asarray(sol.ts), ts, rtol=0, atol=1e-15)
     assert maxdiff(sol.dcm, ref[:, :9].reshape(-1, 3, 3)) < GLOBAL
     assert maxdiff(sol.omega0, ref[:, 9:12]) < GLOBAL
-    assert maxdiff(sol.gamma, ref[:, 12:12 + n]) < GLOBAL
-    assert maxdiff(sol.gamma_dot, ref[:, 12 + n:]) < GLOBAL
+    assert maxdiff(sol.gamma, ref[:, 12 : 12 + n]) < GLOBAL
+    assert maxdiff(sol.gamma_dot, ref[:, 12 + n :]) < GLOBAL
 
 
 # ----------------------------------------------------------------------------- attitude
@@ -120,8 +127,10 @@ FIG4_SAVE = dict(saveat=dfx.SaveAt(ts=jnp.linspace(0.0, 10.0, 101), dense=True),
 
 def test_quaternion_dcm_and_euler_runs_agree_on_the_sample_problem(scenes):
     model = scenes["fig4"]
-    sols = {a: simulate(model, 10.0, attitude=a, rtol=1e-11, atol=1e-11, **FIG4_SAVE)
-            for a in ("quaternion", "dcm", "euler123")}
+    sols = {
+        a: simulate(model, 10.0, attitude=a, rtol=1e-11, atol=1e-11, **FIG4_SAVE)
+        for a in ("quaternion", "dcm", "euler123")
+    }
     q = sols["quaternion"]
     for name in ("dcm", "euler123"):
         s = sols[name]
@@ -138,8 +147,10 @@ def test_quaternion_dcm_and_euler_runs_agree_on_the_sample_problem(scenes):
 def spheres(k=3.0):
     """Two bodies with isotropic inertia joined at their mass centers: any spin is steady."""
     E = np.eye(3)
-    bodies = [jaxtree.Body("a", 10.0, 2 * E),
-              jaxtree.Body("b", 2.0, 0.5 * E, 0, [0.0, 0.0, 1.0], [0.0] * 3, [0.0] * 3, jaxtree.SpringDamper(k))]
+    bodies = [
+        jaxtree.Body("a", 10.0, 2 * E),
+        jaxtree.Body("b", 2.0, 0.5 * E, 0, [0.0, 0.0, 1.0], [0.0] * 3, [0.0] * 3, jaxtree.SpringDamper(k)),
+    ]
     return jaxtree.build_model(bodies)
 
 
@@ -246,12 +257,14 @@ def test_pid_controller_states_match_expm():
     ctrl = jaxtree.HingePID(1, (1,), kp, ki, kd, tf)
     sol = simulate(coaxial(gamma0=0.5), 6.0, controller=ctrl, rtol=1e-11, atol=1e-11)
     # x = (gamma, gamma_dot, integral, filtered rate)
-    A = np.array([
-        [0.0, 1.0, 0.0, 0.0],
-        [-kp / I_EFF, 0.0, -ki / I_EFF, -kd / I_EFF],
-        [1.0, 0.0, 0.0, 0.0],
-        [0.0, 1.0 / tf, 0.0, -1.0 / tf],
-    ])
+    A = np.array(
+        [
+            [0.0, 1.0, 0.0, 0.0],
+            [-kp / I_EFF, 0.0, -ki / I_EFF, -kd / I_EFF],
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0 / tf, 0.0, -1.0 / tf],
+        ]
+    )
     x = np.stack([scipy.linalg.expm(A * t) @ [0.5, 0.0, 0.0, 0.0] for t in np.asarray(sol.ts)])
     assert maxdiff(sol.gamma[:, 0], x[:, 0]) < CLOSED
     assert maxdiff(sol.gamma_dot[:, 0], x[:, 1]) < CLOSED
@@ -330,8 +343,10 @@ def test_gimbal_lock_is_reported_with_time_and_state(scenes):
     locked = model.initial._replace(gamma=jnp.asarray(gamma))
     # the diagnosis names the two aligned hinges (the near-null direction of the matrix); the start
     # itself is singular to working precision, so the run stops before its first step
-    named = (r"(?s)singular at the initial state.*stopped at t = 0.*hinge 2 \(gimbal_outer\) [-+]0\.707, "
-             r"hinge 4 \(rotor\).*gimbal lock")
+    named = (
+        r"(?s)singular at the initial state.*stopped at t = 0.*hinge 2 \(gimbal_outer\) [-+]0\.707, "
+        r"hinge 4 \(rotor\).*gimbal lock"
+    )
     with pytest.raises(jaxtree.SimulationError, match=named):
         simulate(model, 1.0, y0=locked)
     with pytest.raises(Exception, match=named):  # the same from the host callback under jit
@@ -345,12 +360,14 @@ def gimbal_pair(outer_axis=(0.0, 1.0, 0.0), inner_axis=(0.0, 1.0, 0.0)):
     """A bus with a rotor in two massless gimbal frames; with parallel gimbal axes (the default)
     the Eq. (1) matrix is singular in every state (two hinges turn the rotor alike)."""
     z = np.zeros((3, 3))
-    return jaxtree.build_model([
-        jaxtree.Body("bus", 100.0, np.diag([30.0, 40.0, 50.0])),
-        jaxtree.Body("outer", 0.0, z, 0, list(outer_axis), [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]),
-        jaxtree.Body("inner", 0.0, z, 1, list(inner_axis), [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
-        jaxtree.Body("rotor", 5.0, np.diag([0.5, 0.5, 0.9]), 2, [0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
-    ])
+    return jaxtree.build_model(
+        [
+            jaxtree.Body("bus", 100.0, np.diag([30.0, 40.0, 50.0])),
+            jaxtree.Body("outer", 0.0, z, 0, list(outer_axis), [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]),
+            jaxtree.Body("inner", 0.0, z, 1, list(inner_axis), [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
+            jaxtree.Body("rotor", 5.0, np.diag([0.5, 0.5, 0.9]), 2, [0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
+        ]
+    )
 
 
 def test_exact_gimbal_lock_under_jit_is_a_failure_at_the_start(scenes):
@@ -408,8 +425,11 @@ def test_nonfinite_start_under_vmap_fails_at_once_and_alone():
     clean = jax.jit(jax.vmap(run))(jnp.asarray([0.1, 0.2, 0.3]))
     assert maxdiff(sol.gamma[::2], clean.gamma[::2]) == 0.0  # the NaN member disturbs nothing
     with pytest.raises(Exception, match="initial state is not finite"):
-        jax.block_until_ready(jax.jit(lambda g: simulate(model, 3.0, y0=model.initial._replace(gamma=g[None])).gamma)(
-            jnp.asarray([np.nan])[0]))
+        jax.block_until_ready(
+            jax.jit(lambda g: simulate(model, 3.0, y0=model.initial._replace(gamma=g[None])).gamma)(
+                jnp.asarray([np.nan])[0]
+            )
+        )
 
 
 def test_failures_of_a_vmapped_batch_are_reported_by_one_host_callback():
@@ -427,8 +447,11 @@ def test_failures_of_a_vmapped_batch_are_reported_by_one_host_callback():
 
     batch = jnp.linspace(0.1, 0.4, 64)
     assert callbacks(batch) == callbacks(batch[:2])
-    with pytest.raises(Exception, match=r"(?s)\[batch index \(0,\)\].*maximum number of solver steps.*"
-                                        r"and 61 more failed batch members"):
+    with pytest.raises(
+        Exception,
+        match=r"(?s)\[batch index \(0,\)\].*maximum number of solver steps.*"
+        r"and 61 more failed batch members",
+    ):
         jax.block_until_ready(jax.jit(jax.vmap(lambda g: run(g, 8)))(batch))
 
 
@@ -475,7 +498,10 @@ def test_bad_initial_states_and_tolerances_are_named_before_tracing():
     s = model.initial
     c, d = np.cos(0.3), np.sin(0.3)
     cases = [
-        (dict(y0=s._replace(gamma=jnp.zeros(2))), r"y0.gamma has shape \(2,\); the model .* with 1 hinges needs \(1,\)"),
+        (
+            dict(y0=s._replace(gamma=jnp.zeros(2))),
+            r"y0.gamma has shape \(2,\); the model .* with 1 hinges needs \(1,\)",
+        ),
         (dict(y0=s._replace(omega0=jnp.zeros(2))), r"y0.omega0 has shape \(2,\)"),
         (dict(y0=s._replace(dcm=jnp.eye(2))), r"y0.dcm has shape \(2, 2\)"),
         (dict(y0=s._replace(dcm=1.01 * jnp.eye(3))), r"y0.dcm is not a rotation matrix \(max \|C C\^T - I\| = 0.0201"),
@@ -579,8 +605,7 @@ def test_command_line_runs_the_sample_problem(tmp_path, monkeypatch, capsys):
     from jaxtree.__main__ import main
 
     monkeypatch.setenv("XLA_FLAGS", "")  # restored afterwards; main() may add its compiler flag
-    code = main(["--duration", "1", "--points", "11", "--attitudes", "quaternion", "--no-plot",
-                 "--out", str(tmp_path)])
+    code = main(["--duration", "1", "--points", "11", "--attitudes", "quaternion", "--no-plot", "--out", str(tmp_path)])
     captured = capsys.readouterr()
     out = captured.out
     assert code == 0

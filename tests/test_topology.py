@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 
 import jaxtree
+
 from helpers import BRANCHES, NEIGHBOURS, TABLE_1, TABLE_2, table
+
 
 @pytest.fixture(scope="module")
 def topo():

@@ -28,11 +28,14 @@ def embedded(page_html):
     f32 = lambda s: np.frombuffer(base64.b64decode(s), dtype="<f4").astype(float)
     pos = f32(data["positions"]).reshape(T, nb, 3)
     w, x, y, z = np.moveaxis(f32(data["quaternions"]).reshape(T, nb, 4), -1, 0)
-    rot = np.stack([
-        np.stack([w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z], -1),
-    ], -2)
+    rot = np.stack(
+        [
+            np.stack([w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z], -1),
+        ],
+        -2,
+    )
     return data, pos, rot
 
 
@@ -40,8 +43,7 @@ def two_body(m0=40.0, m1=3.0, axis=(0.3, -0.4, 0.866), p=(1.2, 0.1, -0.3), q=(-0
     axis = np.asarray(axis) / np.linalg.norm(axis)
     bodies = [
         jaxtree.Body("hub", m0, np.diag([20.0, 25.0, 30.0])),
-        jaxtree.Body("arm", m1, np.diag([0.1, 0.6, 0.65]), parent=0, axis=axis, hinge_on_parent=p,
-                     hinge_on_body=q),
+        jaxtree.Body("arm", m1, np.diag([0.1, 0.6, 0.65]), parent=0, axis=axis, hinge_on_parent=p, hinge_on_body=q),
     ]
     return jaxtree.build_model(bodies, name="two_body"), axis, np.asarray(p), np.asarray(q)
 
@@ -85,10 +87,18 @@ def test_thin_and_massless_bodies_get_a_visible_box():
     plate = np.diag([0.5 / 3 * 0.04, 0.5 / 3 * 1.0, 0.5 / 3 * 1.04])  # m = 0.5, a = 1, b = 0.2, c = 0
     bodies = [
         jaxtree.Body("hub", 10.0, np.diag([1.0, 1.2, 1.4])),
-        jaxtree.Body("plate", 0.5, plate, parent=0, axis=[0, 1, 0], hinge_on_parent=[0.8, 0, 0],
-                     hinge_on_body=[-1.0, 0, 0]),
-        jaxtree.Body("frame", 0.0, np.zeros((3, 3)), parent=1, axis=[1, 0, 0], hinge_on_parent=[1.0, 0, 0],
-                     hinge_on_body=[0, 0, 0]),
+        jaxtree.Body(
+            "plate", 0.5, plate, parent=0, axis=[0, 1, 0], hinge_on_parent=[0.8, 0, 0], hinge_on_body=[-1.0, 0, 0]
+        ),
+        jaxtree.Body(
+            "frame",
+            0.0,
+            np.zeros((3, 3)),
+            parent=1,
+            axis=[1, 0, 0],
+            hinge_on_parent=[1.0, 0, 0],
+            hinge_on_body=[0, 0, 0],
+        ),
     ]
     model = jaxtree.build_model(bodies)
     half, _ = viewer.inertia_box(0.5, plate)
@@ -120,8 +130,9 @@ def test_embedded_poses_match_the_two_body_closed_form():
     from_b1 = pos[:, 1] + np.einsum("tij,j->ti", rot[:, 1], hinge["point"])
     from_b0 = pos[:, 0] + np.einsum("tij,j->ti", rot[:, 0], p)
     np.testing.assert_allclose(from_b1, from_b0, atol=1e-6)
-    np.testing.assert_allclose(np.einsum("tij,j->ti", rot[:, 1], hinge["axis"]),
-                               np.einsum("tij,j->ti", rot[:, 0], axis), atol=1e-6)
+    np.testing.assert_allclose(
+        np.einsum("tij,j->ti", rot[:, 1], hinge["axis"]), np.einsum("tij,j->ti", rot[:, 0], axis), atol=1e-6
+    )
     assert data["title"] == "two <bodies> & a hinge"
 
 
@@ -174,8 +185,15 @@ def test_mode_page_oscillates_the_shape_about_the_nominal_angles(tmp_path):
     np.testing.assert_allclose(rot, want_rot, atol=1e-6)
     # A complex (gyroscopic) shape plays Im(shape e^{i w t}): i s gives s cos(w t).
     _, pos_c, _ = embedded(viewer.mode_html(model, np.array([-1.5j]), 2.0, gamma=gamma0, amplitude=A))
-    cos_pos, _ = two_body_closed_form(40.0, 3.0, axis, p, q, np.broadcast_to(np.eye(3), (T, 3, 3)),
-                                      gamma0[0] + A * -1.5 * np.cos(2 * np.pi * np.arange(T) / T))
+    cos_pos, _ = two_body_closed_form(
+        40.0,
+        3.0,
+        axis,
+        p,
+        q,
+        np.broadcast_to(np.eye(3), (T, 3, 3)),
+        gamma0[0] + A * -1.5 * np.cos(2 * np.pi * np.arange(T) / T),
+    )
     np.testing.assert_allclose(pos_c, cos_pos, atol=1e-6)
     # The default amplitude moves a mass center by 15 % of the radius (here, a long arm, before
     # the angle reaches 0.35 rad): the arm's largest excursion from the nominal pose.
@@ -223,9 +241,17 @@ def browser():
     from playwright.sync_api import sync_playwright
 
     exe = CHROMIUM if os.path.exists(CHROMIUM) else shutil.which("chromium")
-    args = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-            "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-default-apps",
-            "--disable-extensions"]
+    args = [
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        "--disable-default-apps",
+        "--disable-extensions",
+    ]
     with sync_playwright() as pw:
         b = pw.chromium.launch(executable_path=exe, args=args)
         yield b
@@ -293,8 +319,10 @@ def test_result_page_plays_in_a_browser(browser, wings_pages, tmp_path):
     page, log, url = _open(browser, folder / "wings.html")
     try:
         f = 30
-        js = page.evaluate(f"(() => {{ const v = document.querySelector('.jaxtree-viewer').jaxtreeViewer;"
-                           f" return [...Array({model.n}).keys()].map(j => v.hingePoint({f}, j)); }})()")
+        js = page.evaluate(
+            f"(() => {{ const v = document.querySelector('.jaxtree-viewer').jaxtreeViewer;"
+            f" return [...Array({model.n}).keys()].map(j => v.hingePoint({f}, j)); }})()"
+        )
         cfg = jaxtree.configuration(model, sol.gamma[f])
         want = np.asarray(cfg.hinge) @ np.asarray(sol.dcm[f])  # C^T h, row-wise
         np.testing.assert_allclose(np.array(js), want, atol=2e-5)

@@ -26,13 +26,23 @@ def random_tree(rng, parents, gimbals=(), spring=True):
     for k in range(1, n + 1):
         massless = k in gimbals
         m = 0.0 if massless else rng.uniform(0.5, 20)
-        joint = jaxtree.SpringDamper(rng.uniform(1, 50), rng.uniform(0, 1)) if spring and rng.random() < 0.6 \
+        joint = (
+            jaxtree.SpringDamper(rng.uniform(1, 50), rng.uniform(0, 1))
+            if spring and rng.random() < 0.6
             else jaxtree.Free()
-        bodies.append(jaxtree.Body(
-            f"b{k}", m, np.zeros((3, 3)) if massless else _inertia(rng, m), parents[k - 1], _axis(rng),
-            np.zeros(3) if (k - 1) in gimbals else rng.normal(size=3) * 0.7,
-            np.zeros(3) if massless else rng.normal(size=3) * 0.7, joint,
-        ))
+        )
+        bodies.append(
+            jaxtree.Body(
+                f"b{k}",
+                m,
+                np.zeros((3, 3)) if massless else _inertia(rng, m),
+                parents[k - 1],
+                _axis(rng),
+                np.zeros(3) if (k - 1) in gimbals else rng.normal(size=3) * 0.7,
+                np.zeros(3) if massless else rng.normal(size=3) * 0.7,
+                joint,
+            )
+        )
     return jaxtree.build_model(bodies)
 
 
@@ -64,8 +74,15 @@ def gimbal_model(rng):
         m = 0.0 if massless else rng.uniform(1, 10)
         on_parent = rng.normal(size=3) if (k == 1 or k >= 4) else np.zeros(3)
         on_body = np.zeros(3) if massless or k == 3 else rng.normal(size=3) * 0.5
-        bodies.append(jaxtree.Body(
-            f"b{k}", m, np.zeros((3, 3)) if massless else _inertia(rng, m), parents[k - 1],
-            axes.get(k, _axis(rng)), on_parent, on_body,
-        ))
+        bodies.append(
+            jaxtree.Body(
+                f"b{k}",
+                m,
+                np.zeros((3, 3)) if massless else _inertia(rng, m),
+                parents[k - 1],
+                axes.get(k, _axis(rng)),
+                on_parent,
+                on_body,
+            )
+        )
     return jaxtree.build_model(bodies)

@@ -17,190 +17,458 @@ import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
 
-from ._src.topology import Topology as Topology
-from ._src.model import (
-    Model as Model,
-    State as State,
-    Prescription as Prescription,
-    SinePrescription as SinePrescription,
-    BodyLoads as BodyLoads,
-    FunctionLoads as FunctionLoads,
+from ._src.dynamics import (
+    Accelerations as Accelerations,
 )
-from ._src.scene import (
-    Body as Body,
-    Joint as Joint,
-    Free as Free,
-    SpringDamper as SpringDamper,
-    PrescribedSine as PrescribedSine,
-    Prescribed as Prescribed,
-    build_model as build_model,
-    validate_model as validate_model,
-    load_scene as load_scene,
-    scene_from_dict as scene_from_dict,
-    scene_to_dict as scene_to_dict,
-    save_scene as save_scene,
-    scene_path as scene_path,
-    list_scenes as list_scenes,
+from ._src.dynamics import (
+    DynamicsError as DynamicsError,
+)
+from ._src.dynamics import (
+    angular_momentum as angular_momentum,
+)
+from ._src.dynamics import (
+    configuration as configuration,
+)
+from ._src.dynamics import (
+    forward_dynamics as forward_dynamics,
+)
+from ._src.dynamics import (
+    hinge_torques as hinge_torques,
+)
+from ._src.dynamics import (
+    kinetic_energy as kinetic_energy,
+)
+from ._src.dynamics import (
+    mass_center_acceleration as mass_center_acceleration,
+)
+from ._src.dynamics import (
+    mass_matrix as mass_matrix,
+)
+from ._src.dynamics import (
+    rotational_equations as rotational_equations,
+)
+from ._src.dynamics import (
+    solve_accelerations as solve_accelerations,
+)
+from ._src.kinematics import (
+    body_rotations as body_rotations,
+)
+from ._src.kinematics import (
+    dcm_rate as dcm_rate,
+)
+from ._src.kinematics import (
+    hinge_rotation as hinge_rotation,
+)
+from ._src.kinematics import (
+    relative_rotations as relative_rotations,
 )
 from ._src.kinematics import (
     tilde as tilde,
-    hinge_rotation as hinge_rotation,
-    body_rotations as body_rotations,
-    relative_rotations as relative_rotations,
-    dcm_rate as dcm_rate,
 )
-from ._src.dynamics import (
-    Accelerations as Accelerations,
-    configuration as configuration,
-    mass_matrix as mass_matrix,
-    rotational_equations as rotational_equations,
-    forward_dynamics as forward_dynamics,
-    solve_accelerations as solve_accelerations,
-    hinge_torques as hinge_torques,
-    kinetic_energy as kinetic_energy,
-    angular_momentum as angular_momentum,
-    mass_center_acceleration as mass_center_acceleration,
-    DynamicsError as DynamicsError,
+from ._src.model import (
+    BodyLoads as BodyLoads,
 )
+from ._src.model import (
+    FunctionLoads as FunctionLoads,
+)
+from ._src.model import (
+    Model as Model,
+)
+from ._src.model import (
+    Prescription as Prescription,
+)
+from ._src.model import (
+    SinePrescription as SinePrescription,
+)
+from ._src.model import (
+    State as State,
+)
+from ._src.scene import (
+    Body as Body,
+)
+from ._src.scene import (
+    Free as Free,
+)
+from ._src.scene import (
+    Joint as Joint,
+)
+from ._src.scene import (
+    Prescribed as Prescribed,
+)
+from ._src.scene import (
+    PrescribedSine as PrescribedSine,
+)
+from ._src.scene import (
+    SpringDamper as SpringDamper,
+)
+from ._src.scene import (
+    build_model as build_model,
+)
+from ._src.scene import (
+    list_scenes as list_scenes,
+)
+from ._src.scene import (
+    load_scene as load_scene,
+)
+from ._src.scene import (
+    save_scene as save_scene,
+)
+from ._src.scene import (
+    scene_from_dict as scene_from_dict,
+)
+from ._src.scene import (
+    scene_path as scene_path,
+)
+from ._src.scene import (
+    scene_to_dict as scene_to_dict,
+)
+from ._src.scene import (
+    validate_model as validate_model,
+)
+from ._src.topology import Topology as Topology
 
 __version__ = "0.1.0"
-from ._src.linearize import (
-    LinearSystem as LinearSystem,
-    PartialLinearization as PartialLinearization,
-    Structure as Structure,
-    linearized_equations as linearized_equations,
-    linearize as linearize,
-    linearize_vehicle as linearize_vehicle,
-    structure as structure,
-)
-from ._src.modes import (
-    Modes as Modes,
-    ModalError as ModalError,
-    UnstableError as UnstableError,
-    DefectiveError as DefectiveError,
-    modes as modes,
-    first_order as first_order,
-)
+from ._src._checks import SceneError as SceneError
+from ._src._checks import SceneTypeError as SceneTypeError
+from ._src._checks import SceneWarning as SceneWarning
+from ._src._integrate import DEFAULT_ATOL as DEFAULT_ATOL
+from ._src._integrate import DEFAULT_RTOL as DEFAULT_RTOL
+from ._src._integrate import Failure as Failure
+from ._src.articulated import resolve_method as resolve_method
 from ._src.attitude import (
     AbstractAttitude as AbstractAttitude,
+)
+from ._src.attitude import (
     DirectionCosines as DirectionCosines,
+)
+from ._src.attitude import (
     Euler123 as Euler123,
+)
+from ._src.attitude import (
     Quaternion as Quaternion,
 )
-from ._src.control import (
-    AbstractController as AbstractController,
-    Controller as Controller,
-    HingePD as HingePD,
-    HingePID as HingePID,
+from ._src.attitude import get_attitude as get_attitude
+from ._src.barycentric import (
+    Barycentric as Barycentric,
 )
-from ._src.loads import (
-    PerBodyLoads as PerBodyLoads,
-    BodyTorque as BodyTorque,
-    GravityGradient as GravityGradient,
-    CombinedLoads as CombinedLoads,
-    combine_loads as combine_loads,
-    thruster_pulse as thruster_pulse,
+from ._src.barycentric import (
+    barycentric as barycentric,
 )
-from ._src.simulate import (
-    Problem as Problem,
-    Solution as Solution,
-    SimulationError as SimulationError,
-    simulate as simulate,
-    check_solution as check_solution,
-    hinge_angle_event as hinge_angle_event,
-    state_event as state_event,
-    default_tolerance as default_tolerance,
+from ._src.barycentric import (
+    coupling_inertia as coupling_inertia,
 )
-from ._src.hybrid import (
-    HybridModel as HybridModel,
-    HybridSolution as HybridSolution,
-    hybrid_model as hybrid_model,
-    hybrid_rhs as hybrid_rhs,
-    hybrid_equations as hybrid_equations,
-    simulate_hybrid as simulate_hybrid,
+from ._src.barycentric import (
+    seed_equations as seed_equations,
 )
+from ._src.campaign import FAILURES as FAILURES
 from ._src.campaign import (
     monte_carlo as monte_carlo,
 )
-from ._src.viewer import (
-    write_animation as write_animation,
-    write_mode_animation as write_mode_animation,
-    animation_html as animation_html,
-    mode_html as mode_html,
-    expand_shape as expand_shape,
+from ._src.control import (
+    AbstractController as AbstractController,
 )
+from ._src.control import (
+    Controller as Controller,
+)
+from ._src.control import (
+    HingePD as HingePD,
+)
+from ._src.control import (
+    HingePID as HingePID,
+)
+from ._src.control import hinge_torque_vector as hinge_torque_vector
 from ._src.diagnostics import (
     Condition as Condition,
-    condition as condition,
+)
+from ._src.diagnostics import (
     SceneReport as SceneReport,
+)
+from ._src.diagnostics import (
     check_scene as check_scene,
 )
-from ._src.results import (
-    load_result as load_result,
-    save_result as save_result,
+from ._src.diagnostics import (
+    condition as condition,
+)
+from ._src.hybrid import (
+    HybridModel as HybridModel,
+)
+from ._src.hybrid import (
+    HybridSolution as HybridSolution,
+)
+from ._src.hybrid import (
+    hybrid_equations as hybrid_equations,
+)
+from ._src.hybrid import (
+    hybrid_model as hybrid_model,
+)
+from ._src.hybrid import (
+    hybrid_rhs as hybrid_rhs,
+)
+from ._src.hybrid import (
+    simulate_hybrid as simulate_hybrid,
+)
+from ._src.kinematics import full_precision as full_precision
+from ._src.linearize import (
+    LinearSystem as LinearSystem,
+)
+from ._src.linearize import (
+    PartialLinearization as PartialLinearization,
+)
+from ._src.linearize import (
+    Structure as Structure,
+)
+from ._src.linearize import (
+    linearize as linearize,
+)
+from ._src.linearize import (
+    linearize_vehicle as linearize_vehicle,
+)
+from ._src.linearize import (
+    linearized_equations as linearized_equations,
+)
+from ._src.linearize import (
+    structure as structure,
+)
+from ._src.loads import (
+    BodyTorque as BodyTorque,
+)
+from ._src.loads import (
+    CombinedLoads as CombinedLoads,
+)
+from ._src.loads import (
+    GravityGradient as GravityGradient,
+)
+from ._src.loads import (
+    PerBodyLoads as PerBodyLoads,
+)
+from ._src.loads import (
+    combine_loads as combine_loads,
+)
+from ._src.loads import (
+    thruster_pulse as thruster_pulse,
+)
+from ._src.modes import (
+    DefectiveError as DefectiveError,
+)
+from ._src.modes import (
+    ModalError as ModalError,
+)
+from ._src.modes import (
+    Modes as Modes,
+)
+from ._src.modes import (
+    UnstableError as UnstableError,
+)
+from ._src.modes import (
+    first_order as first_order,
+)
+from ._src.modes import (
+    modes as modes,
+)
+from ._src.output import (
+    atomic_write as atomic_write,
 )
 from ._src.output import (
     histories as histories,
-    save_npz as save_npz,
+)
+from ._src.output import (
     save_csv as save_csv,
-    summary as summary,
+)
+from ._src.output import (
+    save_npz as save_npz,
+)
+from ._src.output import (
     save_plot as save_plot,
-    atomic_write as atomic_write,
+)
+from ._src.output import (
+    summary as summary,
+)
+from ._src.plots import (
+    plot_drift as plot_drift,
 )
 from ._src.plots import (
     plot_histories as plot_histories,
-    plot_drift as plot_drift,
+)
+from ._src.plots import (
     plot_mode_shapes as plot_mode_shapes,
+)
+from ._src.plots import (
     plot_work_precision as plot_work_precision,
 )
-from ._src.barycentric import (
-    Barycentric as Barycentric,
-    barycentric as barycentric,
-    coupling_inertia as coupling_inertia,
-    seed_equations as seed_equations,
+from ._src.results import (
+    load_result as load_result,
 )
-from ._src.articulated import resolve_method as resolve_method
-from ._src.campaign import FAILURES as FAILURES
-from ._src._integrate import Failure as Failure, DEFAULT_RTOL as DEFAULT_RTOL, DEFAULT_ATOL as DEFAULT_ATOL
-from ._src.attitude import get_attitude as get_attitude
-from ._src.kinematics import full_precision as full_precision
-from ._src.control import hinge_torque_vector as hinge_torque_vector
+from ._src.results import (
+    save_result as save_result,
+)
+from ._src.simulate import (
+    Problem as Problem,
+)
+from ._src.simulate import (
+    SimulationError as SimulationError,
+)
+from ._src.simulate import (
+    Solution as Solution,
+)
+from ._src.simulate import (
+    check_solution as check_solution,
+)
+from ._src.simulate import (
+    default_tolerance as default_tolerance,
+)
+from ._src.simulate import (
+    hinge_angle_event as hinge_angle_event,
+)
+from ._src.simulate import (
+    simulate as simulate,
+)
+from ._src.simulate import (
+    state_event as state_event,
+)
 from ._src.substructure import Substructure as Substructure
 from ._src.substructure import substructures as substructures
-from ._src._checks import SceneError as SceneError, SceneTypeError as SceneTypeError, SceneWarning as SceneWarning
+from ._src.viewer import (
+    animation_html as animation_html,
+)
+from ._src.viewer import (
+    expand_shape as expand_shape,
+)
+from ._src.viewer import (
+    mode_html as mode_html,
+)
+from ._src.viewer import (
+    write_animation as write_animation,
+)
+from ._src.viewer import (
+    write_mode_animation as write_mode_animation,
+)
 
 # The public surface: everything a user imports comes from here (the modules under
 # jaxtree._src are the implementation and may change). Grouped by the seed's ideas.
 __all__ = [
     # the vehicle: scenes, the builder and the model (Sec. II D; Defs. 4-5 and 26-28)
-    "Body", "Joint", "Free", "SpringDamper", "PrescribedSine", "Prescribed", "build_model", "validate_model",
-    "load_scene", "scene_from_dict", "scene_to_dict", "save_scene", "scene_path", "list_scenes",
-    "Model", "State", "Topology", "Prescription", "SinePrescription", "SceneError", "SceneTypeError",
+    "Body",
+    "Joint",
+    "Free",
+    "SpringDamper",
+    "PrescribedSine",
+    "Prescribed",
+    "build_model",
+    "validate_model",
+    "load_scene",
+    "scene_from_dict",
+    "scene_to_dict",
+    "save_scene",
+    "scene_path",
+    "list_scenes",
+    "Model",
+    "State",
+    "Topology",
+    "Prescription",
+    "SinePrescription",
+    "SceneError",
+    "SceneTypeError",
     "SceneWarning",
     # kinematics (Eqs. 3-5, 21-22) and attitude variables (Eqs. 3, 23-24, quaternions)
-    "tilde", "hinge_rotation", "body_rotations", "relative_rotations", "dcm_rate",
-    "AbstractAttitude", "DirectionCosines", "Euler123", "Quaternion", "get_attitude",
+    "tilde",
+    "hinge_rotation",
+    "body_rotations",
+    "relative_rotations",
+    "dcm_rate",
+    "AbstractAttitude",
+    "DirectionCosines",
+    "Euler123",
+    "Quaternion",
+    "get_attitude",
     # Eq. (1) and Eq. (2): the unrestricted equations and their parts (Defs. 19-41)
-    "forward_dynamics", "solve_accelerations", "rotational_equations", "mass_matrix", "configuration",
-    "Accelerations", "hinge_torques", "kinetic_energy", "angular_momentum", "mass_center_acceleration",
-    "DynamicsError", "resolve_method", "Barycentric", "barycentric", "coupling_inertia", "seed_equations",
+    "forward_dynamics",
+    "solve_accelerations",
+    "rotational_equations",
+    "mass_matrix",
+    "configuration",
+    "Accelerations",
+    "hinge_torques",
+    "kinetic_energy",
+    "angular_momentum",
+    "mass_center_acceleration",
+    "DynamicsError",
+    "resolve_method",
+    "Barycentric",
+    "barycentric",
+    "coupling_inertia",
+    "seed_equations",
     "full_precision",
     # hinge laws, controllers and external loads (Defs. 19-21, Sec. II D inputs 7-8)
-    "AbstractController", "Controller", "HingePD", "HingePID", "hinge_torque_vector",
-    "BodyLoads", "FunctionLoads", "PerBodyLoads", "BodyTorque", "GravityGradient", "CombinedLoads",
-    "combine_loads", "thruster_pulse",
+    "AbstractController",
+    "Controller",
+    "HingePD",
+    "HingePID",
+    "hinge_torque_vector",
+    "BodyLoads",
+    "FunctionLoads",
+    "PerBodyLoads",
+    "BodyTorque",
+    "GravityGradient",
+    "CombinedLoads",
+    "combine_loads",
+    "thruster_pulse",
     # simulation of Eq. (1) (Eqs. 25-27 with diffrax), events, failures
-    "simulate", "Solution", "Problem", "SimulationError", "Failure", "check_solution", "hinge_angle_event",
-    "state_event", "default_tolerance", "DEFAULT_RTOL", "DEFAULT_ATOL",
+    "simulate",
+    "Solution",
+    "Problem",
+    "SimulationError",
+    "Failure",
+    "check_solution",
+    "hinge_angle_event",
+    "state_event",
+    "default_tolerance",
+    "DEFAULT_RTOL",
+    "DEFAULT_ATOL",
     # partial linearization (Eqs. 28-69) and modes (Eqs. 70-104)
-    "linearize", "linearize_vehicle", "linearized_equations", "structure", "LinearSystem",
-    "PartialLinearization", "Structure", "modes", "first_order", "Modes", "ModalError", "UnstableError",
+    "linearize",
+    "linearize_vehicle",
+    "linearized_equations",
+    "structure",
+    "LinearSystem",
+    "PartialLinearization",
+    "Structure",
+    "modes",
+    "first_order",
+    "Modes",
+    "ModalError",
+    "UnstableError",
     "DefectiveError",
     # hybrid coordinates (Eqs. 105-123)
-    "hybrid_model", "simulate_hybrid", "HybridModel", "HybridSolution", "hybrid_rhs", "hybrid_equations",
-    "Substructure", "substructures",
+    "hybrid_model",
+    "simulate_hybrid",
+    "HybridModel",
+    "HybridSolution",
+    "hybrid_rhs",
+    "hybrid_equations",
+    "Substructure",
+    "substructures",
     # campaigns, diagnostics, result files, plots and the 3D viewer
-    "monte_carlo", "FAILURES", "condition", "Condition", "check_scene", "SceneReport", "load_result",
-    "save_result", "histories", "save_npz", "save_csv", "save_plot", "summary", "atomic_write", "plot_histories", "plot_drift", "plot_mode_shapes", "plot_work_precision",
-    "write_animation", "write_mode_animation", "animation_html", "mode_html", "expand_shape",
+    "monte_carlo",
+    "FAILURES",
+    "condition",
+    "Condition",
+    "check_scene",
+    "SceneReport",
+    "load_result",
+    "save_result",
+    "histories",
+    "save_npz",
+    "save_csv",
+    "save_plot",
+    "summary",
+    "atomic_write",
+    "plot_histories",
+    "plot_drift",
+    "plot_mode_shapes",
+    "plot_work_precision",
+    "write_animation",
+    "write_mode_animation",
+    "animation_html",
+    "mode_html",
+    "expand_shape",
 ]

@@ -35,8 +35,11 @@ def _parser():
     p.add_argument("--scene", default="fig4", help="bundled scene name or path to a scene JSON (default: fig4)")
     p.add_argument("--duration", type=float, default=100.0, help="simulated time in seconds (default: 100)")
     p.add_argument("--points", type=int, default=1001, help="number of saved times (default: 1001)")
-    p.add_argument("--attitudes", default="euler123,quaternion",
-                   help="comma-separated attitude variables: euler123, quaternion, dcm (default: euler123,quaternion)")
+    p.add_argument(
+        "--attitudes",
+        default="euler123,quaternion",
+        help="comma-separated attitude variables: euler123, quaternion, dcm (default: euler123,quaternion)",
+    )
     p.add_argument("--rtol", type=float, default=1e-9, help="relative tolerance (default: 1e-9)")
     p.add_argument("--atol", type=float, default=1e-9, help="absolute tolerance (default: 1e-9)")
     p.add_argument("--out", default="results", help="output folder (default: ./results)")
@@ -69,9 +72,11 @@ def sample(argv=None) -> int:
     model = _load_scene(args.scene)
     attitudes = [a.strip() for a in args.attitudes.split(",") if a.strip()]
     out = os.path.abspath(args.out)
-    print(f"jaxtree {jaxtree.__version__}: scene {model.name!r} ({model.n + 1} bodies, prescribed hinges "
-          f"{list(model.prescribed)}), {args.duration:g} s, rtol {args.rtol:g}, atol {args.atol:g}, "
-          f"JAX {jax.__version__} on {jax.default_backend()}")
+    print(
+        f"jaxtree {jaxtree.__version__}: scene {model.name!r} ({model.n + 1} bodies, prescribed hinges "
+        f"{list(model.prescribed)}), {args.duration:g} s, rtol {args.rtol:g}, atol {args.atol:g}, "
+        f"JAX {jax.__version__} on {jax.default_backend()}"
+    )
     runs, lines = {}, []
     for att in attitudes:
         kw = dict(attitude=att, saveat=args.points, rtol=args.rtol, atol=args.atol)
@@ -95,8 +100,10 @@ def sample(argv=None) -> int:
         names = list(runs)
         ref = runs[names[0]]
         for other in names[1:]:
-            d = max(float(np.max(np.abs(np.asarray(getattr(runs[other], f)) - np.asarray(getattr(ref, f)))))
-                    for f in ("gamma", "omega0", "dcm"))
+            d = max(
+                float(np.max(np.abs(np.asarray(getattr(runs[other], f)) - np.asarray(getattr(ref, f)))))
+                for f in ("gamma", "omega0", "dcm")
+            )
             print(f"max difference {other} vs {names[0]} (gamma, omega0, C over all saved times): {d:.3e}")
 
     os.makedirs(out, exist_ok=True)
@@ -107,8 +114,9 @@ def sample(argv=None) -> int:
         output.save_csv(os.path.join(out, f"{stem}_{att}.csv"), sol)
         written.append(f"{stem}_{att}.csv")
     if not args.no_plot:
-        if output.save_plot(os.path.join(out, f"{stem}.png"), runs,
-                            title=f"{stem}: {args.duration:g} s, " + " vs ".join(runs)):
+        if output.save_plot(
+            os.path.join(out, f"{stem}.png"), runs, title=f"{stem}: {args.duration:g} s, " + " vs ".join(runs)
+        ):
             written.append(f"{stem}.png")
         else:
             print("matplotlib is not installed: no plot (pip install matplotlib)")

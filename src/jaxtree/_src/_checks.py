@@ -20,8 +20,8 @@ import sys
 import warnings
 
 import jax
-from jax.core import Tracer
 import numpy as np
+from jax.core import Tracer
 
 
 class SceneError(ValueError):
@@ -80,8 +80,9 @@ def as_float(value, what: str, shape=None, *, finite: bool = True) -> np.ndarray
     try:
         a = np.asarray(value)
     except (TypeError, ValueError, OverflowError):
-        raise SceneError(f"{what} must be a number or a (nested) list of numbers of one shape, "
-                         f"got {short(value)}") from None
+        raise SceneError(
+            f"{what} must be a number or a (nested) list of numbers of one shape, got {short(value)}"
+        ) from None
     kind = a.dtype.kind
     if kind == "O":
         if any(x is None for x in a.flat):
@@ -150,8 +151,10 @@ def rotation(C, what: str, tol: float = 1e-9) -> np.ndarray:
     C = as_float(C, what, (3, 3))
     err, det = float(np.abs(C @ C.T - np.eye(3)).max()), float(np.linalg.det(C))
     if err > tol or det < 0:
-        raise SceneError(f"{what} must be a proper rotation matrix (orthonormal, det +1): max |C C^T - I| = "
-                         f"{err:.3g}, det C = {det:.6g}")
+        raise SceneError(
+            f"{what} must be a proper rotation matrix (orthonormal, det +1): max |C C^T - I| = "
+            f"{err:.3g}, det C = {det:.6g}"
+        )
     return C
 
 
@@ -161,8 +164,9 @@ def _model(name, model):
     from .scene import validate_model
 
     if not isinstance(model, Model):
-        raise SceneTypeError(f"{name}: model must be a jaxtree.Model (load_scene / build_model), "
-                             f"got {type(model).__name__}")
+        raise SceneTypeError(
+            f"{name}: model must be a jaxtree.Model (load_scene / build_model), got {type(model).__name__}"
+        )
     if not is_traced(model):
         validate_model(model)
 
@@ -175,16 +179,18 @@ def _small(name, model, small):
     try:
         items = list(small)
     except TypeError:
-        raise SceneTypeError(f"{name}: small must be hinge indices 1..{model.n} or body names, "
-                             f"got {short(small)}") from None
+        raise SceneTypeError(
+            f"{name}: small must be hinge indices 1..{model.n} or body names, got {short(small)}"
+        ) from None
     if not items:
         raise SceneError(f"{name}: the set A of small hinges is empty")
     seen = set()
     for item in items:
         if isinstance(item, str):
             if item not in model.names:
-                raise SceneKeyError(f"{name}: no body named {item!r}; hinges are named by their outboard body: "
-                                    f"{model.names[1:]}")
+                raise SceneKeyError(
+                    f"{name}: no body named {item!r}; hinges are named by their outboard body: {model.names[1:]}"
+                )
             k = model.names.index(item)
             if k == 0:
                 raise SceneError(f"{name}: {item!r} is the reference body b_0, which has no hinge")
@@ -197,17 +203,23 @@ def _small(name, model, small):
         if k in seen:
             raise SceneError(f"{name}: hinge {k} ({model.names[k]!r}) is listed twice in the set A")
         if k in model.prescribed:
-            raise SceneError(f"{name}: hinge {k} ({model.names[k]!r}) is kinematically prescribed; it cannot be a "
-                             "small (linearized) variable. Leave it out of the set A: it is then held at its "
-                             "nominal angle.")
+            raise SceneError(
+                f"{name}: hinge {k} ({model.names[k]!r}) is kinematically prescribed; it cannot be a "
+                "small (linearized) variable. Leave it out of the set A: it is then held at its "
+                "nominal angle."
+            )
         seen.add(k)
 
 
 def _nominal(name, model, omega0, gamma, dcm, t):
     """The nominal motion's omega0 (3,), gamma (n,), dcm (a rotation) and t: concrete ones
     finite and of the right shape."""
-    for label, value, shape in (("omega0", omega0, (3,)), ("gamma", gamma, (model.n,)), ("dcm", dcm, (3, 3)),
-                                ("t", t, ())):
+    for label, value, shape in (
+        ("omega0", omega0, (3,)),
+        ("gamma", gamma, (model.n,)),
+        ("dcm", dcm, (3, 3)),
+        ("t", t, ()),
+    ):
         if value is None or is_traced(value):
             continue
         if label == "dcm":
@@ -238,8 +250,7 @@ def linearized_equations_args(model, small, state, omega0_dot=None, gamma_ddot=N
         value = getattr(state, field)
         if not is_traced(value):
             as_float(value, f"{name}: state.{field}", shape)
-    for label, value, shape in (("omega0_dot", omega0_dot, (3,)), ("gamma_ddot", gamma_ddot, (model.n,)),
-                                ("t", t, ())):
+    for label, value, shape in (("omega0_dot", omega0_dot, (3,)), ("gamma_ddot", gamma_ddot, (model.n,)), ("t", t, ())):
         if value is not None and not is_traced(value):
             as_float(value, f"{name}: {label}", shape)
 
@@ -271,7 +282,9 @@ def modes_args(I, J=None, K=None, damping=None, kind=None, labels=None, rtol=1e-
     if damping is not None and not is_traced(damping):
         z = as_float(damping, f"{name}: damping")
         if z.ndim > 1 or (z.ndim == 1 and z.shape != (nu,)):
-            raise SceneError(f"{name}: damping must be a scalar or one ratio per coordinate ({nu}), got shape {z.shape}")
+            raise SceneError(
+                f"{name}: damping must be a scalar or one ratio per coordinate ({nu}), got shape {z.shape}"
+            )
         if np.any(z < 0):
             raise SceneError(f"{name}: modal damping ratios must be >= 0, got {z.tolist()}")
     if labels is not None:
@@ -292,10 +305,24 @@ def _tolerance(name, rtol, label="rtol"):
         raise SceneError(f"{name}: {label} must be in [0, 1), got {r}")
 
 
-def hybrid_model_args(model, small, n_modes=None, *, cutoff=None, omega0=None, gamma=None, dcm=None, damping=None,
-                      form=None, precompute=None, attitude="quaternion", rtol=1e-9, basis=None):
+def hybrid_model_args(
+    model,
+    small,
+    n_modes=None,
+    *,
+    cutoff=None,
+    omega0=None,
+    gamma=None,
+    dcm=None,
+    damping=None,
+    form=None,
+    precompute=None,
+    attitude="quaternion",
+    rtol=1e-9,
+    basis=None,
+):
     """Arguments of :func:`jaxtree.hybrid_model`, checked before the linearization is traced."""
-    from .attitude import AbstractAttitude, _BY_NAME
+    from .attitude import _BY_NAME, AbstractAttitude
 
     name = "hybrid_model"
     linearize_args(name, model, small, omega0=omega0, gamma=gamma, dcm=dcm)
@@ -318,8 +345,9 @@ def hybrid_model_args(model, small, n_modes=None, *, cutoff=None, omega0=None, g
         nu = len((small,) if isinstance(small, (str, int, np.integer)) else list(small))
         # at most one mode per small hinge is retained (the exact number is known after the modes)
         if z.ndim > 1 or (z.ndim == 1 and z.shape[0] != 1 and z.shape[0] > nu):
-            raise SceneError(f"{name}: damping must be a scalar or one ratio per retained mode (at most {nu}), "
-                             f"got shape {z.shape}")
+            raise SceneError(
+                f"{name}: damping must be a scalar or one ratio per retained mode (at most {nu}), got shape {z.shape}"
+            )
         if np.any(z < 0):
             raise SceneError(f"{name}: modal damping ratios must be >= 0, got {z.tolist()}")
     if form is not None and form not in ("real", "first_order"):
@@ -327,6 +355,7 @@ def hybrid_model_args(model, small, n_modes=None, *, cutoff=None, omega0=None, g
     if precompute is not None and not isinstance(precompute, (bool, np.bool_)):
         raise SceneTypeError(f"{name}: precompute must be True, False or None, got {short(precompute)}")
     if not isinstance(attitude, AbstractAttitude) and not (isinstance(attitude, str) and attitude.lower() in _BY_NAME):
-        raise SceneError(f"{name}: attitude must be one of {sorted(_BY_NAME)} or an AbstractAttitude, "
-                         f"got {short(attitude)}")
+        raise SceneError(
+            f"{name}: attitude must be one of {sorted(_BY_NAME)} or an AbstractAttitude, got {short(attitude)}"
+        )
     _tolerance(name, rtol)

@@ -44,8 +44,11 @@ def order(*subsets) -> np.ndarray:
 def split(model: Model):
     """Unknowns, prescribed (0-based) and the permutation that puts ``[unknowns, prescribed,
     inert]`` back in hinge order."""
-    return (index(model.unknown_hinges), index(model.prescribed),
-            order(model.unknown_hinges, model.prescribed, model.inert))
+    return (
+        index(model.unknown_hinges),
+        index(model.prescribed),
+        order(model.unknown_hinges, model.prescribed, model.inert),
+    )
 
 
 def free_hinges(model: Model) -> tuple[int, ...]:

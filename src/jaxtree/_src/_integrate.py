@@ -11,7 +11,8 @@ from __future__ import annotations
 import enum
 import math
 import warnings
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import diffrax as dfx
 import jax
@@ -56,15 +57,14 @@ class Failure(enum.IntEnum):
 KINDS = tuple(f.kind for f in Failure if f is not Failure.NONE)
 
 MESSAGES = {
-    "max_steps": "the maximum number of solver steps was reached (increase max_steps, or the motion "
-                 "became singular)",
+    "max_steps": "the maximum number of solver steps was reached (increase max_steps, or the motion became singular)",
     "dt_min": "the step size collapsed (the accelerations became singular or non-finite)",
     "singular_attitude": "the attitude angles approach their singularity (|cos theta_2| fell below the "
-                         "tolerance of Eq. 24); use attitude='quaternion' or 'dcm'",
+    "tolerance of Eq. 24); use attitude='quaternion' or 'dcm'",
     "other": "the solver failed",
     "nonfinite_start": "the initial state is not finite",
     "singular_start": "the Eq. (1) matrix is singular at the initial state to working precision (a pivot of its "
-                      "Cholesky factorization is at round-off level): the accelerations are undetermined",
+    "Cholesky factorization is at round-off level): the accelerations are undetermined",
 }
 
 
@@ -78,8 +78,9 @@ def failure_kind(code) -> str | None:
 def default_controller(rtol, atol, t0, t1) -> dfx.PIDController:
     """The step-size control of both formulations: PI with PCOEFF / ICOEFF and a minimum step of
     DTMIN_FRACTION of the span (without forcing it: a collapse is a `dt_min` failure)."""
-    return dfx.PIDController(rtol=rtol, atol=atol, pcoeff=PCOEFF, icoeff=ICOEFF,
-                             dtmin=DTMIN_FRACTION * jnp.abs(t1 - t0), force_dtmin=False)
+    return dfx.PIDController(
+        rtol=rtol, atol=atol, pcoeff=PCOEFF, icoeff=ICOEFF, dtmin=DTMIN_FRACTION * jnp.abs(t1 - t0), force_dtmin=False
+    )
 
 
 class Run(NamedTuple):
@@ -93,9 +94,25 @@ class Run(NamedTuple):
     sol: Any
 
 
-def integrate(vector_field: Callable, solver, t0, t1, dt0, y0, args, *, ts=None, saveat: dfx.SaveAt | None = None,
-              controller, adjoint=None, event=None, max_steps: int, progress_meter=None, start_ok=None,
-              rest=None) -> Run:
+def integrate(
+    vector_field: Callable,
+    solver,
+    t0,
+    t1,
+    dt0,
+    y0,
+    args,
+    *,
+    ts=None,
+    saveat: dfx.SaveAt | None = None,
+    controller,
+    adjoint=None,
+    event=None,
+    max_steps: int,
+    progress_meter=None,
+    start_ok=None,
+    rest=None,
+) -> Run:
     """Integrate ``dy/dt = vector_field(t, y, args)`` from `t0` to `t1` with diffrax.
 
     Save times: `ts` (the history) and the final state, as two sub-saves; with
@@ -120,9 +137,19 @@ def integrate(vector_field: Callable, solver, t0, t1, dt0, y0, args, *, ts=None,
         else:
             saveat = dfx.SaveAt(subs=(dfx.SubSaveAt(ts=ts), dfx.SubSaveAt(t1=True)))
     sol = dfx.diffeqsolve(
-        dfx.ODETerm(vector_field), solver, t0, t1, dt0, y0, args=args, saveat=saveat,
-        stepsize_controller=controller, adjoint=dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
-        event=event, max_steps=max_steps, throw=False,
+        dfx.ODETerm(vector_field),
+        solver,
+        t0,
+        t1,
+        dt0,
+        y0,
+        args=args,
+        saveat=saveat,
+        stepsize_controller=controller,
+        adjoint=dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
+        event=event,
+        max_steps=max_steps,
+        throw=False,
         progress_meter=dfx.NoProgressMeter() if progress_meter is None else progress_meter,
     )
     assert sol.ts is not None and sol.ys is not None  # something is always saved
@@ -176,8 +203,10 @@ def check_times(name, t0, t1, ts=None):
     step = np.diff(ts) * (1.0 if b >= a else -1.0)
     if np.any(step < 0):
         i = int(np.flatnonzero(step < 0)[0])
-        raise SceneError(f"{name}: saveat times must run from t0 toward t1 ({'increasing' if b >= a else 'decreasing'}); "
-                         f"saveat[{i}] = {ts[i]:g} is followed by {ts[i + 1]:g}")
+        raise SceneError(
+            f"{name}: saveat times must run from t0 toward t1 ({'increasing' if b >= a else 'decreasing'}); "
+            f"saveat[{i}] = {ts[i]:g} is followed by {ts[i + 1]:g}"
+        )
     lo, hi = min(a, b), max(a, b)
     outside = np.flatnonzero((ts < lo) | (ts > hi))
     if outside.size:
@@ -197,8 +226,9 @@ def check_state(name, model: Model, state: State):
         x = getattr(state, field)
         got = jnp.shape(x) if is_traced(x) else as_float(x, f"{name}: y0.{field}", finite=False).shape
         if got != shape:
-            raise SceneError(f"{name}: y0.{field} has shape {got}; the model '{model.name}' with {model.n} hinges "
-                             f"needs {shape}")
+            raise SceneError(
+                f"{name}: y0.{field} has shape {got}; the model '{model.name}' with {model.n} hinges needs {shape}"
+            )
     C = state.dcm
     if is_traced(C):
         return
@@ -209,8 +239,10 @@ def check_state(name, model: Model, state: State):
     tol = max(1e-6, 1e3 * float(jnp.finfo(dtype).eps))
     err, det = float(np.abs(C @ C.T - np.eye(3)).max()), float(np.linalg.det(C))
     if err > tol or det < 0:
-        raise SceneError(f"{name}: y0.dcm is not a rotation matrix (max |C C^T - I| = {err:.3g}, "
-                         f"det C = {det:.6g}); give the direction cosines of Def. 9, {{b0}} = C {{i}}")
+        raise SceneError(
+            f"{name}: y0.dcm is not a rotation matrix (max |C C^T - I| = {err:.3g}, "
+            f"det C = {det:.6g}); give the direction cosines of Def. 9, {{b0}} = C {{i}}"
+        )
 
 
 def check_tolerances(name, rtol, atol, max_steps):
@@ -288,7 +320,8 @@ def report_failures(host, failed, args, extra=None):
         bf, ba = in_batched
         failed = failed if bf else jnp.broadcast_to(failed, (axis_size,) + jnp.shape(failed))
         args = jax.tree_util.tree_map(
-            lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x)), args, ba)
+            lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x)), args, ba
+        )
         report(failed, args)
         return jnp.zeros((axis_size,), jnp.int32), True
 
@@ -321,9 +354,15 @@ def result_code(result, singular=False):
     """The :class:`Failure` code of a failed diffrax result (whatever it is; success is masked
     by the caller): step limit, step-size collapse, a singular attitude (`singular`), or other."""
     R = dfx.RESULTS
-    return jnp.where(result == R.max_steps_reached, int(Failure.MAX_STEPS),
-                     jnp.where(result == R.dt_min_reached, int(Failure.DT_MIN),
-                               jnp.where(singular, int(Failure.SINGULAR_ATTITUDE), int(Failure.OTHER))))
+    return jnp.where(
+        result == R.max_steps_reached,
+        int(Failure.MAX_STEPS),
+        jnp.where(
+            result == R.dt_min_reached,
+            int(Failure.DT_MIN),
+            jnp.where(singular, int(Failure.SINGULAR_ATTITUDE), int(Failure.OTHER)),
+        ),
+    )
 
 
 def progress_meter(progress):

@@ -183,7 +183,7 @@ def _plan(topology, massive, unknown, inert, block):
     unk = np.zeros((m, b))
     inboard = np.zeros((m, b, b))
     to_port = np.zeros((m, b))
-    for j, (members, par, port, _) in enumerate(blocks):
+    for j, (members, _par, port, _) in enumerate(blocks):
         for a, k in enumerate(members):
             hinge[j, a] = k - 1
             unk[j, a] = 1.0 if k in unknown else 0.0
@@ -193,7 +193,7 @@ def _plan(topology, massive, unknown, inert, block):
                 if eps[k - 1, k2]:
                     inboard[j, a, c] = 1.0
     depth = []
-    for members, par, port, pb in blocks:
+    for _members, _par, _port, pb in blocks:
         depth.append(1 if pb < 0 else depth[pb] + 1)
     levels = tuple(tuple(j for j in range(m) if depth[j] == d) for d in range(1, max(depth, default=0) + 1))
     kids = tuple(tuple(j2 for j2 in range(m) if blocks[j2][3] == j) for j in range(m))
@@ -224,8 +224,14 @@ def _inertia_apply(J, h, m, w, u):
 def _inertia_matrix(J, h, m):
     """The 6 x 6 matrix of the inertia (J, h, m)."""
     z = jnp.zeros_like(m)
-    ht = jnp.stack([jnp.stack([z, -h[..., 2], h[..., 1]], -1), jnp.stack([h[..., 2], z, -h[..., 0]], -1),
-                    jnp.stack([-h[..., 1], h[..., 0], z], -1)], -2)
+    ht = jnp.stack(
+        [
+            jnp.stack([z, -h[..., 2], h[..., 1]], -1),
+            jnp.stack([h[..., 2], z, -h[..., 0]], -1),
+            jnp.stack([-h[..., 1], h[..., 0], z], -1),
+        ],
+        -2,
+    )
     eye = jnp.eye(3, dtype=J.dtype) * m[..., None, None]
     return jnp.concatenate([jnp.concatenate([J, ht], -1), jnp.concatenate([-ht, eye], -1)], -2)
 
@@ -266,15 +272,17 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
         p = np.asarray(model.prescribed, np.int64) - 1
         cw = cw.at[p].add(Sw[p] * prescribed_acc[:, None])
         cu = cu.at[p].add(Su[p] * prescribed_acc[:, None])
-    cbar = ancestor_sum(model.topology, jnp.concatenate([jnp.zeros((1, 6), dtype),
-                                                         jnp.concatenate([cw, cu], 1)], 0))  # (n+1, 6)
+    cbar = ancestor_sum(
+        model.topology, jnp.concatenate([jnp.zeros((1, 6), dtype), jnp.concatenate([cw, cu], 1)], 0)
+    )  # (n+1, 6)
     # inertias about O and bias wrenches of the bodies (zero rows for massless bodies)
     mass = model.mass.astype(dtype)
     idx = np.asarray(model.massive, np.int64)
     rho = cfg.rho
     eye = jnp.eye(3, dtype=dtype)
-    Jm = cfg.inertia + mass[idx, None, None] * (dot(rho[idx], rho[idx])[:, None, None] * eye
-                                                 - rho[idx, :, None] * rho[idx, None, :])
+    Jm = cfg.inertia + mass[idx, None, None] * (
+        dot(rho[idx], rho[idx])[:, None, None] * eye - rho[idx, :, None] * rho[idx, None, :]
+    )
     J = jnp.zeros((n + 1, 3, 3), dtype).at[idx].set(Jm) if len(idx) < n + 1 else Jm
     h = mass[:, None] * rho
     Lw, Lu = _inertia_apply(J, h, mass, omega, uO)  # momentum about O
@@ -308,8 +316,9 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
     A = A * um + jnp.eye(b, dtype=dtype) * (1.0 - unk)[..., None]  # non-unknown slots: 1 * x = 0
     # coupling to the parent's acceleration and the block's generalized bias forces
     cpar = cbar[bp.parent]  # (m, 6)
-    Icw, Icu = _inertia_apply(cJ, ch, cm, jnp.broadcast_to(cpar[:, None, :3], ch.shape),
-                              jnp.broadcast_to(cpar[:, None, 3:], ch.shape))
+    Icw, Icu = _inertia_apply(
+        cJ, ch, cm, jnp.broadcast_to(cpar[:, None, :3], ch.shape), jnp.broadcast_to(cpar[:, None, 3:], ch.shape)
+    )
     kconst = dot(sw, cW[..., :3] - Icw) + dot(su, cW[..., 3:] - Icu) - tau[hp] * valid
     K = jnp.concatenate([Yw, Yu, kconst[..., None]], -1) * unk[..., None]  # (m, b, 7)
     # the whole block: composite inertia C and bias (7 x 7, homogeneous)

@@ -111,9 +111,7 @@ def dcm_to_quaternion(C):
 def quaternion_rate(q, omega0):
     """``dq/dt`` for ``dC/dt = -tilde(omega0) C`` (Eq. 3), omega0 in {b^0}."""
     q0, v = q[..., :1], q[..., 1:]
-    return 0.5 * jnp.concatenate(
-        [-jnp.sum(v * omega0, -1, keepdims=True), q0 * omega0 - jnp.cross(omega0, v)], -1
-    )
+    return 0.5 * jnp.concatenate([-jnp.sum(v * omega0, -1, keepdims=True), q0 * omega0 - jnp.cross(omega0, v)], -1)
 
 
 def orthogonality_error(C):
@@ -221,4 +219,3 @@ def get_attitude(attitude: str | AbstractAttitude) -> AbstractAttitude:
     if isinstance(attitude, str) and attitude.lower() in _BY_NAME:
         return _BY_NAME[attitude.lower()]()
     raise ValueError(f"attitude: expected one of {sorted(_BY_NAME)} or an AbstractAttitude, got {attitude!r}")
-

@@ -41,7 +41,8 @@ import math
 import os
 import shutil
 import time as _time
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import diffrax as dfx
 import equinox as eqx
@@ -54,8 +55,16 @@ from .dynamics import SINGULAR_CONDITION
 from .model import Model
 
 # jaxtree's diagnosis of a failed member ("" for a run that reached t1)
-FAILURES = ("", "max_steps", "dt_min", "singular_attitude", "other", "nonfinite_start", "singular_matrix",
-            "nonfinite_state")
+FAILURES = (
+    "",
+    "max_steps",
+    "dt_min",
+    "singular_attitude",
+    "other",
+    "nonfinite_start",
+    "singular_matrix",
+    "nonfinite_state",
+)
 
 _RESULT_NAMES = None
 
@@ -88,10 +97,26 @@ def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     kw = {}
     if cfg.dt is not None:
         kw = dict(stepsize_controller=dfx.ConstantStepSize(), dt0=jnp.asarray(cfg.dt, ts.dtype))
-    sol = simulate(model, t1, y0=model.initial, saveat=ts, rtol=rtol, atol=atol, max_steps=cfg.max_steps,
-                   attitude=cfg.attitude, throw=False, **kw)
-    hist = dict(omega0=sol.omega0, gamma=sol.gamma, gamma_dot=sol.gamma_dot,
-                attitude=dcm_to_quaternion(sol.dcm), energy=sol.energy, angular_momentum=sol.angular_momentum)
+    sol = simulate(
+        model,
+        t1,
+        y0=model.initial,
+        saveat=ts,
+        rtol=rtol,
+        atol=atol,
+        max_steps=cfg.max_steps,
+        attitude=cfg.attitude,
+        throw=False,
+        **kw,
+    )
+    hist = dict(
+        omega0=sol.omega0,
+        gamma=sol.gamma,
+        gamma_dot=sol.gamma_dot,
+        attitude=dcm_to_quaternion(sol.dcm),
+        energy=sol.energy,
+        angular_momentum=sol.angular_momentum,
+    )
     if model.prescribed:
         hist["hold_torque"] = sol.hold_torque
     finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in hist.values()]))
@@ -100,7 +125,8 @@ def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     diagnosis = jnp.where(
         code > 0,
         jnp.where((code == FAILURES.index("nonfinite_start")) | state_ok, code, FAILURES.index("nonfinite_state")),
-        jnp.where(finite, 0, FAILURES.index("nonfinite_state")))
+        jnp.where(finite, 0, FAILURES.index("nonfinite_state")),
+    )
     ok = diagnosis == 0
     hist = {k: jnp.where(ok, v, jnp.nan) for k, v in hist.items()}
     # (whether a failed run's Eq. (1) matrix is singular where it stopped is decided on the host,
@@ -110,10 +136,16 @@ def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     from ._integrate import Failure
 
     started = (code != int(Failure.NONFINITE_START)) & (code != int(Failure.SINGULAR_START))
-    return dict(hist, result=jnp.where(started, sol.result._value, -1), diagnosis=diagnosis,  # noqa: SLF001
-                steps=sol.stats["num_steps"], rejected=sol.stats["num_rejected_steps"],
-                rhs_evaluations=sol.stats["rhs_evaluations"], t_final=sol.t_final,
-                final=tuple(sol.final))
+    return dict(
+        hist,
+        result=jnp.where(started, sol.result._value, -1),
+        diagnosis=diagnosis,  # noqa: SLF001
+        steps=sol.stats["num_steps"],
+        rejected=sol.stats["num_rejected_steps"],
+        rhs_evaluations=sol.stats["rhs_evaluations"],
+        t_final=sol.t_final,
+        final=tuple(sol.final),
+    )
 
 
 def _diagnose_failures(out: dict, models, model: Model) -> None:
@@ -139,8 +171,17 @@ def _pilot_member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     """The pilot: steps of the first part of the flight (to order members by cost)."""
     from .simulate import simulate
 
-    sol = simulate(model, cfg.t_pilot, y0=model.initial, saveat=2, rtol=rtol, atol=atol, max_steps=cfg.max_steps,
-                   attitude=cfg.attitude, throw=False)
+    sol = simulate(
+        model,
+        cfg.t_pilot,
+        y0=model.initial,
+        saveat=2,
+        rtol=rtol,
+        atol=atol,
+        max_steps=cfg.max_steps,
+        attitude=cfg.attitude,
+        throw=False,
+    )
     return dict(steps=sol.stats["num_steps"])
 
 
@@ -175,15 +216,17 @@ def _sharded(fn, n_devices, group):
 
     if n_devices <= 1:
         return batched
-    from jax.sharding import Mesh, PartitionSpec as P
+    from jax.sharding import Mesh
+    from jax.sharding import PartitionSpec as P
 
     mesh = Mesh(np.asarray(jax.local_devices()[:n_devices]), ("run",))
 
     def run(models, ts, t1, rtol, atol, cfg):
         dynamic, static = eqx.partition(models, eqx.is_array)
         inner = lambda d, ts, t1, rtol, atol: batched(eqx.combine(d, static), ts, t1, rtol, atol, cfg)  # noqa: E731
-        return jax.shard_map(inner, mesh=mesh, in_specs=(P("run"), P(), P(), P(), P()), out_specs=P("run"),
-                             check_vma=False)(dynamic, ts, t1, rtol, atol)
+        return jax.shard_map(
+            inner, mesh=mesh, in_specs=(P("run"), P(), P(), P(), P()), out_specs=P("run"), check_vma=False
+        )(dynamic, ts, t1, rtol, atol)
 
     return run
 
@@ -208,21 +251,41 @@ def run_chunk(models, ts, t1, rtol, atol, cfg: _Config, pilot: bool = False, dev
     if devices > 1 and jax.default_backend() == "cpu":
         group = _cpu_group(models)
     dtype = jnp.result_type(models.mass)
-    out = _run_chunk_jit(models, jnp.asarray(ts, dtype), jnp.asarray(t1, dtype), jnp.asarray(rtol, dtype),
-                         jnp.asarray(atol, dtype), cfg, devices, group, pilot)
+    out = _run_chunk_jit(
+        models,
+        jnp.asarray(ts, dtype),
+        jnp.asarray(t1, dtype),
+        jnp.asarray(rtol, dtype),
+        jnp.asarray(atol, dtype),
+        cfg,
+        devices,
+        group,
+        pilot,
+    )
     return jax.tree_util.tree_map(np.asarray, out)
 
 
 # ----------------------------------------------------------------------------- the dataset
 _LEAF_DIMS = {
-    "mass": ("body",), "inertia": ("body", "axis", "axis_j"), "axis": ("hinge", "axis"),
-    "hinge_on_parent": ("hinge", "axis"), "hinge_on_body": ("hinge", "axis"), "stiffness": ("hinge",),
-    "damping": ("hinge",), "initial.dcm": ("axis", "axis_j"), "initial.omega0": ("axis",),
-    "initial.gamma": ("hinge",), "initial.gamma_dot": ("hinge",),
+    "mass": ("body",),
+    "inertia": ("body", "axis", "axis_j"),
+    "axis": ("hinge", "axis"),
+    "hinge_on_parent": ("hinge", "axis"),
+    "hinge_on_body": ("hinge", "axis"),
+    "stiffness": ("hinge",),
+    "damping": ("hinge",),
+    "initial.dcm": ("axis", "axis_j"),
+    "initial.omega0": ("axis",),
+    "initial.gamma": ("hinge",),
+    "initial.gamma_dot": ("hinge",),
 }
 _HISTORY_DIMS = {
-    "omega0": ("time", "axis"), "gamma": ("time", "hinge"), "gamma_dot": ("time", "hinge"),
-    "attitude": ("time", "quaternion"), "energy": ("time",), "angular_momentum": ("time", "axis"),
+    "omega0": ("time", "axis"),
+    "gamma": ("time", "hinge"),
+    "gamma_dot": ("time", "hinge"),
+    "attitude": ("time", "quaternion"),
+    "energy": ("time",),
+    "angular_momentum": ("time", "axis"),
     "hold_torque": ("time", "prescribed"),
 }
 _ATTRS = {
@@ -271,8 +334,10 @@ def _chunk_dataset(out: dict, runs: np.ndarray, params: dict, ts, model: Model):
     for k, dims in _HISTORY_DIMS.items():
         if k in out:
             data[k] = (("run",) + dims, out[k])
-    data["status"] = (("run",), np.asarray([names[int(i)] if i >= 0 else "not_started" for i in out["result"]],
-                                           dtype="U32"))
+    data["status"] = (
+        ("run",),
+        np.asarray([names[int(i)] if i >= 0 else "not_started" for i in out["result"]], dtype="U32"),
+    )
     data["failure"] = (("run",), np.asarray([FAILURES[int(i)] for i in out["diagnosis"]], dtype="U32"))
     for k in ("steps", "rejected", "rhs_evaluations"):
         data[k] = (("run",), np.asarray(out[k], np.int64))
@@ -280,8 +345,14 @@ def _chunk_dataset(out: dict, runs: np.ndarray, params: dict, ts, model: Model):
     for name, x in params.items():
         dims = _LEAF_DIMS.get(name, tuple(f"{name}_{i}" for i in range(x.ndim - 1)))
         data[f"param.{name}"] = (("run",) + dims, x)
-    coords = {"run": runs, "time": np.asarray(ts, float), "hinge": np.arange(1, model.n + 1),
-              "axis": np.arange(1, 4), "quaternion": np.arange(4), "body": np.arange(model.n + 1)}
+    coords = {
+        "run": runs,
+        "time": np.asarray(ts, float),
+        "hinge": np.arange(1, model.n + 1),
+        "axis": np.arange(1, 4),
+        "quaternion": np.arange(4),
+        "body": np.arange(model.n + 1),
+    }
     if model.prescribed:
         coords["prescribed"] = np.asarray(model.prescribed)
     ds = xr.Dataset(data, coords=coords)
@@ -310,8 +381,10 @@ class _Store:
     def _check(self, attrs):
         got = attrs.get("jaxtree_campaign")
         if got is not None and got != self.fingerprint:
-            raise ValueError(f"out: {self.path!r} holds a different campaign (another model, sample, n, key, times, "
-                             f"tolerances or chunk size); remove it or choose another path")
+            raise ValueError(
+                f"out: {self.path!r} holds a different campaign (another model, sample, n, key, times, "
+                f"tolerances or chunk size); remove it or choose another path"
+            )
 
     def done(self) -> set[int]:
         if self.zarr:
@@ -351,7 +424,8 @@ class _Store:
                 os.replace(tmp, self.path)
             region = {"run": slice(int(ds.run[0]), int(ds.run[-1]) + 1)}
             ds.drop_vars([v for v in ds.coords if "run" not in ds[v].dims]).to_zarr(
-                self.path, region=region, consolidated=False)
+                self.path, region=region, consolidated=False
+            )
             group = zarr.open_group(self.path, mode="r+")
             group["chunk_done"][index] = True
             return
@@ -375,10 +449,17 @@ class _Store:
             return ds.drop_vars("chunk_done")
         if os.path.exists(self.path):
             return xr.load_dataset(self.path)
-        files = sorted(os.path.join(self.parts, f) for f in os.listdir(self.parts)
-                       if f.startswith("chunk_") and f.endswith(".nc"))
-        ds = xr.concat([xr.load_dataset(f) for f in files], dim="run", data_vars="minimal", coords="minimal",
-                       compat="override", join="override")
+        files = sorted(
+            os.path.join(self.parts, f) for f in os.listdir(self.parts) if f.startswith("chunk_") and f.endswith(".nc")
+        )
+        ds = xr.concat(
+            [xr.load_dataset(f) for f in files],
+            dim="run",
+            data_vars="minimal",
+            coords="minimal",
+            compat="override",
+            join="override",
+        )
         tmp = self.path + f".tmp{os.getpid()}"
         ds.attrs["jaxtree_campaign"] = self.fingerprint
         ds.to_netcdf(tmp)
@@ -392,8 +473,19 @@ def _fingerprint(models, ts, t1, rtol, atol, cfg, chunk_size) -> str:
     for leaf in jax.tree_util.tree_leaves(models):
         if eqx.is_array(leaf):
             h.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
-    h.update(repr((np.asarray(ts).tolist(), float(t1), float(rtol), float(atol), tuple(cfg), chunk_size,
-                   str(jax.tree_util.tree_structure(models)))).encode())
+    h.update(
+        repr(
+            (
+                np.asarray(ts).tolist(),
+                float(t1),
+                float(rtol),
+                float(atol),
+                tuple(cfg),
+                chunk_size,
+                str(jax.tree_util.tree_structure(models)),
+            )
+        ).encode()
+    )
     return h.hexdigest()[:32]
 
 
@@ -513,13 +605,17 @@ def monte_carlo(
 
     keys = jax.random.split(key, n)
     models = eqx.filter_vmap(sample, in_axes=(0, None))(keys, model)
-    if jax.tree_util.tree_structure(jax.tree_util.tree_map(lambda x: None, models)) != \
-            jax.tree_util.tree_structure(jax.tree_util.tree_map(lambda x: None, model)):
-        raise ValueError("monte_carlo: sample(key, model) must return a model of the same structure (same tree, "
-                         "joints, prescription and loads); only array values may change")
+    if jax.tree_util.tree_structure(jax.tree_util.tree_map(lambda x: None, models)) != jax.tree_util.tree_structure(
+        jax.tree_util.tree_map(lambda x: None, model)
+    ):
+        raise ValueError(
+            "monte_carlo: sample(key, model) must return a model of the same structure (same tree, "
+            "joints, prescription and loads); only array values may change"
+        )
     models = jax.tree_util.tree_map(lambda x: np.asarray(x) if eqx.is_array(x) else x, models)
     models = jax.tree_util.tree_map(
-        lambda x: np.broadcast_to(x, (n,) + x.shape).copy() if eqx.is_array(x) and x.shape[:1] != (n,) else x, models)
+        lambda x: np.broadcast_to(x, (n,) + x.shape).copy() if eqx.is_array(x) and x.shape[:1] != (n,) else x, models
+    )
     params = _dispersed(models, n)
 
     t_pilot = t1 * float(pilot_fraction) if order == "pilot" else None
@@ -535,7 +631,7 @@ def monte_carlo(
         return client.submit(run_chunk, *args, pure=False)
 
     def chunk_members(k, order_):
-        idx = order_[k * chunk_size:(k + 1) * chunk_size]
+        idx = order_[k * chunk_size : (k + 1) * chunk_size]
         padded = np.concatenate([idx, np.full(chunk_size - len(idx), idx[0])])
         return idx, padded
 
@@ -547,8 +643,7 @@ def monte_carlo(
         jobs = [submit(_take(models, chunk_members(k, order_)[1]), pilot=True) for k in range(n_chunks)]
         if client is not None:
             jobs = client.gather(jobs)
-        steps = np.concatenate([np.asarray(j["steps"])[:len(chunk_members(k, order_)[0])]
-                                for k, j in enumerate(jobs)])
+        steps = np.concatenate([np.asarray(j["steps"])[: len(chunk_members(k, order_)[0])] for k, j in enumerate(jobs)])
         order_ = np.argsort(steps, kind="stable")
         pilot_s = _time.perf_counter() - t
 
@@ -558,10 +653,15 @@ def monte_carlo(
 
     def finish(k, res, wall):
         idx, _ = chunk_members(k, order_)
-        res = jax.tree_util.tree_map(lambda v: np.array(v)[:len(idx)], res)
+        res = jax.tree_util.tree_map(lambda v: np.array(v)[: len(idx)], res)
         _diagnose_failures(res, _take(models, idx), model)
-        ds = _chunk_dataset(res, np.arange(k * chunk_size, k * chunk_size + len(idx)),
-                            {name: x[idx] for name, x in params.items()}, ts, model)
+        ds = _chunk_dataset(
+            res,
+            np.arange(k * chunk_size, k * chunk_size + len(idx)),
+            {name: x[idx] for name, x in params.items()},
+            ts,
+            model,
+        )
         ds = ds.assign(member=(("run",), idx.astype(np.int64)))
         steps = res["steps"].astype(float)
         stats[k] = dict(efficiency=float(steps.sum() / (chunk_size * max(steps.max(), 1))), wall_s=wall)
@@ -572,8 +672,10 @@ def monte_carlo(
             store.write(k, ds, template)
         results[k] = ds
         if progress:
-            print(f"monte_carlo: chunk {k + 1}/{n_chunks} done ({wall:.2f} s, efficiency "
-                  f"{stats[k]['efficiency']:.2f})", flush=True)
+            print(
+                f"monte_carlo: chunk {k + 1}/{n_chunks} done ({wall:.2f} s, efficiency {stats[k]['efficiency']:.2f})",
+                flush=True,
+            )
 
     todo = [k for k in range(n_chunks) if k not in finished]
     if client is None:
@@ -592,20 +694,38 @@ def monte_carlo(
     if store is not None:
         ds = store.read()
     else:
-        ds = xr.concat([results[k] for k in sorted(results)], dim="run", data_vars="minimal", coords="minimal",
-                       compat="override", join="override")
+        ds = xr.concat(
+            [results[k] for k in sorted(results)],
+            dim="run",
+            data_vars="minimal",
+            coords="minimal",
+            compat="override",
+            join="override",
+        )
     ds = ds.assign_coords(run=np.asarray(ds["member"].values, np.int64)).drop_vars("member").sortby("run")
     ds = ds.drop_vars([v for v in list(ds.data_vars) if v == "chunk_done"])
     done_stats = [stats[k] for k in sorted(stats)]
     eff = [s["efficiency"] for s in done_stats]
-    ds.attrs.update({
-        "model": model.name, "t1": t1, "rtol": rtol, "atol": atol, "n": n, "chunk_size": chunk_size,
-        "chunks": n_chunks, "chunks_run": len(done_stats), "order": order or "index",
-        "fixed_step": dt if dt is not None else "none", "dtype": jnp.dtype(dtype).name,
-        "where": "dask" if client is not None else f"in-process ({jax.default_backend()})",
-        "chunk_efficiency": eff, "chunk_wall_s": [s["wall_s"] for s in done_stats],
-        "pilot_s": pilot_s, "wall_s": _time.perf_counter() - start,
-    })
+    ds.attrs.update(
+        {
+            "model": model.name,
+            "t1": t1,
+            "rtol": rtol,
+            "atol": atol,
+            "n": n,
+            "chunk_size": chunk_size,
+            "chunks": n_chunks,
+            "chunks_run": len(done_stats),
+            "order": order or "index",
+            "fixed_step": dt if dt is not None else "none",
+            "dtype": jnp.dtype(dtype).name,
+            "where": "dask" if client is not None else f"in-process ({jax.default_backend()})",
+            "chunk_efficiency": eff,
+            "chunk_wall_s": [s["wall_s"] for s in done_stats],
+            "pilot_s": pilot_s,
+            "wall_s": _time.perf_counter() - start,
+        }
+    )
     ds.attrs.pop("jaxtree_campaign", None)
     return ds
 
@@ -616,6 +736,7 @@ def _template(ds, n):
 
     size = ds.sizes["run"]
     reps = -(-n // size)
-    full = xr.concat([ds] * reps, dim="run", data_vars="minimal", coords="minimal", compat="override",
-                     join="override").isel(run=slice(0, n))
+    full = xr.concat(
+        [ds] * reps, dim="run", data_vars="minimal", coords="minimal", compat="override", join="override"
+    ).isel(run=slice(0, n))
     return full.assign_coords(run=np.arange(n)).chunk({"run": size})

@@ -38,8 +38,14 @@ EXIT_USAGE, EXIT_FAILED, EXIT_INTERRUPTED = 2, 1, 130
 CHUNK_DELAY_ENV = "JAXTREE_CHUNK_DELAY"
 
 SOLVERS = {
-    "dopri8": "Dopri8", "dopri5": "Dopri5", "tsit5": "Tsit5", "bosh3": "Bosh3", "heun": "Heun",
-    "kvaerno3": "Kvaerno3", "kvaerno4": "Kvaerno4", "kvaerno5": "Kvaerno5",
+    "dopri8": "Dopri8",
+    "dopri5": "Dopri5",
+    "tsit5": "Tsit5",
+    "bosh3": "Bosh3",
+    "heun": "Heun",
+    "kvaerno3": "Kvaerno3",
+    "kvaerno4": "Kvaerno4",
+    "kvaerno5": "Kvaerno5",
 }
 ATTITUDES = ("quaternion", "dcm", "euler123")
 
@@ -81,6 +87,7 @@ def _positive():
         if not math.isfinite(x) or x <= 0:
             raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
         return x
+
     return parse
 
 
@@ -93,6 +100,7 @@ def _finite():
         if not math.isfinite(x):
             raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
         return x
+
     return parse
 
 
@@ -105,6 +113,7 @@ def _count(least=1):
         if x < least:
             raise argparse.ArgumentTypeError(f"must be at least {least}, got {x}")
         return x
+
     return parse
 
 
@@ -118,9 +127,11 @@ def _vector3():
         if len(v) == 1:
             v = [0.0, 0.0, v[0]]
         if len(v) != 3 or not all(math.isfinite(x) for x in v):
-            raise argparse.ArgumentTypeError(f"must be one number (about b0's axis 3) or three "
-                                             f"finite numbers wx,wy,wz, got {text!r}")
+            raise argparse.ArgumentTypeError(
+                f"must be one number (about b0's axis 3) or three finite numbers wx,wy,wz, got {text!r}"
+            )
         return v
+
     return parse
 
 
@@ -164,8 +175,9 @@ def _load_scene(path):
         from .scene import list_scenes
 
         if p.suffix == "" and p.parent == pathlib.Path("."):
-            raise UserError(f"scene {path!r}: no such file, and no bundled scene of that name "
-                            f"(bundled: {', '.join(list_scenes())})") from None
+            raise UserError(
+                f"scene {path!r}: no such file, and no bundled scene of that name (bundled: {', '.join(list_scenes())})"
+            ) from None
         raise UserError(f"scene file {str(path)!r} does not exist") from None
     except IsADirectoryError:
         raise UserError(f"scene {str(path)!r} is a folder, not a scene file") from None
@@ -218,92 +230,169 @@ def _parser():
         prog="jaxtree",
         description="Dynamics of hinge-connected rigid-body trees (Likins, JPL TR 32-1565).",
         epilog="With no subcommand (or with options only), runs the seed's sample problem: "
-               "see 'jaxtree sample --help'.",
+        "see 'jaxtree sample --help'.",
     )
     p.add_argument("--version", action="store_true", help="print the versions and exit")
     sub = p.add_subparsers(dest="command", metavar="SUBCOMMAND", parser_class=_Parser)
 
-    s = sub.add_parser("simulate", help="integrate a scene and write a NetCDF result",
-                       description="Integrate Eq. (1) (or the hybrid-coordinate equations with --hybrid-small) "
-                                   "and write the time histories to a NetCDF result file, in parts as the run "
-                                   "goes (an interrupted run is readable and --resume continues it).")
+    s = sub.add_parser(
+        "simulate",
+        help="integrate a scene and write a NetCDF result",
+        description="Integrate Eq. (1) (or the hybrid-coordinate equations with --hybrid-small) "
+        "and write the time histories to a NetCDF result file, in parts as the run "
+        "goes (an interrupted run is readable and --resume continues it).",
+    )
     s.add_argument("scene", metavar="SCENE", help="scene JSON file (jaxtree-scene/1) or a bundled scene name")
     s.add_argument("--t1", type=_finite(), required=True, help="end time (s)")
     s.add_argument("--t0", type=_finite(), default=0.0, help="start time (s; default 0)")
-    s.add_argument("--points", type=_count(2), default=101,
-                   help="number of evenly spaced save times (default 101)")
+    s.add_argument("--points", type=_count(2), default=101, help="number of evenly spaced save times (default 101)")
     s.add_argument("--rtol", type=_positive(), default=None, help="relative tolerance (default 1e-9)")
     s.add_argument("--atol", type=_positive(), default=None, help="absolute tolerance (default 1e-9)")
-    s.add_argument("--solver", default="dopri8", type=str.lower, choices=sorted(SOLVERS),
-                   help="diffrax solver (default dopri8; kvaerno3/4/5 are implicit, for stiff scenes)")
-    s.add_argument("--attitude", default="quaternion", type=str.lower, choices=ATTITUDES,
-                   help="attitude variables of b0 (default quaternion)")
-    s.add_argument("--max-steps", type=_count(), default=200_000,
-                   help="step limit of each part (default 200000)")
-    s.add_argument("--hybrid-small", metavar="HINGES", default=None,
-                   help="hybrid coordinates (Eqs. 105-123): the small hinges (indices, names, ranges a-b, or 'all') "
-                        "replaced by truncated modal coordinates")
-    s.add_argument("--modes", type=_count(), default=None, metavar="K",
-                   help="with --hybrid-small: number of retained modes (default all)")
-    s.add_argument("--cutoff", type=_positive(), default=None,
-                   help="with --hybrid-small: retain modes up to this frequency (rad/s)")
-    s.add_argument("--spin", type=_vector3(), default=None,
-                   help="with --hybrid-small: nominal omega0 of the modes, wx,wy,wz in {b0} (rad/s; default the "
-                        "scene's initial omega0)")
-    s.add_argument("--modal-damping", type=_finite(), default=None, metavar="ZETA",
-                   help="with --hybrid-small: modal damping ratio of the retained modes")
-    s.add_argument("--out", "-o", default=None, metavar="RESULT",
-                   help="result file (NetCDF; default SCENENAME.nc in the current folder)")
+    s.add_argument(
+        "--solver",
+        default="dopri8",
+        type=str.lower,
+        choices=sorted(SOLVERS),
+        help="diffrax solver (default dopri8; kvaerno3/4/5 are implicit, for stiff scenes)",
+    )
+    s.add_argument(
+        "--attitude",
+        default="quaternion",
+        type=str.lower,
+        choices=ATTITUDES,
+        help="attitude variables of b0 (default quaternion)",
+    )
+    s.add_argument("--max-steps", type=_count(), default=200_000, help="step limit of each part (default 200000)")
+    s.add_argument(
+        "--hybrid-small",
+        metavar="HINGES",
+        default=None,
+        help="hybrid coordinates (Eqs. 105-123): the small hinges (indices, names, ranges a-b, or 'all') "
+        "replaced by truncated modal coordinates",
+    )
+    s.add_argument(
+        "--modes",
+        type=_count(),
+        default=None,
+        metavar="K",
+        help="with --hybrid-small: number of retained modes (default all)",
+    )
+    s.add_argument(
+        "--cutoff",
+        type=_positive(),
+        default=None,
+        help="with --hybrid-small: retain modes up to this frequency (rad/s)",
+    )
+    s.add_argument(
+        "--spin",
+        type=_vector3(),
+        default=None,
+        help="with --hybrid-small: nominal omega0 of the modes, wx,wy,wz in {b0} (rad/s; default the "
+        "scene's initial omega0)",
+    )
+    s.add_argument(
+        "--modal-damping",
+        type=_finite(),
+        default=None,
+        metavar="ZETA",
+        help="with --hybrid-small: modal damping ratio of the retained modes",
+    )
+    s.add_argument(
+        "--out",
+        "-o",
+        default=None,
+        metavar="RESULT",
+        help="result file (NetCDF; default SCENENAME.nc in the current folder)",
+    )
     s.add_argument("--csv", default=None, metavar="FILE", help="also export the histories as CSV")
-    s.add_argument("--plot", default=None, metavar="PREFIX",
-                   help="plots PREFIX_histories.png and PREFIX_drift.png (default: the result's name without .nc)")
+    s.add_argument(
+        "--plot",
+        default=None,
+        metavar="PREFIX",
+        help="plots PREFIX_histories.png and PREFIX_drift.png (default: the result's name without .nc)",
+    )
     s.add_argument("--no-plot", action="store_true", help="write no plots")
-    s.add_argument("--chunks", type=_count(), default=10,
-                   help="number of parts the run is written in (default 10)")
-    s.add_argument("--resume", action="store_true",
-                   help="continue an interrupted run of the same command from its last written part")
-    s.add_argument("--no-error-estimate", action="store_true",
-                   help="skip the error estimate (a second run at 10x the tolerances)")
+    s.add_argument("--chunks", type=_count(), default=10, help="number of parts the run is written in (default 10)")
+    s.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue an interrupted run of the same command from its last written part",
+    )
+    s.add_argument(
+        "--no-error-estimate", action="store_true", help="skip the error estimate (a second run at 10x the tolerances)"
+    )
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    m = sub.add_parser("modes", help="modes of the linearized small hinges: table, result file, shape plot",
-                       description="Linearize the small hinges about a nominal motion (Eqs. 40-44) and print their "
-                                   "modes (Eqs. 70-104): frequencies, damping, the coordinates that dominate each; "
-                                   "write a modes result file and a plot of the mode shapes.")
+    m = sub.add_parser(
+        "modes",
+        help="modes of the linearized small hinges: table, result file, shape plot",
+        description="Linearize the small hinges about a nominal motion (Eqs. 40-44) and print their "
+        "modes (Eqs. 70-104): frequencies, damping, the coordinates that dominate each; "
+        "write a modes result file and a plot of the mode shapes.",
+    )
     m.add_argument("scene", metavar="SCENE", help="scene JSON file or a bundled scene name")
-    m.add_argument("--small", default="all", metavar="HINGES",
-                   help="the small hinges: indices, names, ranges a-b, or 'all' (default: every hinge that is not "
-                        "prescribed or inert)")
-    m.add_argument("--spin", type=_vector3(), default=None,
-                   help="nominal omega0, one number (about b0's axis 3) or wx,wy,wz in {b0} (rad/s; default 0)")
-    m.add_argument("--damping", type=_finite(), default=None, metavar="ZETA",
-                   help="modal damping ratio added to every mode (Eq. 104)")
-    m.add_argument("--out", "-o", default=None, metavar="RESULT",
-                   help="modes result file (default SCENENAME_modes.nc)")
+    m.add_argument(
+        "--small",
+        default="all",
+        metavar="HINGES",
+        help="the small hinges: indices, names, ranges a-b, or 'all' (default: every hinge that is not "
+        "prescribed or inert)",
+    )
+    m.add_argument(
+        "--spin",
+        type=_vector3(),
+        default=None,
+        help="nominal omega0, one number (about b0's axis 3) or wx,wy,wz in {b0} (rad/s; default 0)",
+    )
+    m.add_argument(
+        "--damping",
+        type=_finite(),
+        default=None,
+        metavar="ZETA",
+        help="modal damping ratio added to every mode (Eq. 104)",
+    )
+    m.add_argument("--out", "-o", default=None, metavar="RESULT", help="modes result file (default SCENENAME_modes.nc)")
     m.add_argument("--plot", default=None, metavar="PNG", help="mode-shape plot (default: the result's name, .png)")
     m.add_argument("--no-plot", action="store_true", help="write no plot")
     m.add_argument("--show", type=_count(), default=6, metavar="K", help="modes drawn in the plot (default 6)")
 
-    a = sub.add_parser("animate", help="an HTML page animating a result",
-                       description="Write an HTML page animating a simulation result, or one mode of a modes result.")
+    a = sub.add_parser(
+        "animate",
+        help="an HTML page animating a result",
+        description="Write an HTML page animating a simulation result, or one mode of a modes result.",
+    )
     a.add_argument("result", metavar="RESULT", help="result file of 'jaxtree simulate' or 'jaxtree modes'")
     a.add_argument("-o", "--out", required=True, metavar="PAGE", help="HTML file to write")
-    a.add_argument("--mode", type=_count(), default=None, metavar="K",
-                   help="with a modes result: the mode to animate (1 = lowest; default 1)")
-    a.add_argument("--amplitude", type=_positive(), default=None,
-                   help="with --mode: largest hinge angle of the oscillation (rad)")
+    a.add_argument(
+        "--mode",
+        type=_count(),
+        default=None,
+        metavar="K",
+        help="with a modes result: the mode to animate (1 = lowest; default 1)",
+    )
+    a.add_argument(
+        "--amplitude", type=_positive(), default=None, help="with --mode: largest hinge angle of the oscillation (rad)"
+    )
     a.add_argument("--title", default=None, help="page title")
 
-    c = sub.add_parser("check", help="validate a scene and describe it",
-                       description="Validate a scene; print its tree, the seed's Tables 1-2 (network and path "
-                                   "elements), masses and the condition number of Eq. (1) at the initial state.")
+    c = sub.add_parser(
+        "check",
+        help="validate a scene and describe it",
+        description="Validate a scene; print its tree, the seed's Tables 1-2 (network and path "
+        "elements), masses and the condition number of Eq. (1) at the initial state.",
+    )
     c.add_argument("scene", metavar="SCENE", help="scene JSON file or a bundled scene name")
     c.add_argument("--tables", action="store_true", help="print Tables 1-2 for any number of hinges")
 
-    pl = sub.add_parser("plot", help="plots of a result file",
-                        description="Plot a result: time histories and drift (simulation) or mode shapes (modes).")
+    pl = sub.add_parser(
+        "plot",
+        help="plots of a result file",
+        description="Plot a result: time histories and drift (simulation) or mode shapes (modes).",
+    )
     pl.add_argument("result", metavar="RESULT", help="result file")
-    pl.add_argument("-o", "--out", default=None, metavar="PREFIX", help="file name prefix (default: RESULT without .nc)")
+    pl.add_argument(
+        "-o", "--out", default=None, metavar="PREFIX", help="file name prefix (default: RESULT without .nc)"
+    )
 
     sub.add_parser("sample", help="the seed's sample problem (the default without a subcommand)", add_help=False)
     return p
@@ -329,14 +418,21 @@ def main(argv=None) -> int:
             _fast_cpu_compiler()
             from .results import versions
 
-            print(" ".join(f"{k.removesuffix('_version')} {v}" for k, v in versions().items() if k.endswith("_version")))
+            print(
+                " ".join(f"{k.removesuffix('_version')} {v}" for k, v in versions().items() if k.endswith("_version"))
+            )
             return 0
         if args.command is None:
             _parser().print_help()
             return EXIT_USAGE
         _fast_cpu_compiler()
-        return {"simulate": cmd_simulate, "modes": cmd_modes, "animate": cmd_animate, "check": cmd_check,
-                "plot": cmd_plot}[args.command](args)
+        return {
+            "simulate": cmd_simulate,
+            "modes": cmd_modes,
+            "animate": cmd_animate,
+            "check": cmd_check,
+            "plot": cmd_plot,
+        }[args.command](args)
     except UserError as e:
         _say(f"{e.prog or command}: error: {e}")
         return EXIT_USAGE
@@ -344,13 +440,15 @@ def main(argv=None) -> int:
 
 # ----------------------------------------------------------------------------- check
 def cmd_check(args) -> int:
-    from .diagnostics import check_scene
-
     import dataclasses
+
+    from .diagnostics import check_scene
 
     model = _load_scene(args.scene)
     src = pathlib.Path(args.scene)
-    report = dataclasses.replace(check_scene(model), source=str(src) if src.exists() else f"bundled scene {args.scene!r}")
+    report = dataclasses.replace(
+        check_scene(model), source=str(src) if src.exists() else f"bundled scene {args.scene!r}"
+    )
     print(report.format(tables=True if args.tables else None))
     return 0
 
@@ -358,21 +456,32 @@ def cmd_check(args) -> int:
 # ----------------------------------------------------------------------------- simulate
 def _config(args, model):
     """The run's configuration, stored in every part (a resumed run must match it)."""
-    from .results import _scene_json
-    from ._integrate import default_tolerance
     import jax.numpy as jnp
+
+    from ._integrate import default_tolerance
+    from .results import _scene_json
 
     tol = default_tolerance(jnp.result_type(model.mass))
     cfg = {
-        "scene": _scene_json(model), "t0": float(args.t0), "t1": float(args.t1), "points": int(args.points),
-        "chunks": int(args.chunks), "solver": SOLVERS[args.solver], "rtol": float(args.rtol or tol),
-        "atol": float(args.atol or tol), "attitude": args.attitude, "max_steps": int(args.max_steps),
+        "scene": _scene_json(model),
+        "t0": float(args.t0),
+        "t1": float(args.t1),
+        "points": int(args.points),
+        "chunks": int(args.chunks),
+        "solver": SOLVERS[args.solver],
+        "rtol": float(args.rtol or tol),
+        "atol": float(args.atol or tol),
+        "attitude": args.attitude,
+        "max_steps": int(args.max_steps),
     }
     if args.hybrid_small is not None:
-        cfg.update(hybrid_small=args.hybrid_small, n_modes=-1 if args.modes is None else int(args.modes),
-                   cutoff=-1.0 if args.cutoff is None else float(args.cutoff),
-                   modal_damping=-1.0 if args.modal_damping is None else float(args.modal_damping),
-                   spin=list(map(float, args.spin if args.spin is not None else model.initial.omega0)))
+        cfg.update(
+            hybrid_small=args.hybrid_small,
+            n_modes=-1 if args.modes is None else int(args.modes),
+            cutoff=-1.0 if args.cutoff is None else float(args.cutoff),
+            modal_damping=-1.0 if args.modal_damping is None else float(args.modal_damping),
+            spin=list(map(float, args.spin if args.spin is not None else model.initial.omega0)),
+        )
     return cfg
 
 
@@ -402,9 +511,14 @@ class _Runner:
             small = _hinges(model, cfg["hybrid_small"], "--hybrid-small")
             try:
                 self.hybrid = hybrid_model(
-                    model, small, None if cfg["n_modes"] < 0 else cfg["n_modes"],
-                    cutoff=None if cfg["cutoff"] < 0 else cfg["cutoff"], omega0=jnp.asarray(cfg["spin"], self.dtype),
-                    damping=None if cfg["modal_damping"] < 0 else cfg["modal_damping"], attitude=cfg["attitude"])
+                    model,
+                    small,
+                    None if cfg["n_modes"] < 0 else cfg["n_modes"],
+                    cutoff=None if cfg["cutoff"] < 0 else cfg["cutoff"],
+                    omega0=jnp.asarray(cfg["spin"], self.dtype),
+                    damping=None if cfg["modal_damping"] < 0 else cfg["modal_damping"],
+                    attitude=cfg["attitude"],
+                )
             except ModalError as e:
                 raise UserError(f"--hybrid-small: {e}") from None
             except ValueError as e:
@@ -422,13 +536,34 @@ class _Runner:
 
         ts = jnp.asarray(ts, self.dtype)
         if self.hybrid is None:
-            sol = simulate(self.model, ts[-1], t0=ts[0], y0=y0, saveat=ts, solver=self.solver, rtol=rtol, atol=atol,
-                             attitude=self.cfg["attitude"], max_steps=self.cfg["max_steps"], throw=False)
+            sol = simulate(
+                self.model,
+                ts[-1],
+                t0=ts[0],
+                y0=y0,
+                saveat=ts,
+                solver=self.solver,
+                rtol=rtol,
+                atol=atol,
+                attitude=self.cfg["attitude"],
+                max_steps=self.cfg["max_steps"],
+                throw=False,
+            )
             return _FullPart(sol)
         from .hybrid import simulate_hybrid
 
-        sol = simulate_hybrid(self.hybrid, ts[-1], t0=ts[0], y0=y0, saveat=ts, solver=self.solver, rtol=rtol,
-                              atol=atol, max_steps=self.cfg["max_steps"], throw=False)
+        sol = simulate_hybrid(
+            self.hybrid,
+            ts[-1],
+            t0=ts[0],
+            y0=y0,
+            saveat=ts,
+            solver=self.solver,
+            rtol=rtol,
+            atol=atol,
+            max_steps=self.cfg["max_steps"],
+            throw=False,
+        )
         return _HybridPart(sol, self.hybrid, self._diag)
 
 
@@ -447,8 +582,11 @@ class _FullPart:
             except SimulationError as e:
                 self.message = str(e)
         st = sol.stats
-        self.steps = (int(np.asarray(st["num_accepted_steps"])), int(np.asarray(st["num_rejected_steps"])),
-                      int(np.asarray(st["rhs_evaluations"])))
+        self.steps = (
+            int(np.asarray(st["num_accepted_steps"])),
+            int(np.asarray(st["num_rejected_steps"])),
+            int(np.asarray(st["rhs_evaluations"])),
+        )
         self.t_final = float(np.asarray(sol.t_final))
 
     def rows(self, count):
@@ -456,18 +594,31 @@ class _FullPart:
 
         s = self.sol
         take = lambda x: np.asarray(x)[:count]  # noqa: E731
-        return dict(ts=take(s.ts), gamma=take(s.gamma), gamma_dot=take(s.gamma_dot), omega0=take(s.omega0),
-                    dcm=take(s.dcm), energy=take(s.energy), angular_momentum=take(s.angular_momentum),
-                    attitude=take(s.attitude), attitude_name=s.problem.attitude.name,
-                    hold_torque=take(s.hold_torque), orthogonality=take(s.orthogonality))
+        return dict(
+            ts=take(s.ts),
+            gamma=take(s.gamma),
+            gamma_dot=take(s.gamma_dot),
+            omega0=take(s.omega0),
+            dcm=take(s.dcm),
+            energy=take(s.energy),
+            angular_momentum=take(s.angular_momentum),
+            attitude=take(s.attitude),
+            attitude_name=s.problem.attitude.name,
+            hold_torque=take(s.hold_torque),
+            orthogonality=take(s.orthogonality),
+        )
 
     def end_state(self):
         """The state the next part starts from (exactly as written to the part)."""
         import numpy as np
 
         f = self.sol.final
-        return {"resume_dcm": (("row", "column"), np.asarray(f.dcm)), "resume_omega0": (("axis",), np.asarray(f.omega0)),
-                "resume_gamma": (("hinge",), np.asarray(f.gamma)), "resume_gamma_dot": (("hinge",), np.asarray(f.gamma_dot))}
+        return {
+            "resume_dcm": (("row", "column"), np.asarray(f.dcm)),
+            "resume_omega0": (("axis",), np.asarray(f.omega0)),
+            "resume_gamma": (("hinge",), np.asarray(f.gamma)),
+            "resume_gamma_dot": (("hinge",), np.asarray(f.gamma_dot)),
+        }
 
 
 def _hybrid_diagnostics():
@@ -480,8 +631,8 @@ def _hybrid_diagnostics():
     @eqx.filter_jit
     def diag(model, states):
         def row(s):
-            return (kinetic_energy(model, s) + 0.5 * jnp.sum(model.stiffness * s.gamma ** 2),
-                    angular_momentum(model, s))
+            return (kinetic_energy(model, s) + 0.5 * jnp.sum(model.stiffness * s.gamma**2), angular_momentum(model, s))
+
         return jax.vmap(row)(states)
 
     return diag
@@ -511,9 +662,11 @@ class _HybridPart:
             from ._integrate import MESSAGES as _MESSAGES
 
             f = sol.final
-            self.message = (f"jaxtree.simulate_hybrid: {_MESSAGES[self.kind]}.\n  stopped at t = {self.t_final:.9g}\n"
-                            f"  omega0 = {np.asarray(f.omega0)}\n  gamma = {np.asarray(f.gamma)}\n"
-                            f"  modal coordinates = {np.asarray(sol.final_modal)}")
+            self.message = (
+                f"jaxtree.simulate_hybrid: {_MESSAGES[self.kind]}.\n  stopped at t = {self.t_final:.9g}\n"
+                f"  omega0 = {np.asarray(f.omega0)}\n  gamma = {np.asarray(f.gamma)}\n"
+                f"  modal coordinates = {np.asarray(sol.final_modal)}"
+            )
         st = sol.stats
         acc, rej = int(np.asarray(st["num_accepted_steps"])), int(np.asarray(st["num_rejected_steps"]))
         self.steps = (acc, rej, -1)
@@ -525,10 +678,19 @@ class _HybridPart:
 
         s = self.sol
         take = lambda x: np.asarray(x)[:count]  # noqa: E731
-        att = np.asarray(s.ys)[:count, :self.hybrid.attitude.size]
-        return dict(ts=take(s.ts), gamma=take(s.gamma), gamma_dot=take(s.gamma_dot), omega0=take(s.omega0),
-                    dcm=take(s.dcm), energy=take(self.energy), angular_momentum=take(self.H), attitude=att,
-                    attitude_name=self.hybrid.attitude.name, modal=take(s.modal))
+        att = np.asarray(s.ys)[:count, : self.hybrid.attitude.size]
+        return dict(
+            ts=take(s.ts),
+            gamma=take(s.gamma),
+            gamma_dot=take(s.gamma_dot),
+            omega0=take(s.omega0),
+            dcm=take(s.dcm),
+            energy=take(self.energy),
+            angular_momentum=take(self.H),
+            attitude=att,
+            attitude_name=self.hybrid.attitude.name,
+            modal=take(s.modal),
+        )
 
     def end_state(self):
         import numpy as np
@@ -555,11 +717,20 @@ def _part_dataset(runner, part, count, skip_first, attrs):
     r = part.rows(None)  # every row of the (padded) part: one shape, one compiled geometry
     r["positions"] = body_positions(runner.model, r["gamma"])
     first = 1 if skip_first else 0
-    r = {k: (v[first:count] if isinstance(v, np.ndarray) else tuple(x[first:count] for x in v)
-             if isinstance(v, tuple) else v) for k, v in r.items()}
+    r = {
+        k: (
+            v[first:count]
+            if isinstance(v, np.ndarray)
+            else tuple(x[first:count] for x in v)
+            if isinstance(v, tuple)
+            else v
+        )
+        for k, v in r.items()
+    }
     ts = r.pop("ts")
-    ds = simulation_dataset(runner.model, ts, r.pop("gamma"), r.pop("gamma_dot"), r.pop("omega0"), r.pop("dcm"),
-                            **r, attrs=attrs)
+    ds = simulation_dataset(
+        runner.model, ts, r.pop("gamma"), r.pop("gamma_dot"), r.pop("omega0"), r.pop("dcm"), **r, attrs=attrs
+    )
     for name, (dims, data) in part.end_state().items():
         ds[name] = (dims, data, {"long_name": "state where this part ended (to resume from)"})
     return ds
@@ -572,8 +743,14 @@ def _progress(args, total, initial):
         from tqdm import tqdm
     except ImportError:
         return None
-    return tqdm(total=total, initial=initial, unit="s", file=sys.stderr, leave=False,
-                bar_format="{l_bar}{bar}| t = {n:.4g} of {total:.4g} s [{elapsed}<{remaining}]")
+    return tqdm(
+        total=total,
+        initial=initial,
+        unit="s",
+        file=sys.stderr,
+        leave=False,
+        bar_format="{l_bar}{bar}| t = {n:.4g} of {total:.4g} s [{elapsed}<{remaining}]",
+    )
 
 
 def cmd_simulate(args) -> int:
@@ -584,8 +761,12 @@ def cmd_simulate(args) -> int:
     if args.t1 == args.t0:
         raise UserError("--t1 equals --t0: nothing to integrate")
     if args.hybrid_small is None:
-        for opt, val in (("--modes", args.modes), ("--cutoff", args.cutoff), ("--spin", args.spin),
-                         ("--modal-damping", args.modal_damping)):
+        for opt, val in (
+            ("--modes", args.modes),
+            ("--cutoff", args.cutoff),
+            ("--spin", args.spin),
+            ("--modal-damping", args.modal_damping),
+        ):
             if val is not None:
                 raise UserError(f"{opt} needs --hybrid-small (the hinges in modal coordinates)")
     start_wall = time.perf_counter()
@@ -609,20 +790,28 @@ def cmd_simulate(args) -> int:
         saved = parts[0].attrs
         for key, value in cfg.items():
             have = saved.get(key)
-            same = (np.allclose(np.asarray(have, float), np.asarray(value, float), rtol=0, atol=0)
-                    if isinstance(value, (int, float, list)) and have is not None else have == value)
+            same = (
+                np.allclose(np.asarray(have, float), np.asarray(value, float), rtol=0, atol=0)
+                if isinstance(value, (int, float, list)) and have is not None
+                else have == value
+            )
             if not same:
                 what = "the scene" if key == "scene" else key
-                raise UserError(f"--resume: {what} differs from the interrupted run "
-                                f"({'changed' if key == 'scene' else f'{have!r} there, {value!r} here'})")
+                raise UserError(
+                    f"--resume: {what} differs from the interrupted run "
+                    f"({'changed' if key == 'scene' else f'{have!r} there, {value!r} here'})"
+                )
         start = len(parts)
         if int(parts[-1].attrs.get("result_code", 0)) != 0:
-            raise UserError(f"--resume: the interrupted run had failed at t = {parts[-1].attrs.get('t_final')}; "
-                            "nothing to continue")
+            raise UserError(
+                f"--resume: the interrupted run had failed at t = {parts[-1].attrs.get('t_final')}; nothing to continue"
+            )
     else:
         if writer.parts():
-            raise UserError(f"{writer.parts_dir} holds parts of an interrupted run: continue it with --resume, "
-                            "or remove that folder")
+            raise UserError(
+                f"{writer.parts_dir} holds parts of an interrupted run: continue it with --resume, "
+                "or remove that folder"
+            )
 
     runner = _Runner(args, model, cfg)
     y0 = runner.initial() if start == 0 else _state_from_part(parts[-1], runner)
@@ -639,15 +828,17 @@ def cmd_simulate(args) -> int:
     old_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     bar = None
     what = "hybrid equations" if runner.hybrid is not None else "Eq. (1)"
-    _say(f"jaxtree simulate: {model.name or args.scene}, {what}, t = {cfg['t0']:g} .. {cfg['t1']:g} s in "
-         f"{len(bounds)} parts" + (f", resuming after part {start}" if start else "") + " (compiling first)")
+    _say(
+        f"jaxtree simulate: {model.name or args.scene}, {what}, t = {cfg['t0']:g} .. {cfg['t1']:g} s in "
+        f"{len(bounds)} parts" + (f", resuming after part {start}" if start else "") + " (compiling first)"
+    )
     failed = None
     compile_time = None
     try:
         bar = _progress(args, abs(cfg["t1"] - cfg["t0"]), abs(grid[bounds[start - 1][1]] - cfg["t0"]) if start else 0.0)
         for c in range(start, len(bounds)):
             a, b = bounds[c]
-            ts = np.concatenate([grid[a:b + 1], np.full(rows_per_part - (b - a + 1), grid[b])])
+            ts = np.concatenate([grid[a : b + 1], np.full(rows_per_part - (b - a + 1), grid[b])])
             t_start = time.perf_counter()
             part = runner.run(ts, y0, cfg["rtol"], cfg["atol"])
             if compile_time is None:
@@ -655,10 +846,18 @@ def cmd_simulate(args) -> int:
             count = b - a + 1
             if part.kind is not None:
                 count = int(np.sum(np.isfinite(np.asarray(part.rows(count)["ts"]))))
-            pattrs = {**attrs, "chunk": c, "chunk_t0": float(grid[a]), "chunk_t1": float(grid[b]),
-                      "steps_accepted": part.steps[0], "steps_rejected": part.steps[1], "rhs_evaluations": part.steps[2],
-                      "result": "ok" if part.kind is None else part.kind,
-                      "result_code": 0 if part.kind is None else 1 + _kinds().index(part.kind), "t_final": part.t_final}
+            pattrs = {
+                **attrs,
+                "chunk": c,
+                "chunk_t0": float(grid[a]),
+                "chunk_t1": float(grid[b]),
+                "steps_accepted": part.steps[0],
+                "steps_rejected": part.steps[1],
+                "rhs_evaluations": part.steps[2],
+                "result": "ok" if part.kind is None else part.kind,
+                "result_code": 0 if part.kind is None else 1 + _kinds().index(part.kind),
+                "t_final": part.t_final,
+            }
             ds = _part_dataset(runner, part, count, c > 0, pattrs)
             writer.write_part(c, ds)
             parts.append(ds)
@@ -690,8 +889,10 @@ def cmd_simulate(args) -> int:
         if ds is None:
             _say("jaxtree simulate: interrupted before the first part was written; nothing saved")
         else:
-            _say(f"jaxtree simulate: interrupted; {ds.sizes['time']} saved times up to t = {float(ds['time'][-1]):g} s "
-                 f"are in {out} (complete = 0). Continue with the same command and --resume.")
+            _say(
+                f"jaxtree simulate: interrupted; {ds.sizes['time']} saved times up to t = {float(ds['time'][-1]):g} s "
+                f"are in {out} (complete = 0). Continue with the same command and --resume."
+            )
         return EXIT_INTERRUPTED
     finally:
         if bar is not None:
@@ -722,7 +923,7 @@ def _error_estimate(runner, ds, bounds, rows_per_part, grid, cfg):
     y = runner.initial()
     rows = {"gamma": [], "gamma_dot": [], "omega0": [], "dcm": []}
     for c, (a, b) in enumerate(bounds):
-        ts = np.concatenate([grid[a:b + 1], np.full(rows_per_part - (b - a + 1), grid[b])])
+        ts = np.concatenate([grid[a : b + 1], np.full(rows_per_part - (b - a + 1), grid[b])])
         part = runner.run(ts, y, 10 * cfg["rtol"], 10 * cfg["atol"])
         if part.kind is not None:
             return {"error_estimate": "unavailable: the run at 10x the tolerances failed"}
@@ -737,9 +938,12 @@ def _error_estimate(runner, ds, bounds, rows_per_part, grid, cfg):
             f = part.sol.final
             y = State(*(np.asarray(x) for x in f))
     d = {k: float(np.max(np.abs(np.concatenate(v) - ds[k].values))) for k, v in rows.items()}
-    return {"error_estimate_gamma": d["gamma"], "error_estimate_rates": max(d["gamma_dot"], d["omega0"]),
-            "error_estimate_dcm": d["dcm"],
-            "error_estimate": "max differences from the same run at 10x the tolerances (rad, rad/s, 1)"}
+    return {
+        "error_estimate_gamma": d["gamma"],
+        "error_estimate_rates": max(d["gamma_dot"], d["omega0"]),
+        "error_estimate_dcm": d["dcm"],
+        "error_estimate": "max differences from the same run at 10x the tolerances (rad, rad/s, 1)",
+    }
 
 
 def _exports(args, out, ds):
@@ -770,19 +974,31 @@ def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
     a = ds.attrs
     opts = dict(precision=6, suppress_small=True, max_line_width=150)
     hyb = runner.hybrid
-    lines = [f"scene {model.name!r}: {model.n + 1} bodies; "
-             + (f"hybrid coordinates, small hinges {list(hyb.small)} in {hyb.n_modes} modes ({hyb.form} form)"
-                if hyb is not None else "Eq. (1)")
-             + f"; {cfg['solver']}, rtol {cfg['rtol']:g}, atol {cfg['atol']:g}, attitude {cfg['attitude']}"]
-    lines.append(f"  result: {a.get('result')} at t = {float(a.get('t_final')):.6g} s"
-                 + (" (the run stopped early)" if failed is not None else ""))
+    lines = [
+        f"scene {model.name!r}: {model.n + 1} bodies; "
+        + (
+            f"hybrid coordinates, small hinges {list(hyb.small)} in {hyb.n_modes} modes ({hyb.form} form)"
+            if hyb is not None
+            else "Eq. (1)"
+        )
+        + f"; {cfg['solver']}, rtol {cfg['rtol']:g}, atol {cfg['atol']:g}, attitude {cfg['attitude']}"
+    ]
+    lines.append(
+        f"  result: {a.get('result')} at t = {float(a.get('t_final')):.6g} s"
+        + (" (the run stopped early)" if failed is not None else "")
+    )
     rhs = int(a.get("rhs_evaluations", -1))
-    lines.append(f"  steps: {int(a.get('steps_accepted'))} accepted, {int(a.get('steps_rejected'))} rejected"
-                 + (f", {rhs} right-hand sides" if rhs >= 0 else "") + f", in {int(a.get('parts'))} part{'s' if int(a.get('parts')) > 1 else ''}")
+    lines.append(
+        f"  steps: {int(a.get('steps_accepted'))} accepted, {int(a.get('steps_rejected'))} rejected"
+        + (f", {rhs} right-hand sides" if rhs >= 0 else "")
+        + f", in {int(a.get('parts'))} part{'s' if int(a.get('parts')) > 1 else ''}"
+    )
     if "error_estimate_gamma" in a:
-        lines.append(f"  error estimate (difference from a run at 10x the tolerances): angles "
-                     f"{float(a['error_estimate_gamma']):.2e} rad, rates {float(a['error_estimate_rates']):.2e} rad/s, "
-                     f"C {float(a['error_estimate_dcm']):.2e}")
+        lines.append(
+            f"  error estimate (difference from a run at 10x the tolerances): angles "
+            f"{float(a['error_estimate_gamma']):.2e} rad, rates {float(a['error_estimate_rates']):.2e} rad/s, "
+            f"C {float(a['error_estimate_dcm']):.2e}"
+        )
     elif "error_estimate" in a:
         lines.append(f"  error estimate: {a['error_estimate']}")
     why = []
@@ -791,8 +1007,10 @@ def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
     if np.any(np.asarray(model.damping)[np.asarray(model.sprung, int) - 1] != 0) if model.sprung else False:
         why.append("dampers dissipate")
     if "energy_drift" in a:
-        lines.append(f"  energy drift: max |E - E0| / |E0| = {float(a['energy_drift']):.3e}"
-                     + (f" (not conserved: {', '.join(why)})" if why else ""))
+        lines.append(
+            f"  energy drift: max |E - E0| / |E0| = {float(a['energy_drift']):.3e}"
+            + (f" (not conserved: {', '.join(why)})" if why else "")
+        )
         lines.append(f"  angular-momentum drift: max |H - H0| / |H0| = {float(a['momentum_drift']):.3e}")
     last = ds.isel(time=-1)
     lines.append(f"  at the last saved time, t = {float(last['time']):.6g} s:")
@@ -828,14 +1046,21 @@ def cmd_modes(args) -> int:
     except ModalError as e:
         raise UserError(f"modes of {model.name!r} with small hinges {list(small)}: {e}") from None
     out = pathlib.Path(args.out if args.out else f"{model.name or pathlib.Path(args.scene).stem}_modes.nc")
-    ds = modes_dataset(model, md, small=small, omega0=spin,
-                       attrs={"command": command_line(), "damping": args.damping, "structure": st.describe()})
+    ds = modes_dataset(
+        model,
+        md,
+        small=small,
+        omega0=spin,
+        attrs={"command": command_line(), "damping": args.damping, "structure": st.describe()},
+    )
     write_netcdf(ds, out)
     f = np.asarray(md.frequencies)
     z = np.asarray(md.damping_ratios)
-    print(f"scene {model.name!r}: modes of the small hinges {list(small)} "
-          f"({', '.join(model.names[k] for k in small[:6])}{', ...' if len(small) > 6 else ''}), "
-          f"nominal omega0 = {spin.tolist()} rad/s")
+    print(
+        f"scene {model.name!r}: modes of the small hinges {list(small)} "
+        f"({', '.join(model.names[k] for k in small[:6])}{', ...' if len(small) > 6 else ''}), "
+        f"nominal omega0 = {spin.tolist()} rad/s"
+    )
     print(f"  {st.describe()}")
     print(f"{'mode':>5} {'sigma (rad/s)':>14} {'f (Hz)':>11} {'period (s)':>11} {'zeta':>8}  dominated by")
     for j in range(md.nu):
@@ -883,18 +1108,34 @@ def cmd_animate(args) -> int:
         if title is None:
             label = str(ds["mode_label"].values[k - 1])
             title = f"{model.name}: mode {k}, {freq:.4g} rad/s ({freq / (2 * np.pi):.4g} Hz)" + (
-                f", {label}" if label else "")
-        viewer.write_mode_animation(args.out, model, shape, freq, gamma=np.asarray(ds["gamma_nominal"].values, float),
-                                    amplitude=args.amplitude, title=title)
+                f", {label}" if label else ""
+            )
+        viewer.write_mode_animation(
+            args.out,
+            model,
+            shape,
+            freq,
+            gamma=np.asarray(ds["gamma_nominal"].values, float),
+            amplitude=args.amplitude,
+            title=title,
+        )
     else:
         if args.mode is not None or args.amplitude is not None:
-            raise UserError("--mode and --amplitude apply to a modes result (jaxtree modes), "
-                            f"{args.result} is a simulation")
+            raise UserError(
+                f"--mode and --amplitude apply to a modes result (jaxtree modes), {args.result} is a simulation"
+            )
         if title is None:
             title = f"{model.name}: t = {float(ds['time'][0]):g} .. {float(ds['time'][-1]):g} s" + (
-                "" if int(ds.attrs.get("complete", 1)) else " (partial run)")
-        viewer.write_animation(args.out, model, np.asarray(ds["time"].values), np.asarray(ds["dcm"].values),
-                               np.asarray(ds["gamma"].values), title=title)
+                "" if int(ds.attrs.get("complete", 1)) else " (partial run)"
+            )
+        viewer.write_animation(
+            args.out,
+            model,
+            np.asarray(ds["time"].values),
+            np.asarray(ds["dcm"].values),
+            np.asarray(ds["gamma"].values),
+            title=title,
+        )
     print(f"wrote {args.out}")
     return 0
 

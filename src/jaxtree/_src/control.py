@@ -20,7 +20,8 @@ must be the same object from call to call to reuse a compiled simulation.
 from __future__ import annotations
 
 import abc
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -51,8 +52,9 @@ def _reference(fn, value, t, hinges, dtype):
     """Reference angles and rates of `hinges` at t."""
     if fn is not None:
         t = jnp.asarray(t, dtype)
-        g, gd = jax.jvp(lambda s: jnp.broadcast_to(jnp.asarray(fn(s), dtype), (len(hinges),)), (t,),
-                        (jnp.ones_like(t),))
+        g, gd = jax.jvp(
+            lambda s: jnp.broadcast_to(jnp.asarray(fn(s), dtype), (len(hinges),)), (t,), (jnp.ones_like(t),)
+        )
         return g, gd
     if value is not None:
         g = value.astype(dtype)

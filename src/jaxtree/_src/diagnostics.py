@@ -71,7 +71,8 @@ class Condition(eqx.Module):
             return f"condition number of Eq. (1): infinite (singular matrix); near-null direction: {parts}"
         digits = max(0.0, 16.0 - np.log10(max(c, 1.0)))
         text = f"condition number of Eq. (1): {c:.3g} " + (
-            "(singular to float64 working accuracy)" if self.singular else f"(float64 keeps about {digits:.0f} digits)")
+            "(singular to float64 working accuracy)" if self.singular else f"(float64 keeps about {digits:.0f} digits)"
+        )
         return text + f"; direction of its smallest eigenvalue: {parts}"
 
     def __str__(self) -> str:
@@ -112,8 +113,10 @@ def _joint_text(model: Model, k: int) -> str:
         pres = model.prescription
         if hasattr(pres, "amplitude"):
             i = list(pres.hinges).index(k)
-            return (f"prescribed gamma = {float(pres.amplitude[i]):g} sin({float(pres.frequency[i]):g} t "
-                    f"+ {float(pres.phase[i]):g})")
+            return (
+                f"prescribed gamma = {float(pres.amplitude[i]):g} sin({float(pres.frequency[i]):g} t "
+                f"+ {float(pres.phase[i]):g})"
+            )
         return "prescribed"
     if k in model.sprung:
         return f"spring {float(model.stiffness[k - 1]):g} N m/rad, damper {float(model.damping[k - 1]):g} N m s/rad"
@@ -134,9 +137,11 @@ def _tree_lines(model: Model) -> list[str]:
             tags = []
             if c in model.inert:
                 tags.append("inert: only massless bodies outboard")
-            text = (f"{prefix}{'`-- ' if last else '|-- '}{c} {model.names[c]}  ({mass:g} kg"
-                    f"{', massless' if mass == 0 else ''}); hinge {c} about "
-                    f"[{g[0]:.3g}, {g[1]:.3g}, {g[2]:.3g}]: {_joint_text(model, c)}")
+            text = (
+                f"{prefix}{'`-- ' if last else '|-- '}{c} {model.names[c]}  ({mass:g} kg"
+                f"{', massless' if mass == 0 else ''}); hinge {c} about "
+                f"[{g[0]:.3g}, {g[1]:.3g}, {g[2]:.3g}]: {_joint_text(model, c)}"
+            )
             if tags:
                 text += f" [{'; '.join(tags)}]"
             lines.append(text)
@@ -183,28 +188,46 @@ class SceneReport:
         if tables is None:
             tables = n <= 20
         lines = [f"scene {m.name!r} ({self.source}): valid; {n + 1} bodies, {n} hinges"]
-        lines.append(f"  prescribed hinges: {list(m.prescribed) or 'none'}; sprung: {list(m.sprung) or 'none'}; "
-                     f"inert: {list(m.inert) or 'none'}; unknowns of Eq. (1): 3 + {len(m.unknown_hinges)}")
+        lines.append(
+            f"  prescribed hinges: {list(m.prescribed) or 'none'}; sprung: {list(m.sprung) or 'none'}; "
+            f"inert: {list(m.inert) or 'none'}; unknowns of Eq. (1): 3 + {len(m.unknown_hinges)}"
+        )
         lines += ["", "tree (body index, name, mass; hinge k joins body k to its parent):"]
         lines += ["  " + s for s in self.tree]
         if tables:
             idx = list(range(n + 1))
             lines.append("")
-            lines += _table("Table 1: network elements N_kr (Def. 26; column 0 is the input N_k)",
-                            self.network_elements, idx, idx, "k\\r")
+            lines += _table(
+                "Table 1: network elements N_kr (Def. 26; column 0 is the input N_k)",
+                self.network_elements,
+                idx,
+                idx,
+                "k\\r",
+            )
             lines.append("")
-            lines += _table("Table 2: path elements epsilon_sk (Def. 27: 1 iff hinge s lies between b0 and b_k)",
-                            self.path_elements, list(range(1, n + 1)), idx, "s\\k")
+            lines += _table(
+                "Table 2: path elements epsilon_sk (Def. 27: 1 iff hinge s lies between b0 and b_k)",
+                self.path_elements,
+                list(range(1, n + 1)),
+                idx,
+                "s\\k",
+            )
         else:
-            lines += ["", f"Tables 1-2 ({n + 1} x {n + 1} and {n} x {n + 1}) not shown for {n} hinges "
-                          "(jaxtree check --tables prints them)"]
+            lines += [
+                "",
+                f"Tables 1-2 ({n + 1} x {n + 1} and {n} x {n + 1}) not shown for {n} hinges "
+                "(jaxtree check --tables prints them)",
+            ]
         lines += ["", "masses (kg):"]
         for k in range(n + 1):
             lines.append(f"  {k:3d} {m.names[k]:<20s} {self.masses[k]:12.6g}")
         lines.append(f"  total {self.total_mass:.6g} kg")
         s = m.initial
-        lines += ["", f"at the initial state (omega0 = {np.asarray(s.omega0).tolist()} rad/s, "
-                      f"max |gamma| = {float(np.max(np.abs(np.asarray(s.gamma)), initial=0.0)):.3g} rad):"]
+        lines += [
+            "",
+            f"at the initial state (omega0 = {np.asarray(s.omega0).tolist()} rad/s, "
+            f"max |gamma| = {float(np.max(np.abs(np.asarray(s.gamma)), initial=0.0)):.3g} rad):",
+        ]
         lines.append("  " + self.condition.describe())
         if self.warnings:
             lines += [""] + [f"warning: {w}" for w in self.warnings]
@@ -243,14 +266,28 @@ def check_scene(scene) -> SceneReport:
     warnings = []
     c = float(cond.number)
     if not np.isfinite(c) or c > SINGULAR_CONDITION:
-        warnings.append(f"Eq. (1) is singular at the initial state (condition number {c:.3g}): a simulation "
-                        "will stop at once; see the near-null direction above")
+        warnings.append(
+            f"Eq. (1) is singular at the initial state (condition number {c:.3g}): a simulation "
+            "will stop at once; see the near-null direction above"
+        )
     elif c > POOR_CONDITION:
-        warnings.append(f"Eq. (1) is poorly conditioned at the initial state ({c:.3g}): accelerations lose "
-                        f"about {np.log10(c):.0f} digits (float32 keeps none)")
+        warnings.append(
+            f"Eq. (1) is poorly conditioned at the initial state ({c:.3g}): accelerations lose "
+            f"about {np.log10(c):.0f} digits (float32 keeps none)"
+        )
     if model.inert:
-        warnings.append(f"hinges {list(model.inert)} have nothing but massless bodies outboard: they are not "
-                        "unknowns of Eq. (1) and stay at their initial rates")
-    return SceneReport(model=model, source=source, tree=tuple(_tree_lines(model)),
-                       network_elements=np.asarray(topo.network_elements), path_elements=np.asarray(topo.path_elements),
-                       masses=masses, total_mass=float(masses.sum()), condition=cond, warnings=tuple(warnings))
+        warnings.append(
+            f"hinges {list(model.inert)} have nothing but massless bodies outboard: they are not "
+            "unknowns of Eq. (1) and stay at their initial rates"
+        )
+    return SceneReport(
+        model=model,
+        source=source,
+        tree=tuple(_tree_lines(model)),
+        network_elements=np.asarray(topo.network_elements),
+        path_elements=np.asarray(topo.path_elements),
+        masses=masses,
+        total_mass=float(masses.sum()),
+        condition=cond,
+        warnings=tuple(warnings),
+    )

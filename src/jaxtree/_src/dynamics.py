@@ -42,7 +42,8 @@ import numpy as np
 
 from . import _hinges, articulated
 from ._checks import is_traced
-from ._math import SINGULAR_PIVOT, regular as _regular  # noqa: F401 (SINGULAR_PIVOT is public here)
+from ._math import SINGULAR_PIVOT  # noqa: F401 (SINGULAR_PIVOT is public here)
+from ._math import regular as _regular
 from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum
 from .model import Model, State
 
@@ -82,8 +83,10 @@ def _check_shapes(name, model, state=None, prefix="", **fields):
             continue
         got = jnp.shape(x)
         if got != expected[field]:
-            raise ValueError(f"{name}: {prefix}{field} has shape {got}; the model '{model.name}' with {n} hinges needs "
-                             f"{expected[field]}")
+            raise ValueError(
+                f"{name}: {prefix}{field} has shape {got}; the model '{model.name}' with {n} hinges needs "
+                f"{expected[field]}"
+            )
 
 
 def _parents(model):
@@ -145,9 +148,7 @@ def _composite(model, cfg, extra=None):
     mass = _massive(model, model.mass.astype(cfg.rho.dtype))
     rho = _massive(model, cfg.rho)
     eye = jnp.eye(3, dtype=rho.dtype)
-    J = cfg.inertia + mass[:, None, None] * (
-        dot(rho, rho)[:, None, None] * eye - rho[:, :, None] * rho[:, None, :]
-    )
+    J = cfg.inertia + mass[:, None, None] * (dot(rho, rho)[:, None, None] * eye - rho[:, :, None] * rho[:, None, :])
     columns = [mass[:, None], mass[:, None] * rho, J.reshape(-1, 9)] + ([] if extra is None else [extra])
     sub = subtree_sum(model.topology, jnp.concatenate(columns, 1), model.massive)
     return sub[:, 0], sub[:, 1:4], sub[:, 4:13].reshape(-1, 3, 3), None if extra is None else sub[:, 13:]
@@ -401,8 +402,9 @@ def _solve_articulated(model, state, t, tau, gdd_p):
     if tau is not None:
         torque = torque + tau
     loads = external_loads(model, t, state, cfg)
-    w_dot, gdd, hold = articulated.solve(model, cfg, omega, _velocities(model, cfg, omega), gamma_dot, torque,
-                                         loads, gdd_p)
+    w_dot, gdd, hold = articulated.solve(
+        model, cfg, omega, _velocities(model, cfg, omega), gamma_dot, torque, loads, gdd_p
+    )
     return Accelerations(w_dot, gdd, hold)
 
 
@@ -422,8 +424,11 @@ def _diagnose(name, model, state, t, tau):
     bad = [f for f in State._fields if not np.all(np.isfinite(np.asarray(getattr(state, f))))]
     if tau is not None and not np.all(np.isfinite(np.asarray(tau))):
         bad.append("tau")
-    bad += [f"model.{f}" for f in ("mass", "inertia", "axis", "hinge_on_parent", "hinge_on_body", "stiffness",
-                                   "damping") if not np.all(np.isfinite(np.asarray(getattr(model, f))))]
+    bad += [
+        f"model.{f}"
+        for f in ("mass", "inertia", "axis", "hinge_on_parent", "hinge_on_body", "stiffness", "damping")
+        if not np.all(np.isfinite(np.asarray(getattr(model, f))))
+    ]
     if bad:
         lines.append(f"  diagnosis: not finite: {', '.join(bad)}")
         return "\n".join(lines)
@@ -435,11 +440,15 @@ def _diagnose(name, model, state, t, tau):
     cond, direction = _matrix_condition(model, A)
     cond = float(cond)
     if not np.isfinite(cond) or cond > SINGULAR_CONDITION:
-        lines.append(f"  diagnosis: the Eq. (1) matrix is singular or nearly so (condition number {cond:.3g}); "
-                     f"{_null_direction_text(direction, _unknown_labels(model))}")
+        lines.append(
+            f"  diagnosis: the Eq. (1) matrix is singular or nearly so (condition number {cond:.3g}); "
+            f"{_null_direction_text(direction, _unknown_labels(model))}"
+        )
     elif not np.all(np.isfinite(np.asarray(rhs))) or (gdd_p is not None and not np.all(np.isfinite(np.asarray(gdd_p)))):
-        lines.append("  diagnosis: the right side of Eq. (1) is not finite (a joint law, external load or "
-                     "prescription gave a non-finite value)")
+        lines.append(
+            "  diagnosis: the right side of Eq. (1) is not finite (a joint law, external load or "
+            "prescription gave a non-finite value)"
+        )
     return "\n".join(lines)
 
 
@@ -464,8 +473,9 @@ def _unknown_rows(model):
 
 def _unknown_labels(model) -> tuple[str, ...]:
     """Labels of the unknown rows of Eq. (1), for messages: ``omega0x``..., ``hinge k (name)``."""
-    return tuple("omega0" + "xyz"[i] if i < 3 else f"hinge {i - 2} ({model.names[i - 2]})"
-                 for i in _unknown_rows(model))
+    return tuple(
+        "omega0" + "xyz"[i] if i < 3 else f"hinge {i - 2} ({model.names[i - 2]})" for i in _unknown_rows(model)
+    )
 
 
 def _null_direction_text(v, labels) -> str:
@@ -473,8 +483,10 @@ def _null_direction_text(v, labels) -> str:
     v = np.asarray(v, dtype=float)
     big = np.flatnonzero(np.abs(v) >= 0.25 * np.abs(v).max())
     parts = ", ".join(f"{labels[i]} {v[i]:+.3f}" for i in big)
-    return (f"its near-null direction: {parts}. Rates in that direction move the vehicle alike (for a "
-            f"gimbal: gimbal lock, two axes aligned).")
+    return (
+        f"its near-null direction: {parts}. Rates in that direction move the vehicle alike (for a "
+        f"gimbal: gimbal lock, two axes aligned)."
+    )
 
 
 def _cholesky_solve(A, b):
@@ -487,15 +499,11 @@ def _cholesky_solve(A, b):
     ``b^T A^{-1} b``; a singular ``A`` still fails the factorization (NaN)."""
     n = A.shape[0]
     big = jnp.asarray(np.finfo(np.dtype(A.dtype)).max / 16, A.dtype)
-    M = jnp.concatenate([jnp.concatenate([A, b[:, None]], 1),
-                         jnp.concatenate([b, big[None]])[None, :]], 0)
+    M = jnp.concatenate([jnp.concatenate([A, b[:, None]], 1), jnp.concatenate([b, big[None]])[None, :]], 0)
     L = jax.lax.linalg.cholesky(M, symmetrize_input=False)
     y = L[n, :n]  # = L_A^{-1} b: the bordered factorization does the forward substitution
-    x = jax.lax.linalg.triangular_solve(L[:n, :n], y[:, None], left_side=True, lower=True,
-                                        transpose_a=True)[:, 0]
+    x = jax.lax.linalg.triangular_solve(L[:n, :n], y[:, None], left_side=True, lower=True, transpose_a=True)[:, 0]
     return jnp.where(_regular(L[:n, :n], A), x, jnp.nan)
-
-
 
 
 @full_precision
@@ -517,8 +525,9 @@ def forward_dynamics(model: Model, dcm, omega0, gamma, gamma_dot, t=0.0):
 
 def _momenta(model, state):
     dtype = _dtype(model, state.gamma)
-    cfg, omega = _configuration(model, state.gamma, jnp.asarray(state.omega0, dtype),
-                                jnp.asarray(state.gamma_dot, dtype))
+    cfg, omega = _configuration(
+        model, state.gamma, jnp.asarray(state.omega0, dtype), jnp.asarray(state.gamma_dot, dtype)
+    )
     vel = _massive(model, _velocities(model, cfg, omega))
     w = _massive(model, omega)
     mass = _massive(model, model.mass.astype(vel.dtype))

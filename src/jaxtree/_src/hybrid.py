@@ -77,19 +77,35 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _checks
 from . import substructure as _sub
+from ._hinges import prescribed_motion, selector
+from ._integrate import (
+    DEFAULT_MAX_STEPS,
+    MESSAGES,
+    Failure,
+    SimulationError,
+    check_state,
+    check_times,
+    check_tolerances,
+    default_controller,
+    default_tolerance,
+    failure_report,
+    integrate,
+    is_traced,
+    progress_meter,
+    report_failures,
+    result_code,
+    warn_below_roundoff,
+)
 from .articulated import _force_cross, _inertia_apply, _inertia_matrix, _motion_cross
 from .attitude import AbstractAttitude, get_attitude
-from . import _checks
 from .dynamics import configuration, mass_matrix, rotational_equations
 from .kinematics import ancestor_sum, body_rotations, cross, full_precision, mm, mv
 from .linearize import linearize, resolve_hinges
-from ._hinges import prescribed_motion, selector
 from .model import Model, State
-from .modes import ModalError, modes as _modes
-from ._integrate import (DEFAULT_MAX_STEPS, MESSAGES, Failure, SimulationError, check_state, check_times,
-                         check_tolerances, default_controller, default_tolerance, failure_report, integrate,
-                         is_traced, progress_meter, report_failures, result_code, warn_below_roundoff)
+from .modes import ModalError
+from .modes import modes as _modes
 from .topology import Topology
 
 
@@ -229,7 +245,7 @@ class HybridModel(eqx.Module):
         """``(attitude, omega0, gamma_L, gamma_dot_L, s)`` slices of a flat state."""
         a, nl = self.attitude.size, len(self.large)
         o = np.cumsum([0, a, 3, nl, nl, self.m])
-        return tuple(y[o[i]:o[i + 1]] for i in range(5))
+        return tuple(y[o[i] : o[i + 1]] for i in range(5))
 
     def _selectors(self, dtype):
         n = self.model.n
@@ -279,13 +295,15 @@ class HybridModel(eqx.Module):
         L = np.asarray(self.large, dtype=np.int64) - 1
         y = gamma[S] - self.gamma_nominal.astype(dtype)[S]
         s = self.project @ jnp.concatenate([y, gamma_dot[S]]) * self._keep_m().astype(dtype)
-        return jnp.concatenate([
-            self.attitude.from_dcm(jnp.asarray(state.dcm, dtype)),
-            jnp.asarray(state.omega0, dtype),
-            gamma[L],
-            gamma_dot[L],
-            s,
-        ])
+        return jnp.concatenate(
+            [
+                self.attitude.from_dcm(jnp.asarray(state.dcm, dtype)),
+                jnp.asarray(state.omega0, dtype),
+                gamma[L],
+                gamma_dot[L],
+                s,
+            ]
+        )
 
     def projection_residual(self, state: State):
         """The part of the small motion of `state` outside the retained modes:
@@ -293,9 +311,13 @@ class HybridModel(eqx.Module):
         :meth:`pack` (0 when the motion lies in the retained modes)."""
         dtype = jnp.result_type(self.model.mass)
         S = np.asarray(self.small, dtype=np.int64) - 1
-        x = jnp.concatenate([jnp.asarray(state.gamma, dtype)[S] - self.gamma_nominal.astype(dtype)[S],
-                             jnp.asarray(state.gamma_dot, dtype)[S]])
-        s = self.pack(state)[self.size - self.m:] * self._keep_m().astype(dtype)
+        x = jnp.concatenate(
+            [
+                jnp.asarray(state.gamma, dtype)[S] - self.gamma_nominal.astype(dtype)[S],
+                jnp.asarray(state.gamma_dot, dtype)[S],
+            ]
+        )
+        s = self.pack(state)[self.size - self.m :] * self._keep_m().astype(dtype)
         back = jnp.concatenate([self.positions @ s, self.rates @ s])
         norm = jnp.sqrt(jnp.sum(x * x))
         return jnp.sqrt(jnp.sum((x - back) ** 2)) / jnp.maximum(norm, jnp.finfo(dtype).tiny)
@@ -305,7 +327,7 @@ class HybridModel(eqx.Module):
         return self.unpack(y)[4]
 
     # ------------------------------------------------------------------ truncation
-    def retain(self, n_modes: int) -> "HybridModel":
+    def retain(self, n_modes: int) -> HybridModel:
         """The same model with only the first `n_modes` of its modes active (the others are
         masked: their coordinates stay zero and their rows read ``eta'' = 0``). Mathematically the
         truncation of Eq. (118)/(121) to `n_modes`; the array shapes are unchanged, so a compiled
@@ -349,9 +371,14 @@ def _to_base(E, r, x):
     """Motion vectors (6 along axis -2) from {b^0} components about b_0's mass center to a base's
     components about its mass center: ``(E w, E (u - r x w))``."""
     w, u = x[..., :3, :], x[..., 3:, :]
-    rw = jnp.stack([r[..., 1, None] * w[..., 2, :] - r[..., 2, None] * w[..., 1, :],
-                    r[..., 2, None] * w[..., 0, :] - r[..., 0, None] * w[..., 2, :],
-                    r[..., 0, None] * w[..., 1, :] - r[..., 1, None] * w[..., 0, :]], -2)
+    rw = jnp.stack(
+        [
+            r[..., 1, None] * w[..., 2, :] - r[..., 2, None] * w[..., 1, :],
+            r[..., 2, None] * w[..., 0, :] - r[..., 0, None] * w[..., 2, :],
+            r[..., 0, None] * w[..., 1, :] - r[..., 1, None] * w[..., 0, :],
+        ],
+        -2,
+    )
     return jnp.concatenate([E @ w, E @ (u - rw)], -2)
 
 
@@ -413,8 +440,13 @@ def _large_frame(hm: HybridModel, bases, t, dcm, w, gL, gdL, v0=None):
     # the unknowns' motion map of each large body: rotation and translation of b_0, then the hinges
     inv = _inverse(order)  # column -> body order
     path = topo.path_elements[inv].T  # (nb, nc): the column's hinge is on the path to the body
-    Jac = jnp.concatenate([jnp.broadcast_to(jnp.eye(6, dtype=dtype), (len(bodies), 6, 6)),
-                           jnp.einsum("ca,ic->iac", S[inv], jnp.asarray(path, dtype))], -1)
+    Jac = jnp.concatenate(
+        [
+            jnp.broadcast_to(jnp.eye(6, dtype=dtype), (len(bodies), 6, 6)),
+            jnp.einsum("ca,ic->iac", S[inv], jnp.asarray(path, dtype)),
+        ],
+        -1,
+    )
     M6 = _inertia_matrix(J, h, mass)
     A = jnp.einsum("iak,iab,ibl->kl", Jac, M6, Jac)
     b = jnp.einsum("iak,ia->k", Jac, wrench)
@@ -469,11 +501,18 @@ def _pre_system(hm: HybridModel, t, y):
     aa1 = jnp.einsum("pabm,pm->pab", pre.aa1, sS)
     wa1 = jnp.einsum("puam,pm->pua", pre.wa1, sS)
     fa0 = 0.5 * jnp.einsum("pabc,pbc->pa", pre.g0a, vv) + jnp.einsum("pab,pb->pa", pre.aa0, cb)
-    fa1 = (0.5 * jnp.einsum("pabcm,pbc,pm->pa", pre.g1a, vv, sS) + jnp.einsum("pabm,pb,pm->pa", pre.g2a, vb, sS)
-           + jnp.einsum("pab,pb->pa", aa1, cb))
+    fa1 = (
+        0.5 * jnp.einsum("pabcm,pbc,pm->pa", pre.g1a, vv, sS)
+        + jnp.einsum("pabm,pb,pm->pa", pre.g2a, vb, sS)
+        + jnp.einsum("pab,pb->pa", aa1, cb)
+    )
     fw0 = 0.5 * jnp.einsum("pubc,pbc->pu", pre.g0w, vv) + jnp.einsum("pua,pa->pu", pre.wa0, cb) + pre.w0
-    fw1 = (0.5 * jnp.einsum("pubcm,pbc,pm->pu", pre.g1w, vv, sS) + jnp.einsum("pubm,pb,pm->pu", pre.g2w, vb, sS)
-           + jnp.einsum("pua,pa->pu", wa1, cb) + jnp.einsum("pum,pm->pu", pre.w1, sS))
+    fw1 = (
+        0.5 * jnp.einsum("pubcm,pbc,pm->pu", pre.g1w, vv, sS)
+        + jnp.einsum("pubm,pb,pm->pu", pre.g2w, vb, sS)
+        + jnp.einsum("pua,pa->pu", wa1, cb)
+        + jnp.einsum("pum,pm->pu", pre.w1, sS)
+    )
     # the whole Newton-Euler system in (z, modal unknowns): bar parts and caret parts
     A0zz = A0zz + jnp.einsum("pak,pab,pbl->kl", Jb, pre.aa0, Jb)
     A1zz = jnp.einsum("pak,pab,pbl->kl", Jb, aa1, Jb)
@@ -594,8 +633,14 @@ def _solve(hm: HybridModel, t, y):
         Ml, Ms, R = _eq30(hm, t, hm.attitude.to_dcm(att), w, gL, gdL, hm.positions @ s_in, hm.rates @ s_in)
         mat, rhs = _project(hm, Ml, Ms, R, s_in)
     ku = hm._keep_u().astype(y.dtype)
-    x, acc = _schur_solve(hm.modal_inverse, mat[:nx, :nx], mat[:nx, nx:] * ku[None, :], mat[nx:, :nx] * ku[:, None],
-                          rhs[:nx], rhs[nx:] * ku)
+    x, acc = _schur_solve(
+        hm.modal_inverse,
+        mat[:nx, :nx],
+        mat[:nx, nx:] * ku[None, :],
+        mat[nx:, :nx] * ku[:, None],
+        rhs[:nx],
+        rhs[nx:] * ku,
+    )
     return x[:3], x[3:], acc
 
 
@@ -640,7 +685,6 @@ def _real_pairs(md, picked, tol):
     return np.stack(a_r + b_r, 1), np.stack(a_l + b_l, 1)
 
 
-
 # Frequencies within this relative distance of each other count as one repeated frequency: a
 # truncation keeps or drops such a group whole (six identical wings give six-fold repeats that
 # differ in the last digits; a cut inside them would pick members at random).
@@ -656,8 +700,10 @@ def _select(sigma, candidates, n, cutoff, where):
         if n < 1:
             raise ValueError(f"hybrid_model: n_modes must be >= 1, got {n}")
         if n > len(cand):
-            raise ValueError(f"hybrid_model: {n} modes asked for{where}, only {len(cand)} available"
-                             + (f" (cutoff {cutoff})" if cutoff is not None else ""))
+            raise ValueError(
+                f"hybrid_model: {n} modes asked for{where}, only {len(cand)} available"
+                + (f" (cutoff {cutoff})" if cutoff is not None else "")
+            )
         last = sigma[cand[n - 1]]
         while n < len(cand) and abs(sigma[cand[n]] - last) <= DEGENERATE_RTOL * max(abs(last), 1e-300):
             n += 1
@@ -674,31 +720,47 @@ def _basis(md, I, K, cand, form, zeta):
     if form == "real":
         phi = np.asarray(md.shapes).real[:, cand]  # Eq. (119), phi^T I phi = U
         Ip = phi.T @ I
-        return dict(positions=np.concatenate([phi, Z], 1), rates=np.concatenate([Z, phi], 1), accel=phi, rows=phi,
-                    kin=np.zeros((k, k)),
-                    kin_rhs=np.concatenate([np.zeros((k, k)), -np.diag(2.0 * zeta * sig)], 1),  # Eq. (104)
-                    project=np.block([[Ip, np.zeros_like(Ip)], [np.zeros_like(Ip), Ip]]))
+        return dict(
+            positions=np.concatenate([phi, Z], 1),
+            rates=np.concatenate([Z, phi], 1),
+            accel=phi,
+            rows=phi,
+            kin=np.zeros((k, k)),
+            kin_rhs=np.concatenate([np.zeros((k, k)), -np.diag(2.0 * zeta * sig)], 1),  # Eq. (104)
+            project=np.block([[Ip, np.zeros_like(Ip)], [np.zeros_like(Ip), Ip]]),
+        )
     scale = max(float(np.abs(np.asarray(md.eigenvalues)).max()), 1e-300)
     T, V = _real_pairs(md, cand, 1e-9 * scale)
     W = np.concatenate([K.T @ V[:nu], V[nu:]], 0)  # left vectors of the unscaled rows (30d)
     Pu = np.block([[np.eye(nu), np.zeros((nu, nu))], [np.zeros((nu, nu)), I]])
     W = W @ np.linalg.inv(W.T @ Pu @ T).T  # W^T diag(U, I) T = U (Eqs. 116-117)
     positions, rates = T[:nu], T[nu:]
-    return dict(positions=positions, rates=rates, accel=rates, rows=W[nu:], kin=W[:nu].T @ positions,
-                kin_rhs=W[:nu].T @ rates - np.diag(np.concatenate([zeta * sig, zeta * sig])), project=W.T @ Pu)
+    return dict(
+        positions=positions,
+        rates=rates,
+        accel=rates,
+        rows=W[nu:],
+        kin=W[:nu].T @ positions,
+        kin_rhs=W[:nu].T @ rates - np.diag(np.concatenate([zeta * sig, zeta * sig])),
+        project=W.T @ Pu,
+    )
 
 
 def _zeta(damping, k, kind):
     if damping is not None and np.ndim(damping) and np.shape(damping) != (k,):
-        raise ValueError(f"hybrid_model: damping has {np.size(damping)} ratios for {k} retained modes "
-                         "(give a scalar or one per retained mode)")
+        raise ValueError(
+            f"hybrid_model: damping has {np.size(damping)} ratios for {k} retained modes "
+            "(give a scalar or one per retained mode)"
+        )
     zeta = np.zeros(k) if damping is None else np.broadcast_to(np.asarray(damping, float), (k,)).copy()
     if damping is not None:
         if np.any(zeta < 0) or not np.all(np.isfinite(zeta)):
             raise ValueError(f"hybrid_model: modal damping ratios must be finite and >= 0, got {zeta.tolist()}")
         if kind == "general":
-            raise ModalError("hybrid_model: modal damping (Sec. III E) applies to undamped real or gyroscopic "
-                             "modes; the modes of this set A already have a general J")
+            raise ModalError(
+                "hybrid_model: modal damping (Sec. III E) applies to undamped real or gyroscopic "
+                "modes; the modes of this set A already have a general J"
+            )
     return zeta
 
 
@@ -710,8 +772,15 @@ def _assemble(blocks, nu, form):
     k = len(order)
     u = k if form == "real" else 2 * k
     pos = {(g, j): q for q, (_, g, j) in enumerate(order)}
-    out = dict(positions=np.zeros((nu, 2 * k)), rates=np.zeros((nu, 2 * k)), accel=np.zeros((nu, u)),
-               rows=np.zeros((nu, u)), kin=np.zeros((u, u)), kin_rhs=np.zeros((u, 2 * k)), project=np.zeros((2 * k, 2 * nu)))
+    out = dict(
+        positions=np.zeros((nu, 2 * k)),
+        rates=np.zeros((nu, 2 * k)),
+        accel=np.zeros((nu, u)),
+        rows=np.zeros((nu, u)),
+        kin=np.zeros((u, u)),
+        kin_rhs=np.zeros((u, 2 * k)),
+        project=np.zeros((2 * k, 2 * nu)),
+    )
     mmaps, umaps = [], []
     for g, (rows, sig, p) in enumerate(blocks):
         kg = len(sig)
@@ -773,9 +842,13 @@ def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u,
     dtype = jnp.result_type(model.mass)
     f = lambda x: jnp.asarray(np.stack(x), dtype)
     pad_idx = lambda x, n, width: tuple(tuple(int(i) for i in c) + (n,) * (width - len(c)) for c in x)
-    return _Precomputed(**{k: f(v) for k, v in acc.items()}, ww0=jnp.asarray(ww0, dtype),
-                        mcols=pad_idx(mmaps, m, ms), ucols=pad_idx(umaps, u, us),
-                        bases=tuple(g.base for g in groups))
+    return _Precomputed(
+        **{k: f(v) for k, v in acc.items()},
+        ww0=jnp.asarray(ww0, dtype),
+        mcols=pad_idx(mmaps, m, ms),
+        ucols=pad_idx(umaps, u, us),
+        bases=tuple(g.base for g in groups),
+    )
 
 
 def _nominal_motion(model, omega0, gamma, dcm):
@@ -835,8 +908,21 @@ def hybrid_model(
 
     **Returns:** :class:`HybridModel`.
     """
-    _checks.hybrid_model_args(model, small, n_modes, cutoff=cutoff, omega0=omega0, gamma=gamma, dcm=dcm,
-                              damping=damping, form=form, precompute=precompute, attitude=attitude, rtol=rtol, basis=basis)
+    _checks.hybrid_model_args(
+        model,
+        small,
+        n_modes,
+        cutoff=cutoff,
+        omega0=omega0,
+        gamma=gamma,
+        dcm=dcm,
+        damping=damping,
+        form=form,
+        precompute=precompute,
+        attitude=attitude,
+        rtol=rtol,
+        basis=basis,
+    )
     S = resolve_hinges(model, small)
     L = tuple(k for k in model.unknown_hinges if k not in S)
     dtype = jnp.result_type(model.mass)
@@ -849,15 +935,19 @@ def hybrid_model(
     if basis not in ("substructure", "set"):
         raise ValueError(f"hybrid_model: basis must be 'substructure' or 'set', got {basis!r}")
     if basis == "substructure" and not terminal:
-        raise ValueError("hybrid_model: basis='substructure' needs every substructure terminal (no large or "
-                         "prescribed hinge outboard of a small one); use basis='set'")
+        raise ValueError(
+            "hybrid_model: basis='substructure' needs every substructure terminal (no large or "
+            "prescribed hinge outboard of a small one); use basis='set'"
+        )
     possible = terminal and not loads_small
     if precompute is None:
         precompute = possible
     if precompute and not possible:
-        raise ValueError("hybrid_model: precompute=True needs every substructure terminal (no large or prescribed "
-                         "hinge outboard of a small one) and no external load on a small body"
-                         + ("; the loads act on small bodies" if loads_small else ""))
+        raise ValueError(
+            "hybrid_model: precompute=True needs every substructure terminal (no large or prescribed "
+            "hinge outboard of a small one) and no external load on a small body"
+            + ("; the loads act on small bodies" if loads_small else "")
+        )
     if form not in (None, "real", "first_order"):
         raise ValueError(f"hybrid_model: form must be 'real' or 'first_order', got {form!r}")
     w_nom, g_nom, C_nom = _nominal_motion(model, omega0, gamma, dcm)
@@ -872,16 +962,37 @@ def hybrid_model(
         cfg = configuration(model, g_nom)
         r_cm = -cfg.rho[0]  # the system mass center from b_0's: the nominal spins about it
         skeleton = HybridModel(
-            model=model, gamma_nominal=g_nom, omega0_nominal=w_nom, inertia=jnp.zeros((0, 0)), frequencies=jnp.zeros(0),
-            damping_ratios=jnp.zeros(0), positions=jnp.zeros((nu, 0)), rates=jnp.zeros((nu, 0)), accel=jnp.zeros((nu, 0)),
-            rows=jnp.zeros((nu, 0)), kin=jnp.zeros((0, 0)), kin_rhs=jnp.zeros((0, 0)), project=jnp.zeros((0, 2 * nu)),
-            keep=jnp.zeros(0), modal_inverse=None, pre=None, attitude=get_attitude(attitude), small=S, large=L,
-            form="real", kind="real", mode_index=(), groups=groups, basis=basis)
+            model=model,
+            gamma_nominal=g_nom,
+            omega0_nominal=w_nom,
+            inertia=jnp.zeros((0, 0)),
+            frequencies=jnp.zeros(0),
+            damping_ratios=jnp.zeros(0),
+            positions=jnp.zeros((nu, 0)),
+            rates=jnp.zeros((nu, 0)),
+            accel=jnp.zeros((nu, 0)),
+            rows=jnp.zeros((nu, 0)),
+            kin=jnp.zeros((0, 0)),
+            kin_rhs=jnp.zeros((0, 0)),
+            project=jnp.zeros((0, 2 * nu)),
+            keep=jnp.zeros(0),
+            modal_inverse=None,
+            pre=None,
+            attitude=get_attitude(attitude),
+            small=S,
+            large=L,
+            form="real",
+            kind="real",
+            mode_index=(),
+            groups=groups,
+            basis=basis,
+        )
         gL = g_nom[np.asarray(L, np.int64) - 1]
         v0 = jnp.concatenate([w_nom, cross(r_cm, w_nom)])  # b_0's velocity in the spin about the mass center
         held = _held_prescription(skeleton)
-        _, _, _, vb, _, _ = _large_frame(held, tuple(g.base for g in groups), jnp.asarray(0.0, dtype), C_nom, w_nom,
-                                         gL, jnp.zeros_like(gL), v0=v0)
+        _, _, _, vb, _, _ = _large_frame(
+            held, tuple(g.base for g in groups), jnp.asarray(0.0, dtype), C_nom, w_nom, gL, jnp.zeros_like(gL), v0=v0
+        )
         sprung = np.zeros(model.n)
         sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
         for grp, tm, vg in zip(groups, tms, vb):
@@ -890,16 +1001,19 @@ def hybrid_model(
             d_s = jnp.asarray(np.asarray(model.damping) * sprung)[h]
             I, J, K = _sub.held_base(tm, vg, jnp.zeros(6, dtype), k_s, d_s)  # steady spin: no base acceleration
             rows = tuple(S.index(k) for k in grp.hinges)
-            systems.append((rows, np.asarray(I), np.asarray(J), np.asarray(K),
-                            tuple(model.names[k] for k in grp.hinges)))
+            systems.append(
+                (rows, np.asarray(I), np.asarray(J), np.asarray(K), tuple(model.names[k] for k in grp.hinges))
+            )
     mds = [_modes(I, J, K, labels=lab, rtol=rtol) for (_, I, J, K, lab) in systems]
     kinds = [md.kind for md in mds]
     if form is None:
         form = "real" if all(kd == "real" for kd in kinds) else "first_order"
     if form == "real" and any(kd != "real" for kd in kinds):
         bad = next(kd for kd in kinds if kd != "real")
-        raise ModalError(f"hybrid_model: form='real' needs real modes (J = 0, K symmetric); the modes of the set A "
-                         f"are {bad!r}. Use form='first_order' (Eq. 118).")
+        raise ModalError(
+            f"hybrid_model: form='real' needs real modes (J = 0, K symmetric); the modes of the set A "
+            f"are {bad!r}. Use form='first_order' (Eq. 118)."
+        )
     if basis == "substructure" and n_modes is not None and not isinstance(n_modes, (int, np.integer)):
         per = list(n_modes)
         if len(per) != len(groups):
@@ -907,7 +1021,7 @@ def hybrid_model(
     else:
         per = [n_modes] * len(mds)
     blocks, picked = [], []
-    for gi, ((rows, I, J, K, _), md, n) in enumerate(zip(systems, mds, per)):
+    for gi, ((rows, I, _J, K, _), md, n) in enumerate(zip(systems, mds, per)):
         sigma = np.asarray(md.frequencies)
         rigid = np.asarray(md.rigid)
         cands = list(range(len(sigma))) if form == "real" else [j for j in range(len(sigma)) if not rigid[j]]
@@ -953,13 +1067,31 @@ def hybrid_model(
     one_base = len({g.base for g in groups}) == 1
     inertia = mass_matrix(model, g_nom)[np.ix_(np.asarray(S) + 2, np.asarray(S) + 2)]
     hm = HybridModel(
-        model=model, gamma_nominal=g_nom, omega0_nominal=w_nom, inertia=f(inertia), frequencies=f(sig_all),
-        damping_ratios=f(zeta_all), positions=f(parts["positions"]), rates=f(parts["rates"]),
-        accel=f(parts["accel"]), rows=f(parts["rows"]), kin=f(parts["kin"]), kin_rhs=f(parts["kin_rhs"]),
-        project=f(parts["project"]), keep=jnp.ones(len(mode_index), dtype),
-        modal_inverse=f(np.eye(u)) if (terminal and one_base) else None, pre=pre,
-        attitude=get_attitude(attitude), small=S, large=L, form=form, kind=kinds[0], mode_index=mode_index,
-        mode_group=mode_group, groups=groups, basis=basis,
+        model=model,
+        gamma_nominal=g_nom,
+        omega0_nominal=w_nom,
+        inertia=f(inertia),
+        frequencies=f(sig_all),
+        damping_ratios=f(zeta_all),
+        positions=f(parts["positions"]),
+        rates=f(parts["rates"]),
+        accel=f(parts["accel"]),
+        rows=f(parts["rows"]),
+        kin=f(parts["kin"]),
+        kin_rhs=f(parts["kin_rhs"]),
+        project=f(parts["project"]),
+        keep=jnp.ones(len(mode_index), dtype),
+        modal_inverse=f(np.eye(u)) if (terminal and one_base) else None,
+        pre=pre,
+        attitude=get_attitude(attitude),
+        small=S,
+        large=L,
+        form=form,
+        kind=kinds[0],
+        mode_index=mode_index,
+        mode_group=mode_group,
+        groups=groups,
+        basis=basis,
     )
     return _with_inverse(hm)
 
@@ -1051,10 +1183,15 @@ def _hybrid_failure_message(code, t, state, modal):
     np.set_printoptions(precision=6, suppress=False, linewidth=120)
 
     def describe(kind, pick):
-        lines = [f"jaxtree.simulate_hybrid: {MESSAGES[kind]}.", f"  stopped at t = {float(pick(t)):.9g}",
-                 f"  omega0 = {pick(state.omega0)}", f"  gamma = {pick(state.gamma)}",
-                 f"  gamma_dot = {pick(state.gamma_dot)}", f"  C = {pick(state.dcm).tolist()}",
-                 f"  modal coordinates = {pick(modal)}"]
+        lines = [
+            f"jaxtree.simulate_hybrid: {MESSAGES[kind]}.",
+            f"  stopped at t = {float(pick(t)):.9g}",
+            f"  omega0 = {pick(state.omega0)}",
+            f"  gamma = {pick(state.gamma)}",
+            f"  gamma_dot = {pick(state.gamma_dot)}",
+            f"  C = {pick(state.dcm).tolist()}",
+            f"  modal coordinates = {pick(modal)}",
+        ]
         if not all(np.all(np.isfinite(pick(x))) for x in state):
             lines.append("  diagnosis: the state is not finite")
         return "\n".join(lines)
@@ -1080,22 +1217,50 @@ def _solve_hybrid(hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, m
     finite_start = jnp.all(jnp.isfinite(y0))
     dtype = y0.dtype
     model = hybrid.model
-    rest = hybrid.pack(State(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype), hybrid.gamma_nominal.astype(dtype),
-                             jnp.zeros(model.n, dtype)))
+    rest = hybrid.pack(
+        State(
+            jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype), hybrid.gamma_nominal.astype(dtype), jnp.zeros(model.n, dtype)
+        )
+    )
     if controller is None:
         controller = default_controller(rtol, atol, t0, t1)
-    ts_h, ys_h, t_final, y_final, sol = integrate(hybrid_rhs, solver, t0, t1, dt0, y0, hybrid, ts=ts,
-                                                  controller=controller, max_steps=max_steps, progress_meter=meter,
-                                                  start_ok=finite_start, rest=rest)
+    ts_h, ys_h, t_final, y_final, sol = integrate(
+        hybrid_rhs,
+        solver,
+        t0,
+        t1,
+        dt0,
+        y0,
+        hybrid,
+        ts=ts,
+        controller=controller,
+        max_steps=max_steps,
+        progress_meter=meter,
+        start_ok=finite_start,
+        rest=rest,
+    )
     code = jnp.where(finite_start, _failure_code(sol.result), int(Failure.NONFINITE_START))
     states = jax.vmap(hybrid.state)(ts_h, ys_h)
     final = hybrid.state(t_final, y_final)
     energy, momentum = jax.vmap(lambda st: _energy_and_momentum(hybrid.model, st))(states)
     out = HybridSolution(
-        ts=ts_h, omega0=states.omega0, dcm=states.dcm, gamma=states.gamma, gamma_dot=states.gamma_dot,
-        modal=jax.vmap(hybrid.modal)(ys_h), ys=ys_h, t_final=t_final, result=sol.result,
-        stats=dict(sol.stats), hybrid=hybrid, final=final, final_modal=hybrid.modal(y_final),
-        energy=energy, angular_momentum=momentum, projection_residual=residual, failure=code,
+        ts=ts_h,
+        omega0=states.omega0,
+        dcm=states.dcm,
+        gamma=states.gamma,
+        gamma_dot=states.gamma_dot,
+        modal=jax.vmap(hybrid.modal)(ys_h),
+        ys=ys_h,
+        t_final=t_final,
+        result=sol.result,
+        stats=dict(sol.stats),
+        hybrid=hybrid,
+        final=final,
+        final_modal=hybrid.modal(y_final),
+        energy=energy,
+        angular_momentum=momentum,
+        projection_residual=residual,
+        failure=code,
     )
     if report:
         # Under a caller's jit/vmap: report failures from one host callback (for a whole batch).
@@ -1166,9 +1331,22 @@ def simulate_hybrid(
     dt0 = 1e-3 * (t1a - t0a) if dt0 is None else jnp.asarray(dt0, dtype)
     solver = dfx.Dopri8() if solver is None else solver
     traced = is_traced((hybrid, y, t0a, t1a, ts, rtol, atol, dt0, solver, stepsize_controller))
-    sol = _solve_hybrid(hybrid, y, t0a, t1a, ts, jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), dt0,
-                        solver, stepsize_controller, int(max_steps), bool(throw and traced), residual,
-                        progress_meter(progress))
+    sol = _solve_hybrid(
+        hybrid,
+        y,
+        t0a,
+        t1a,
+        ts,
+        jnp.asarray(rtol, dtype),
+        jnp.asarray(atol, dtype),
+        dt0,
+        solver,
+        stepsize_controller,
+        int(max_steps),
+        bool(throw and traced),
+        residual,
+        progress_meter(progress),
+    )
     if throw and not traced:
         message = _hybrid_failure_message(sol.failure, sol.t_final, sol.final, sol.final_modal)
         if message is not None:

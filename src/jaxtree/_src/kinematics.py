@@ -14,6 +14,8 @@ bodies, and no work is spent on pairs whose path element is zero.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
+from typing import ParamSpec, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -21,8 +23,11 @@ import numpy as np
 
 from .topology import Topology
 
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
 
-def full_precision(fn):
+
+def full_precision(fn: Callable[_P, _R]) -> Callable[_P, _R]:
     """Trace `fn` with every matrix product at full precision of its dtype.
 
     On GPUs JAX's default lets float32 products run in reduced precision (TF32 on NVIDIA
@@ -33,7 +38,7 @@ def full_precision(fn):
     """
 
     @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
+    def wrapper(*args: _P.args, **kwargs: _P.kwargs) -> _R:
         with jax.default_matmul_precision("highest"):
             return fn(*args, **kwargs)
 
@@ -45,14 +50,18 @@ def full_precision(fn):
 # matmul) or a reduction over an axis of length 3 runs several times slower.
 def mv(A, x):
     """``A @ x`` for stacks of 3x3 matrices and 3-vectors."""
-    return jnp.stack([A[..., i, 0] * x[..., 0] + A[..., i, 1] * x[..., 1] + A[..., i, 2] * x[..., 2] for i in range(3)], -1)
+    return jnp.stack(
+        [A[..., i, 0] * x[..., 0] + A[..., i, 1] * x[..., 1] + A[..., i, 2] * x[..., 2] for i in range(3)], -1
+    )
 
 
 def mm(A, B):
     """``A @ B`` for stacks of 3x3 matrices."""
     rows = [
-        jnp.stack([A[..., i, 0] * B[..., 0, j] + A[..., i, 1] * B[..., 1, j] + A[..., i, 2] * B[..., 2, j]
-                   for j in range(3)], -1)
+        jnp.stack(
+            [A[..., i, 0] * B[..., 0, j] + A[..., i, 1] * B[..., 1, j] + A[..., i, 2] * B[..., 2, j] for j in range(3)],
+            -1,
+        )
         for i in range(3)
     ]
     return jnp.stack(rows, -2)
@@ -73,9 +82,7 @@ def tilde(v):
     """Cross-product matrix of Def. 24: ``tilde(v) @ w == cross(v, w)``; batches over leading axes."""
     v1, v2, v3 = v[..., 0], v[..., 1], v[..., 2]
     z = jnp.zeros_like(v1)
-    return jnp.stack(
-        [jnp.stack([z, -v3, v2], -1), jnp.stack([v3, z, -v1], -1), jnp.stack([-v2, v1, z], -1)], -2
-    )
+    return jnp.stack([jnp.stack([z, -v3, v2], -1), jnp.stack([v3, z, -v1], -1), jnp.stack([-v2, v1, z], -1)], -2)
 
 
 def hinge_rotation(axis, gamma):

@@ -42,10 +42,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .dynamics import rotational_equations
 from . import _checks
-from .kinematics import full_precision, tilde
 from ._hinges import selector
+from .dynamics import rotational_equations
+from .kinematics import full_precision, tilde
 from .model import Model, State
 
 
@@ -124,7 +124,8 @@ class Structure(NamedTuple):
         ]
         if self.K_symmetric:
             parts.append(
-                "K positive definite" if self.K_positive
+                "K positive definite"
+                if self.K_positive
                 else ("K positive semidefinite (zero-frequency modes)" if self.K_semidefinite else "K indefinite")
             )
         return f"{self.kind}: " + ", ".join(parts)
@@ -149,8 +150,9 @@ def resolve_hinges(model: Model, small) -> tuple[int, ...]:
     for item in items:
         if isinstance(item, str):
             if item not in model.names:
-                raise KeyError(f"linearize: no body named {item!r}; hinges are named by their outboard body: "
-                               f"{model.names[1:]}")
+                raise KeyError(
+                    f"linearize: no body named {item!r}; hinges are named by their outboard body: {model.names[1:]}"
+                )
             k = model.names.index(item)
             if k == 0:
                 raise ValueError(f"linearize: {item!r} is the reference body b_0, which has no hinge")
@@ -200,18 +202,19 @@ def _partial(model, hinges, dcm, omega0, gamma, gamma_dot, omega0_dot, gamma_ddo
     E = selector(n, hinges, gamma.dtype)
 
     def residual(z):
-        y, yd, ydd = z[:nu], z[nu:2 * nu], z[2 * nu:]
+        y, yd, ydd = z[:nu], z[nu : 2 * nu], z[2 * nu :]
         state = State(dcm, omega0, gamma + E @ y, gamma_dot + E @ yd)
         A, rhs = rotational_equations(model, state, t)
         return A @ jnp.concatenate([omega0_dot, gamma_ddot + E @ ydd]) - rhs
 
     value, jac = _jacobian(residual, 3 * nu)
-    return PartialLinearization(value, jac[:, 2 * nu:], jac[:, nu:2 * nu], jac[:, :nu])
+    return PartialLinearization(value, jac[:, 2 * nu :], jac[:, nu : 2 * nu], jac[:, :nu])
 
 
 @full_precision
-def linearized_equations(model: Model, small, state: State, *, omega0_dot=None, gamma_ddot=None,
-                         t=0.0) -> PartialLinearization:
+def linearized_equations(
+    model: Model, small, state: State, *, omega0_dot=None, gamma_ddot=None, t=0.0
+) -> PartialLinearization:
     """Eq. (30): Eq. (1) to first order in the hinges of the set A, the rest unrestricted.
 
     **Arguments:**
@@ -234,9 +237,17 @@ def linearized_equations(model: Model, small, state: State, *, omega0_dot=None, 
     n = model.n
     w0d = jnp.zeros(3, dtype) if omega0_dot is None else jnp.asarray(omega0_dot, dtype)
     gdd = jnp.zeros(n, dtype) if gamma_ddot is None else jnp.asarray(gamma_ddot, dtype)
-    return _partial(model, hinges, jnp.asarray(state.dcm, dtype), jnp.asarray(state.omega0, dtype),
-                    jnp.asarray(state.gamma, dtype), jnp.asarray(state.gamma_dot, dtype), w0d, gdd,
-                    jnp.asarray(t, dtype))
+    return _partial(
+        model,
+        hinges,
+        jnp.asarray(state.dcm, dtype),
+        jnp.asarray(state.omega0, dtype),
+        jnp.asarray(state.gamma, dtype),
+        jnp.asarray(state.gamma_dot, dtype),
+        w0d,
+        gdd,
+        jnp.asarray(t, dtype),
+    )
 
 
 # ----------------------------------------------------------------------------- Eqs. (40)-(44)
@@ -244,8 +255,7 @@ def linearized_equations(model: Model, small, state: State, *, omega0_dot=None, 
 def _held(model, hinges, dcm, omega0, gamma, t):
     n = model.n
     dtype = gamma.dtype
-    lin = _partial(model, hinges, dcm, omega0, gamma, jnp.zeros(n, dtype), jnp.zeros(3, dtype),
-                   jnp.zeros(n, dtype), t)
+    lin = _partial(model, hinges, dcm, omega0, gamma, jnp.zeros(n, dtype), jnp.zeros(3, dtype), jnp.zeros(n, dtype), t)
     rows = np.asarray(hinges, dtype=np.int64) + 2  # row of hinge k in Eq. (1) is k + 2 (0-based)
     return lin.accel[rows], lin.rate[rows], lin.angle[rows], -lin.residual[rows]
 
@@ -287,7 +297,7 @@ def _vehicle(model, hinges, dcm, omega0, gamma, t):
     m = 3 + nu
 
     def residual(z):
-        q, qd, qdd = z[:m], z[m:2 * m], z[2 * m:]
+        q, qd, qdd = z[:m], z[m : 2 * m], z[2 * m :]
         th, thd, thdd = q[:3], qd[:3], qdd[:3]
         # b_0 = C_theta {f}, C_theta = U - tilde(theta) + ...; {f} spins at the constant omega0:
         # omega^0 = omega0 + theta' + omega0 x theta, d/dt omega^0 = theta'' + omega0 x theta' (first order).
@@ -299,12 +309,11 @@ def _vehicle(model, hinges, dcm, omega0, gamma, t):
         return jnp.concatenate([r[:3], r[3:][np.asarray(hinges) - 1]])
 
     value, jac = _jacobian(residual, 3 * m)
-    return jac[:, 2 * m:], jac[:, m:2 * m], jac[:, :m], -value
+    return jac[:, 2 * m :], jac[:, m : 2 * m], jac[:, :m], -value
 
 
 @full_precision
-def linearize_vehicle(model: Model, *, omega0=None, gamma=None, dcm=None, t=0.0,
-                      small=None) -> LinearSystem:
+def linearize_vehicle(model: Model, *, omega0=None, gamma=None, dcm=None, t=0.0, small=None) -> LinearSystem:
     """Full-system linearization: the all-small "vehicle normal mode" case of Sec. III B.
 
     Every hinge that is not prescribed is small (or those of `small`), and the attitude of

@@ -16,7 +16,7 @@ Loads written as equinox Modules keep their numbers as array leaves (traced, dif
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import equinox as eqx
 import jax

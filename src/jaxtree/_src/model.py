@@ -10,9 +10,9 @@ not need is never traced.
 from __future__ import annotations
 
 import abc
-
 import dataclasses
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -183,19 +183,17 @@ class Model(eqx.Module):
             raise IndexError(f"body index {k} outside 0..{self.n}")
         return k
 
-    def with_method(self, method: str, block_size: int | None = None) -> "Model":
+    def with_method(self, method: str, block_size: int | None = None) -> Model:
         """A copy of the model that solves Eq. (1) by `method` (``"auto"``, ``"dense"`` or
         ``"articulated"``; see the class docstring). `block_size`: the most hinges per block of
         the articulated method (0: its default, :data:`jaxtree.articulated.DEFAULT_BLOCK`)."""
         block_size = self.block_size if block_size is None else int(block_size)
         return dataclasses.replace(self, method=method, block_size=block_size)
 
-    def with_loads(self, loads: BodyLoads | None) -> "Model":
+    def with_loads(self, loads: BodyLoads | None) -> Model:
         """A copy of the model with other external loads (or none)."""
         return eqx.tree_at(lambda m: m.loads, self, loads, is_leaf=lambda x: x is None)
 
-    def astype(self, dtype) -> "Model":
+    def astype(self, dtype) -> Model:
         """All floating leaves cast to `dtype` (e.g. ``jnp.float32`` for GPU batches)."""
-        return jax.tree_util.tree_map(
-            lambda x: x.astype(dtype) if eqx.is_inexact_array(x) else x, self
-        )
+        return jax.tree_util.tree_map(lambda x: x.astype(dtype) if eqx.is_inexact_array(x) else x, self)

@@ -39,16 +39,16 @@ matrix ``Gamma' = B Gamma`` of the damped system.
 from __future__ import annotations
 
 import functools
-from typing import Sequence
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .linearize import LinearSystem, structure
 from . import _checks
 from ._checks import is_traced
+from .linearize import LinearSystem, structure
 
 
 class ModalError(ValueError):
@@ -139,8 +139,9 @@ def _gyro_core(I, J, K, definite):
     """Hermitian form of Eq. (70): eigenvalues mu of ``i S`` (ascending) and eigenvectors."""
     nu = I.shape[0]
     L = jnp.linalg.cholesky(0.5 * (I + I.T))
-    inv = lambda X: jax.scipy.linalg.solve_triangular(L, jax.scipy.linalg.solve_triangular(L, X, lower=True).T,
-                                                      lower=True)  # L^{-1} X^T L^{-T}, transposed twice
+    inv = lambda X: jax.scipy.linalg.solve_triangular(
+        L, jax.scipy.linalg.solve_triangular(L, X, lower=True).T, lower=True
+    )  # L^{-1} X^T L^{-T}, transposed twice
     Kt = inv(0.5 * (K + K.T))
     Kt = 0.5 * (Kt + Kt.T)
     Jt = inv(J.T)  # L^{-1} J L^{-T}
@@ -202,7 +203,8 @@ def _general(I, J, K, name):
     if np.any(bad):
         raise UnstableError(
             f"modes: unstable {name} system, eigenvalues with positive real part {lam[bad].tolist()}; "
-            "the seed rejects such a vehicle (Sec. III D)")
+            "the seed rejects such a vehicle (Sec. III D)"
+        )
     up, lo = _pair_general(lam, tol)
     order = np.concatenate([up, lo])
     lam = lam[order]
@@ -216,12 +218,15 @@ def _general(I, J, K, name):
         raise DefectiveError(
             f"modes: the first-order matrix of Eq. (71) is defective or nearly so (condition number of the "
             f"eigenvector matrix {cond:.3g}); a nondiagonal Jordan form means secular growth t^k e^(lambda t), "
-            "which the seed rejects (Sec. III D). Zero-frequency modes with a non-gyroscopic J are of this kind.")
+            "which the seed rejects (Sec. III D). Zero-frequency modes with a non-gyroscopic J are of this kind."
+        )
     try:
         Pinv_T = np.linalg.inv(P).T
     except np.linalg.LinAlgError:
-        raise DefectiveError("modes: K is singular, so P = diag(K, I) of Eq. (70) has no inverse "
-                             "and the left eigenvectors of Eq. (89) do not exist") from None
+        raise DefectiveError(
+            "modes: K is singular, so P = diag(K, I) of Eq. (70) has no inverse "
+            "and the left eigenvectors of Eq. (89) do not exist"
+        ) from None
     Psi = np.linalg.inv(Phi)  # rows: left eigenvectors of B with Psi Phi = U (Eq. 72)
     left = Pinv_T @ Psi.T  # Phi'^T P = Psi  (Eqs. 85, 89)
     return lam, Phi, left, P, Q, B
@@ -255,8 +260,9 @@ def _labels(shapes, part, coords, rigid, hinges_of):
     return tuple(labels)
 
 
-def modes(I, J=None, K=None, *, damping=None, kind: str | None = None, labels: Sequence[str] | None = None,
-          rtol: float = 1e-9) -> Modes:
+def modes(
+    I, J=None, K=None, *, damping=None, kind: str | None = None, labels: Sequence[str] | None = None, rtol: float = 1e-9
+) -> Modes:
     """Modes of ``I y'' + J y' + K y = 0`` (Eqs. 70-104).
 
     **Arguments:**
@@ -299,8 +305,10 @@ def modes(I, J=None, K=None, *, damping=None, kind: str | None = None, labels: S
         if kind is None:
             raise ValueError("modes: pass kind='real' or 'gyroscopic' when I, J, K are traced (e.g. under jax.grad)")
         if kind == "general":
-            raise ValueError("modes: the general (non-gyroscopic) case needs concrete arrays; JAX's general eig "
-                             "has no reliable derivative")
+            raise ValueError(
+                "modes: the general (non-gyroscopic) case needs concrete arrays; JAX's general eig "
+                "has no reliable derivative"
+            )
     else:
         st = structure(I, J, K, rtol=rtol)
         if not st.I_symmetric or not st.I_positive:
@@ -323,8 +331,10 @@ def modes(I, J=None, K=None, *, damping=None, kind: str | None = None, labels: S
         if np.any(zn < 0) or not np.all(np.isfinite(zn)):
             raise ValueError(f"modes: modal damping ratios must be finite and >= 0, got {zn.tolist()}")
         if kind == "general":
-            raise ModalError("modes: modal damping (Eq. 104 / Sec. III E) applies to undamped real or gyroscopic "
-                             "modes; this system already has a general J")
+            raise ModalError(
+                "modes: modal damping (Eq. 104 / Sec. III E) applies to undamped real or gyroscopic "
+                "modes; this system already has a general J"
+            )
     P, Q, B0 = first_order(I, J, K)
     cdtype = jnp.result_type(dtype, jnp.complex64)
 
@@ -336,8 +346,10 @@ def modes(I, J=None, K=None, *, damping=None, kind: str | None = None, labels: S
             scale = max(np.abs(s2n).max(initial=0.0), 1e-300)
             if s2n[0] < -1e-9 * scale:
                 bad = s2n[s2n < -1e-9 * scale]
-                raise UnstableError(f"modes: sigma^2 < 0 ({bad.tolist()}): divergent (statically unstable) modes; "
-                                    "the seed rejects such a vehicle (Sec. III D)")
+                raise UnstableError(
+                    f"modes: sigma^2 < 0 ({bad.tolist()}): divergent (statically unstable) modes; "
+                    "the seed rejects such a vehicle (Sec. III D)"
+                )
             rigid_np = s2n <= 1e-9 * scale
         else:
             rigid_np = None
@@ -347,13 +359,14 @@ def modes(I, J=None, K=None, *, damping=None, kind: str | None = None, labels: S
         up = jnp.where(rigid[None, :], 0.0, up).astype(cdtype)
         right = jnp.concatenate([up, jnp.conj(up)], 1)
         left = jnp.conj(right)
-        root = jnp.sqrt((1.0 - zeta ** 2).astype(cdtype))  # Eq. (104): eta = exp(lambda t)
+        root = jnp.sqrt((1.0 - zeta**2).astype(cdtype))  # Eq. (104): eta = exp(lambda t)
         lam_up = -zeta * sigma + 1j * sigma * root
         lam = jnp.concatenate([lam_up, jnp.conj(lam_up)])
         shapes = phi
         C = (I @ phi) * (2.0 * zeta * sigma) @ (phi.T @ I)  # J equivalent to Eq. (104)
-        B = jnp.block([[jnp.zeros_like(I), jnp.eye(nu, dtype=dtype)],
-                       [-jnp.linalg.solve(I, K), -jnp.linalg.solve(I, C)]])
+        B = jnp.block(
+            [[jnp.zeros_like(I), jnp.eye(nu, dtype=dtype)], [-jnp.linalg.solve(I, K), -jnp.linalg.solve(I, C)]]
+        )
     elif kind == "gyroscopic":
         L, sigma, low, k_evals, k_vecs = _gyroscopic(I, J, K, definite)
         if not traced and not definite:

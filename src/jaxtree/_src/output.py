@@ -40,9 +40,16 @@ def histories(sol: Solution) -> dict[str, np.ndarray]:
     ts = np.asarray(sol.ts)
     keep = np.isfinite(ts)
     out = {
-        "t": ts, "gamma": sol.gamma, "gamma_dot": sol.gamma_dot, "omega0": sol.omega0, "dcm": sol.dcm,
-        "attitude": sol.attitude, "energy": sol.energy, "angular_momentum": sol.angular_momentum,
-        "hold_torque": sol.hold_torque, "orthogonality": sol.orthogonality,
+        "t": ts,
+        "gamma": sol.gamma,
+        "gamma_dot": sol.gamma_dot,
+        "omega0": sol.omega0,
+        "dcm": sol.dcm,
+        "attitude": sol.attitude,
+        "energy": sol.energy,
+        "angular_momentum": sol.angular_momentum,
+        "hold_torque": sol.hold_torque,
+        "orthogonality": sol.orthogonality,
     }
     if sol.X is not None:
         out.update(X=sol.X, X_dot=sol.X_dot)

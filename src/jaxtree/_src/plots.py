@@ -11,7 +11,7 @@ jaxtree[plot]``); it is imported when a plot is made.
 from __future__ import annotations
 
 import io
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -22,8 +22,8 @@ def _figure(**kw):
     """A new figure outside pyplot's state (a plot made here never becomes pyplot's current
     figure, and nothing is left open in pyplot)."""
     try:
-        from matplotlib.figure import Figure
         import mpl_toolkits.mplot3d  # noqa: F401  (registers the 3d projection)
+        from matplotlib.figure import Figure
     except ImportError as e:
         raise ImportError("plots need matplotlib (pip install 'jaxtree[plot]')") from e
     return Figure(**kw)
@@ -57,10 +57,18 @@ def _series(result) -> dict:
         ds = result
         get = lambda k: ds[k].values if k in ds else None  # noqa: E731
         names = [str(s) for s in ds["hinge_name"].values] if "hinge_name" in ds.coords else None
-        out = dict(t=ds["time"].values, gamma=get("gamma"), gamma_dot=get("gamma_dot"), omega0=get("omega0"),
-                   dcm=get("dcm"), energy=get("energy"), H=get("angular_momentum"), names=names,
-                   title=str(ds.attrs.get("scene_name", "")), prescribed=tuple(ds["prescribed_hinge"].values)
-                   if "prescribed_hinge" in ds.coords else ())
+        out = dict(
+            t=ds["time"].values,
+            gamma=get("gamma"),
+            gamma_dot=get("gamma_dot"),
+            omega0=get("omega0"),
+            dcm=get("dcm"),
+            energy=get("energy"),
+            H=get("angular_momentum"),
+            names=names,
+            title=str(ds.attrs.get("scene_name", "")),
+            prescribed=tuple(ds["prescribed_hinge"].values) if "prescribed_hinge" in ds.coords else (),
+        )
         out["damped"] = _scene_has_dampers(ds.attrs.get("scene", ""))
         return out
     sol = result
@@ -68,9 +76,19 @@ def _series(result) -> dict:
     keep = np.isfinite(ts)
     a = lambda x: None if x is None else np.asarray(x)[keep]  # noqa: E731
     model = sol.problem.model
-    return dict(t=ts[keep], gamma=a(sol.gamma), gamma_dot=a(sol.gamma_dot), omega0=a(sol.omega0), dcm=a(sol.dcm),
-                energy=a(sol.energy), H=a(sol.angular_momentum), names=list(model.names[1:]), title=model.name,
-                prescribed=model.prescribed, damped=bool(np.any(np.asarray(model.damping) != 0)))
+    return dict(
+        t=ts[keep],
+        gamma=a(sol.gamma),
+        gamma_dot=a(sol.gamma_dot),
+        omega0=a(sol.omega0),
+        dcm=a(sol.dcm),
+        energy=a(sol.energy),
+        H=a(sol.angular_momentum),
+        names=list(model.names[1:]),
+        title=model.name,
+        prescribed=model.prescribed,
+        damped=bool(np.any(np.asarray(model.damping) != 0)),
+    )
 
 
 def _legend(ax, count, **kw):
@@ -98,8 +116,10 @@ def plot_histories(result, path=None, *, title: str | None = None):
     for i in range(3):
         axes[1, 0].plot(t, s["omega0"][:, i], lw=1, label=f"$\\omega^0_{i + 1}$")
         axes[1, 1].plot(t, s["dcm"][:, i, i], lw=1, label=f"$C_{{{i + 1}{i + 1}}}$")
-    axes[0, 0].set_title("hinge angles $\\gamma_k$ (rad)" + (
-        f"; spinning, see rates: {', '.join(names[k] for k in spinning)}" if spinning else ""))
+    axes[0, 0].set_title(
+        "hinge angles $\\gamma_k$ (rad)"
+        + (f"; spinning, see rates: {', '.join(names[k] for k in spinning)}" if spinning else "")
+    )
     axes[0, 1].set_title("hinge rates $\\dot\\gamma_k$ (rad/s)")
     axes[1, 0].set_title("$\\omega^0$ of $b_0$ in $\\{b^0\\}$ (rad/s)")
     axes[1, 1].set_title("direction cosines $C_{ii}$ (Def. 9)")
@@ -151,9 +171,9 @@ def tree_segments(model: Model, gamma) -> np.ndarray:
     """The tree as line segments at hinge angles `gamma` (n,): for each hinge k a polyline
     ``[mass center of the parent, hinge point h_k, mass center of body k]`` (n, 3, 3), from
     the system mass center in {b0} components (:func:`jaxtree.configuration`)."""
-    from .dynamics import configuration
-
     import jax.numpy as jnp
+
+    from .dynamics import configuration
 
     cfg = configuration(model, jnp.asarray(gamma, jnp.result_type(model.mass)))
     rho, hinge = np.asarray(cfg.rho), np.asarray(cfg.hinge)
@@ -176,8 +196,18 @@ def _equal_box(ax, pts):
     ax.set_box_aspect((1, 1, 1))
 
 
-def plot_mode_shapes(model: Model, shapes, frequencies=None, path=None, *, gamma=None, modes: Sequence[int] | None = None,
-                     amplitude: float = 0.3, labels: Sequence[str] | None = None, title: str | None = None):
+def plot_mode_shapes(
+    model: Model,
+    shapes,
+    frequencies=None,
+    path=None,
+    *,
+    gamma=None,
+    modes: Sequence[int] | None = None,
+    amplitude: float = 0.3,
+    labels: Sequence[str] | None = None,
+    title: str | None = None,
+):
     """Mode shapes drawn as the deformed tree (3D line drawings), one panel per mode.
 
     - `shapes` (n, k): each column a mode's hinge angles on all n hinges (zero off the small
@@ -228,15 +258,24 @@ def plot_mode_shapes(model: Model, shapes, frequencies=None, path=None, *, gamma
         ax.set_ylabel("y (m)", fontsize=7)
         ax.set_zlabel("z (m)", fontsize=7)
         ax.tick_params(labelsize=6)
-    fig.suptitle(title if title is not None else f"{model.name}: mode shapes (grey: nominal; blue/red: "
-                 f"+/- {amplitude:g} rad at the largest hinge)")
+    fig.suptitle(
+        title
+        if title is not None
+        else f"{model.name}: mode shapes (grey: nominal; blue/red: +/- {amplitude:g} rad at the largest hinge)"
+    )
     fig.tight_layout()
     _save(fig, path)
     return fig
 
 
-def plot_work_precision(methods: Mapping[str, object], path=None, *, title: str = "work-precision",
-                        error_label: str = "error", time_label: str = "run time (s)"):
+def plot_work_precision(
+    methods: Mapping[str, object],
+    path=None,
+    *,
+    title: str = "work-precision",
+    error_label: str = "error",
+    time_label: str = "run time (s)",
+):
     """Error against run time, one line per method (log-log).
 
     `methods` maps a method's name to its points, either ``(errors, times)`` (two arrays of one

@@ -65,16 +65,19 @@ def versions() -> dict[str, str]:
     import jaxtree
 
     out = {
-        "jaxtree_version": jaxtree.__version__, "jax_version": jax.__version__,
-        "diffrax_version": diffrax.__version__, "equinox_version": equinox.__version__,
-        "numpy_version": np.__version__, "python_version": platform.python_version(),
+        "jaxtree_version": jaxtree.__version__,
+        "jax_version": jax.__version__,
+        "diffrax_version": diffrax.__version__,
+        "equinox_version": equinox.__version__,
+        "numpy_version": np.__version__,
+        "python_version": platform.python_version(),
         "jax_backend": jax.default_backend(),
     }
     try:
         out["xarray_version"] = _xr().__version__
     except ImportError:  # pragma: no cover
         pass
-    out["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    out["date"] = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
     return out
 
 
@@ -133,14 +136,33 @@ def _base_coords(model: Model, T_times):
         "hinge": ("hinge", np.arange(1, n + 1), {"long_name": "hinge index k (joins body k to its parent)"}),
         "body": ("body", np.arange(n + 1), {"long_name": "body index (0: the reference body b0)"}),
         "axis": ("axis", np.arange(1, 4), {"long_name": "vector component"}),
-        "hinge_name": ("hinge", np.asarray(model.names[1:], dtype=object), {"long_name": "name of the body outboard of the hinge"}),
+        "hinge_name": (
+            "hinge",
+            np.asarray(model.names[1:], dtype=object),
+            {"long_name": "name of the body outboard of the hinge"},
+        ),
         "body_name": ("body", np.asarray(model.names, dtype=object), {"long_name": "body name"}),
     }
 
 
-def simulation_dataset(model: Model, ts, gamma, gamma_dot, omega0, dcm, *, energy=None, angular_momentum=None,
-                       attitude=None, attitude_name: str | None = None, hold_torque=None, orthogonality=None,
-                       modal=None, positions=True, attrs: dict | None = None):
+def simulation_dataset(
+    model: Model,
+    ts,
+    gamma,
+    gamma_dot,
+    omega0,
+    dcm,
+    *,
+    energy=None,
+    angular_momentum=None,
+    attitude=None,
+    attitude_name: str | None = None,
+    hold_torque=None,
+    orthogonality=None,
+    modal=None,
+    positions=True,
+    attrs: dict | None = None,
+):
     """The :class:`xarray.Dataset` of a simulation's histories (see the module docstring).
 
     `ts` (T,); `gamma`, `gamma_dot` (T, n); `omega0` (T, 3); `dcm` (T, 3, 3); optional `energy`
@@ -160,46 +182,85 @@ def simulation_dataset(model: Model, ts, gamma, gamma_dot, omega0, dcm, *, energ
     v = {
         "gamma": _var(("time", "hinge"), gamma, "rad", "hinge angle gamma_k (Def. 21)"),
         "gamma_dot": _var(("time", "hinge"), gamma_dot, "rad s-1", "hinge rate d(gamma_k)/dt"),
-        "omega0": _var(("time", "axis"), omega0, "rad s-1",
-                       "inertial angular velocity of the reference body b0, {b0} components"),
-        "dcm": _var(("time", "row", "column"), dcm, "1",
-                    "direction cosines C of Def. 9, {b0} = C {i} (row: b0 axis, column: inertial axis)"),
+        "omega0": _var(
+            ("time", "axis"), omega0, "rad s-1", "inertial angular velocity of the reference body b0, {b0} components"
+        ),
+        "dcm": _var(
+            ("time", "row", "column"),
+            dcm,
+            "1",
+            "direction cosines C of Def. 9, {b0} = C {i} (row: b0 axis, column: inertial axis)",
+        ),
         "body_mass": _var(("body",), np.asarray(model.mass, float), "kg", "body mass"),
-        "body_inertia": _var(("body", "axis", "axis_2"), np.asarray(model.inertia, float), "kg m2",
-                             "inertia about the body's mass center, body components"),
-        "hinge_axis": _var(("hinge", "axis"), np.asarray(model.axis, float), "1",
-                           "unit hinge axis g^k, in the parent's frame at gamma = 0"),
+        "body_inertia": _var(
+            ("body", "axis", "axis_2"),
+            np.asarray(model.inertia, float),
+            "kg m2",
+            "inertia about the body's mass center, body components",
+        ),
+        "hinge_axis": _var(
+            ("hinge", "axis"),
+            np.asarray(model.axis, float),
+            "1",
+            "unit hinge axis g^k, in the parent's frame at gamma = 0",
+        ),
     }
     if energy is not None:
-        v["energy"] = _var(("time",), pick(energy), "J",
-                           "kinetic energy about the system mass center plus hinge-spring energy")
+        v["energy"] = _var(
+            ("time",), pick(energy), "J", "kinetic energy about the system mass center plus hinge-spring energy"
+        )
     if angular_momentum is not None:
-        v["angular_momentum"] = _var(("time", "axis"), pick(angular_momentum), "kg m2 s-1",
-                                     "angular momentum about the system mass center, inertial components")
+        v["angular_momentum"] = _var(
+            ("time", "axis"),
+            pick(angular_momentum),
+            "kg m2 s-1",
+            "angular momentum about the system mass center, inertial components",
+        )
     if attitude is not None:
-        v["attitude"] = _var(("time", "attitude_variable"), pick(attitude), "1",
-                             f"integrated attitude variables of b0 ({attitude_name})", attitude_name=attitude_name or "")
+        v["attitude"] = _var(
+            ("time", "attitude_variable"),
+            pick(attitude),
+            "1",
+            f"integrated attitude variables of b0 ({attitude_name})",
+            attitude_name=attitude_name or "",
+        )
     if hold_torque is not None and np.shape(hold_torque)[-1] > 0:
-        coords["prescribed_hinge"] = ("prescribed_hinge", np.asarray(model.prescribed),
-                                      {"long_name": "index of a kinematically prescribed hinge"})
-        v["hold_torque"] = _var(("time", "prescribed_hinge"), pick(hold_torque), "N m",
-                                "torque holding each prescribed hinge on its prescription (Sec. II B)")
+        coords["prescribed_hinge"] = (
+            "prescribed_hinge",
+            np.asarray(model.prescribed),
+            {"long_name": "index of a kinematically prescribed hinge"},
+        )
+        v["hold_torque"] = _var(
+            ("time", "prescribed_hinge"),
+            pick(hold_torque),
+            "N m",
+            "torque holding each prescribed hinge on its prescription (Sec. II B)",
+        )
     if orthogonality is not None:
         v["orthogonality"] = _var(("time",), pick(orthogonality), "1", "max |C C^T - U| (drift of Eq. 3)")
     if modal is not None:
-        v["modal"] = _var(("time", "modal_coordinate"), pick(modal), "1",
-                          "modal coordinates of the hybrid equations (Eqs. 111-112)")
+        v["modal"] = _var(
+            ("time", "modal_coordinate"), pick(modal), "1", "modal coordinates of the hybrid equations (Eqs. 111-112)"
+        )
     if isinstance(positions, tuple):
         rho, hinge = (np.asarray(x)[keep] for x in positions)
     elif positions and len(ts):
         rho, hinge = body_positions(model, gamma)
     if positions is not False and len(ts):
-        v["body_position"] = _var(("time", "body", "axis"), rho, "m",
-                                  "mass center of each body from the system mass center, {b0} components")
-        v["hinge_position"] = _var(("time", "hinge", "axis"), hinge, "m",
-                                   "hinge point h_k from the system mass center, {b0} components")
-    base = {"format": RESULT_FORMAT, "kind": "simulation", "scene_name": model.name, "scene": _scene_json(model),
-            "n_hinges": model.n, **versions()}
+        v["body_position"] = _var(
+            ("time", "body", "axis"), rho, "m", "mass center of each body from the system mass center, {b0} components"
+        )
+        v["hinge_position"] = _var(
+            ("time", "hinge", "axis"), hinge, "m", "hinge point h_k from the system mass center, {b0} components"
+        )
+    base = {
+        "format": RESULT_FORMAT,
+        "kind": "simulation",
+        "scene_name": model.name,
+        "scene": _scene_json(model),
+        "n_hinges": model.n,
+        **versions(),
+    }
     ds = xr.Dataset(v, coords=coords, attrs=_clean_attrs({**base, **(attrs or {})}))
     return ds
 
@@ -211,9 +272,12 @@ def solution_attrs(sol) -> dict:
     st = {k: int(np.asarray(x)) for k, x in sol.stats.items() if np.ndim(x) == 0}
     kind = failure_kind(sol.failure)
     return {
-        "attitude": sol.problem.attitude.name, "result": "ok" if kind is None else kind,
-        "result_code": int(np.asarray(sol.failure)), "t_final": float(np.asarray(sol.t_final)),
-        "steps_accepted": st.get("num_accepted_steps"), "steps_rejected": st.get("num_rejected_steps"),
+        "attitude": sol.problem.attitude.name,
+        "result": "ok" if kind is None else kind,
+        "result_code": int(np.asarray(sol.failure)),
+        "t_final": float(np.asarray(sol.t_final)),
+        "steps_accepted": st.get("num_accepted_steps"),
+        "steps_rejected": st.get("num_rejected_steps"),
         "rhs_evaluations": st.get("rhs_evaluations"),
     }
 
@@ -222,10 +286,20 @@ def solution_to_dataset(sol, attrs: dict | None = None):
     """The dataset of a :class:`jaxtree.Solution` (:func:`simulation_dataset` of its fields)."""
     model = sol.problem.model
     return simulation_dataset(
-        model, sol.ts, sol.gamma, sol.gamma_dot, sol.omega0, sol.dcm, energy=sol.energy,
-        angular_momentum=sol.angular_momentum, attitude=sol.attitude, attitude_name=sol.problem.attitude.name,
-        hold_torque=sol.hold_torque, orthogonality=sol.orthogonality,
-        attrs={**solution_attrs(sol), **(attrs or {})})
+        model,
+        sol.ts,
+        sol.gamma,
+        sol.gamma_dot,
+        sol.omega0,
+        sol.dcm,
+        energy=sol.energy,
+        angular_momentum=sol.angular_momentum,
+        attitude=sol.attitude,
+        attitude_name=sol.problem.attitude.name,
+        hold_torque=sol.hold_torque,
+        orthogonality=sol.orthogonality,
+        attrs={**solution_attrs(sol), **(attrs or {})},
+    )
 
 
 def modes_dataset(model: Model, md, *, small=(), omega0=None, gamma=None, attrs: dict | None = None):
@@ -253,14 +327,23 @@ def modes_dataset(model: Model, md, *, small=(), omega0=None, gamma=None, attrs:
     coords = {
         "mode": ("mode", np.arange(1, nu + 1), {"long_name": "mode number (ascending frequency)"}),
         "coordinate": ("coordinate", np.arange(1, nu + 1), {"long_name": "small coordinate"}),
-        "coordinate_name": ("coordinate", np.asarray(md.coordinates or [f"y{i + 1}" for i in range(nu)], dtype=object),
-                            {"long_name": "name of the small coordinate"}),
-        "coordinate_hinge": ("coordinate", np.asarray(small if small else [0] * nu),
-                             {"long_name": "hinge index of the small coordinate"}),
+        "coordinate_name": (
+            "coordinate",
+            np.asarray(md.coordinates or [f"y{i + 1}" for i in range(nu)], dtype=object),
+            {"long_name": "name of the small coordinate"},
+        ),
+        "coordinate_hinge": (
+            "coordinate",
+            np.asarray(small if small else [0] * nu),
+            {"long_name": "hinge index of the small coordinate"},
+        ),
         "hinge": ("hinge", np.arange(1, n + 1), {"long_name": "hinge index k"}),
         "hinge_name": ("hinge", np.asarray(model.names[1:], dtype=object), {"long_name": "name of the body outboard"}),
-        "mode_label": ("mode", np.asarray(md.labels or [""] * nu, dtype=object),
-                       {"long_name": "coordinates that dominate the mode"}),
+        "mode_label": (
+            "mode",
+            np.asarray(md.labels or [""] * nu, dtype=object),
+            {"long_name": "coordinates that dominate the mode"},
+        ),
     }
     v = {
         "frequency": _var(("mode",), np.asarray(md.frequencies), "rad s-1", "modal frequency sigma_j"),
@@ -272,8 +355,9 @@ def modes_dataset(model: Model, md, *, small=(), omega0=None, gamma=None, attrs:
         "shape_real": _var(("coordinate", "mode"), c(md.shapes).real, "rad", "mode shape phi^j (real part)"),
         "shape_imag": _var(("coordinate", "mode"), c(md.shapes).imag, "rad", "mode shape phi^j (imaginary part)"),
         "hinge_shape": _var(("hinge", "mode"), full, "rad", "mode shape on all hinges (zero off the small set)"),
-        "participation": _var(("coordinate", "mode"), np.asarray(md.participation), "1",
-                              "share of each coordinate in each mode"),
+        "participation": _var(
+            ("coordinate", "mode"), np.asarray(md.participation), "1", "share of each coordinate in each mode"
+        ),
         "right_real": _var(("state", "state_mode"), c(md.right).real, "1", "right eigenvectors Phi (real part)"),
         "right_imag": _var(("state", "state_mode"), c(md.right).imag, "1", "right eigenvectors Phi (imaginary part)"),
         "left_real": _var(("state", "state_mode"), c(md.left).real, "1", "left eigenvectors Phi' (real part)"),
@@ -285,9 +369,16 @@ def modes_dataset(model: Model, md, *, small=(), omega0=None, gamma=None, attrs:
         "omega0_nominal": _var(("axis",), w, "rad s-1", "nominal spin of b0, {b0} components"),
     }
     coords["axis"] = ("axis", np.arange(1, 4), {"long_name": "vector component"})
-    base = {"format": RESULT_FORMAT, "kind": "modes", "modes_kind": md.kind, "scene_name": model.name,
-            "scene": _scene_json(model), "n_hinges": n, "small_hinges": np.asarray(small, dtype=np.int64),
-            **versions()}
+    base = {
+        "format": RESULT_FORMAT,
+        "kind": "modes",
+        "modes_kind": md.kind,
+        "scene_name": model.name,
+        "scene": _scene_json(model),
+        "n_hinges": n,
+        "small_hinges": np.asarray(small, dtype=np.int64),
+        **versions(),
+    }
     return xr.Dataset(v, coords=coords, attrs=_clean_attrs({**base, **(attrs or {})}))
 
 
@@ -375,8 +466,15 @@ class ChunkedResult:
             return None
         drop = lambda d: d.drop_vars([k for k in d.data_vars if str(k).startswith("resume_")])  # noqa: E731
         parts = [drop(p) for p in parts]
-        ds = xr.concat(parts, dim="time", data_vars="minimal", coords="minimal", compat="override",
-                       join="outer", combine_attrs="override")
+        ds = xr.concat(
+            parts,
+            dim="time",
+            data_vars="minimal",
+            coords="minimal",
+            compat="override",
+            join="outer",
+            combine_attrs="override",
+        )
         last = parts[-1].attrs
         ds.attrs = dict(parts[0].attrs)
         for key in ("steps_accepted", "steps_rejected", "rhs_evaluations"):
@@ -432,16 +530,18 @@ def _model_of(ds) -> Model:
 
     text = ds.attrs.get("scene", "")
     if not text:
-        raise ValueError("load_result: this result does not carry its scene (a model with a Python-function "
-                         "prescription); load it with as_dataset=True")
+        raise ValueError(
+            "load_result: this result does not carry its scene (a model with a Python-function "
+            "prescription); load it with as_dataset=True"
+        )
     return scene_from_dict(json.loads(text))
 
 
 def _to_solution(ds):
     import diffrax as dfx  # noqa: F401  (Solution's field types)
 
-    from .attitude import get_attitude
     from ._integrate import KINDS as _KINDS
+    from .attitude import get_attitude
     from .simulate import Problem, Solution
 
     model = _model_of(ds)
@@ -462,18 +562,40 @@ def _to_solution(ds):
     final = State(dcm[i], omega0[i], gamma[i], gamma_dot[i])
     result = str(ds.attrs.get("result", "ok"))
     failure = 0 if result in ("ok", "") or result not in _KINDS else _KINDS.index(result) + 1
-    stats = {"num_accepted_steps": int(ds.attrs.get("steps_accepted", -1)),
-             "num_rejected_steps": int(ds.attrs.get("steps_rejected", -1)),
-             "num_steps": int(ds.attrs.get("steps_accepted", -1)) + int(ds.attrs.get("steps_rejected", 0)),
-             "rhs_evaluations": int(ds.attrs.get("rhs_evaluations", -1))}
+    stats = {
+        "num_accepted_steps": int(ds.attrs.get("steps_accepted", -1)),
+        "num_rejected_steps": int(ds.attrs.get("steps_rejected", -1)),
+        "num_steps": int(ds.attrs.get("steps_accepted", -1)) + int(ds.attrs.get("steps_rejected", 0)),
+        "rhs_evaluations": int(ds.attrs.get("rhs_evaluations", -1)),
+    }
     stats = {k: jnp.asarray(v) for k, v in stats.items()}
     return Solution(
-        ts=jnp.asarray(ds["time"].values, dtype), gamma=gamma, gamma_dot=gamma_dot, omega0=omega0, dcm=dcm,
-        attitude=attitude, control_state=None, X=None, X_dot=None, hold_torque=hold, energy=energy,
-        angular_momentum=H, orthogonality=ortho, t_final=jnp.asarray(ds.attrs.get("t_final", ds["time"].values[i]), dtype),
-        final=final, final_control_state=None, final_X=None, final_X_dot=None, result=None, event_mask=None,
-        singular=jnp.asarray(False), margin=jnp.asarray(jnp.nan, dtype), failure=jnp.asarray(failure),
-        stats=stats, raw=None, problem=problem,
+        ts=jnp.asarray(ds["time"].values, dtype),
+        gamma=gamma,
+        gamma_dot=gamma_dot,
+        omega0=omega0,
+        dcm=dcm,
+        attitude=attitude,
+        control_state=None,
+        X=None,
+        X_dot=None,
+        hold_torque=hold,
+        energy=energy,
+        angular_momentum=H,
+        orthogonality=ortho,
+        t_final=jnp.asarray(ds.attrs.get("t_final", ds["time"].values[i]), dtype),
+        final=final,
+        final_control_state=None,
+        final_X=None,
+        final_X_dot=None,
+        result=None,
+        event_mask=None,
+        singular=jnp.asarray(False),
+        margin=jnp.asarray(jnp.nan, dtype),
+        failure=jnp.asarray(failure),
+        stats=stats,
+        raw=None,
+        problem=problem,
     )
 
 
@@ -487,11 +609,18 @@ def _to_modes(ds):
         shapes = shapes.real
     labels = tuple(str(s) for s in ds["mode_label"].values)
     return Modes(
-        eigenvalues=c("eigenvalue_real", "eigenvalue_imag"), frequencies=jnp.asarray(ds["frequency"].values),
-        damping_ratios=jnp.asarray(ds["damping_ratio"].values), shapes=shapes, right=c("right_real", "right_imag"),
-        left=c("left_real", "left_imag"), P=jnp.asarray(ds["P"].values), Q=jnp.asarray(ds["Q"].values),
-        B=jnp.asarray(ds["B"].values), rigid=jnp.asarray(ds["rigid"].values.astype(bool)),
-        participation=jnp.asarray(ds["participation"].values), kind=kind,
+        eigenvalues=c("eigenvalue_real", "eigenvalue_imag"),
+        frequencies=jnp.asarray(ds["frequency"].values),
+        damping_ratios=jnp.asarray(ds["damping_ratio"].values),
+        shapes=shapes,
+        right=c("right_real", "right_imag"),
+        left=c("left_real", "left_imag"),
+        P=jnp.asarray(ds["P"].values),
+        Q=jnp.asarray(ds["Q"].values),
+        B=jnp.asarray(ds["B"].values),
+        rigid=jnp.asarray(ds["rigid"].values.astype(bool)),
+        participation=jnp.asarray(ds["participation"].values),
+        kind=kind,
         coordinates=tuple(str(s) for s in ds["coordinate_name"].values),
         labels=labels if any(labels) else (),
     )
@@ -511,8 +640,10 @@ def load_result(path, *, as_dataset: bool = False) -> Any:
     """
     ds = _open(path)
     if ds.attrs.get("format") != RESULT_FORMAT:
-        raise ValueError(f"{path}: not a jaxtree result file (format attribute {ds.attrs.get('format')!r}, "
-                         f"expected {RESULT_FORMAT!r})")
+        raise ValueError(
+            f"{path}: not a jaxtree result file (format attribute {ds.attrs.get('format')!r}, "
+            f"expected {RESULT_FORMAT!r})"
+        )
     if as_dataset:
         return ds
     kind = ds.attrs.get("kind")

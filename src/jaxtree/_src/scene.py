@@ -14,15 +14,15 @@ import json
 import os
 import pathlib
 import tempfile
-from typing import Any, Callable, ClassVar, Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import (SceneError, SceneTypeError, as_float, is_traced, rotation, short,
-                      unknown_keys)
+from ._checks import SceneError, SceneTypeError, as_float, is_traced, rotation, short, unknown_keys
 from .model import BodyLoads, Model, Prescription, SinePrescription, State
 from .topology import Topology
 
@@ -144,8 +144,11 @@ def _inertia(value, mass, k, name):
     return 0.5 * (J + J.T)
 
 
-_JOINT_KEYS = {"free": {"kind"}, "spring_damper": {"kind", "stiffness", "damping"},
-               "prescribed": {"kind", "function", "amplitude", "frequency", "phase"}}
+_JOINT_KEYS = {
+    "free": {"kind"},
+    "spring_damper": {"kind", "stiffness", "damping"},
+    "prescribed": {"kind", "function", "amplitude", "frequency", "phase"},
+}
 
 
 def _joint(joint, k, name):
@@ -153,8 +156,9 @@ def _joint(joint, k, name):
         j = joint
     elif isinstance(joint, dict):
         if "kind" not in joint:
-            raise SceneError(f"{_where(k, name)}: field 'joint.kind' is missing (expected 'free', 'spring_damper' "
-                             "or 'prescribed')")
+            raise SceneError(
+                f"{_where(k, name)}: field 'joint.kind' is missing (expected 'free', 'spring_damper' or 'prescribed')"
+            )
         kind = joint["kind"]
         if not isinstance(kind, str) or kind not in _JOINT_KEYS:
             raise SceneError(
@@ -166,8 +170,10 @@ def _joint(joint, k, name):
             j = Free()
         elif kind == "spring_damper":
             if "stiffness" not in joint:
-                raise SceneError(f"{_where(k, name)}: field 'joint.stiffness' is missing (a spring_damper needs it; "
-                                 "use 0 for a pure damper)")
+                raise SceneError(
+                    f"{_where(k, name)}: field 'joint.stiffness' is missing (a spring_damper needs it; "
+                    "use 0 for a pure damper)"
+                )
             j = SpringDamper(joint["stiffness"], joint.get("damping", 0.0))
         else:
             fn = joint.get("function")
@@ -185,8 +191,10 @@ def _joint(joint, k, name):
         j = SpringDamper(_scalar(j.stiffness, k, name, "joint.stiffness"), _scalar(j.damping, k, name, "joint.damping"))
         for field, value in (("stiffness", j.stiffness), ("damping", j.damping)):
             if value < 0:
-                raise SceneError(f"{_where(k, name)}: field 'joint.{field}' must be >= 0, got {value} (a negative "
-                                 f"{'spring' if field == 'stiffness' else 'damper'} is no spring_damper)")
+                raise SceneError(
+                    f"{_where(k, name)}: field 'joint.{field}' must be >= 0, got {value} (a negative "
+                    f"{'spring' if field == 'stiffness' else 'damper'} is no spring_damper)"
+                )
     if isinstance(j, PrescribedSine):
         j = PrescribedSine(
             _scalar(j.amplitude, k, name, "joint.amplitude"),
@@ -207,8 +215,9 @@ def _initial(initial, n):
     elif initial is None:
         initial = {}
     elif not isinstance(initial, dict):
-        raise SceneTypeError(f"initial: expected an object with fields {sorted(_INITIAL_KEYS)} or a jaxtree.State, "
-                             f"got {short(initial)}")
+        raise SceneTypeError(
+            f"initial: expected an object with fields {sorted(_INITIAL_KEYS)} or a jaxtree.State, got {short(initial)}"
+        )
     initial = dict(initial)
     unknown_keys(initial, _INITIAL_KEYS, "initial")
     if initial.get("dcm") is not None and initial.get("attitude_dcm") is not None:
@@ -290,7 +299,11 @@ def build_model(
             for field in ("axis", "hinge_on_parent", "hinge_on_body"):
                 if getattr(b, field) is not None:
                     raise SceneError(f"{_where(0, nm)}: the reference body has no hinge: remove field {field!r}")
-            if not (b.joint is None or isinstance(b.joint, Free) or (isinstance(b.joint, dict) and b.joint == {"kind": "free"})):
+            if not (
+                b.joint is None
+                or isinstance(b.joint, Free)
+                or (isinstance(b.joint, dict) and b.joint == {"kind": "free"})
+            ):
                 raise SceneError(f"{_where(0, nm)}: the reference body has no hinge: remove field 'joint'")
             continue
         if b.parent is None:
@@ -419,23 +432,34 @@ def validate_model(model: Model) -> Model:
     if not isinstance(model, Model):
         raise SceneTypeError(f"validate_model: expected a jaxtree.Model, got {short(model)}")
     if is_traced(model):
-        raise SceneTypeError("validate_model needs concrete arrays: call it on the model (or batch of models) "
-                             "before jax.jit / jax.vmap, not inside")
+        raise SceneTypeError(
+            "validate_model needs concrete arrays: call it on the model (or batch of models) "
+            "before jax.jit / jax.vmap, not inside"
+        )
     n, names = model.n, model.names
-    tails = {"mass": (n + 1,), "inertia": (n + 1, 3, 3), "axis": (n, 3), "hinge_on_parent": (n, 3),
-             "hinge_on_body": (n, 3), "stiffness": (n,), "damping": (n,)}
+    tails = {
+        "mass": (n + 1,),
+        "inertia": (n + 1, 3, 3),
+        "axis": (n, 3),
+        "hinge_on_parent": (n, 3),
+        "hinge_on_body": (n, 3),
+        "stiffness": (n,),
+        "damping": (n,),
+    }
     for k in tails:
         x = getattr(model, k)
         kind = x.dtype if isinstance(x, (np.ndarray, jax.Array)) else None
         if kind is None or not jnp.issubdtype(kind, jnp.floating):
-            raise SceneTypeError(f"model: field {k!r} must be a floating-point array, got "
-                                 f"{short(x) if kind is None else f'an array of {kind}'}")
+            raise SceneTypeError(
+                f"model: field {k!r} must be a floating-point array, got "
+                f"{short(x) if kind is None else f'an array of {kind}'}"
+            )
     shapes = {k: np.shape(getattr(model, k)) for k in tails}
     for k, tail in tails.items():
-        if shapes[k][len(shapes[k]) - len(tail):] != tail:
+        if shapes[k][len(shapes[k]) - len(tail) :] != tail:
             raise SceneError(f"model: field {k!r} must end in shape {tail}, got {shapes[k]}")
     try:
-        batch = np.broadcast_shapes(*(shapes[k][:len(shapes[k]) - len(t)] for k, t in tails.items()))
+        batch = np.broadcast_shapes(*(shapes[k][: len(shapes[k]) - len(t)] for k, t in tails.items()))
     except ValueError:
         raise SceneError(f"model: the batch axes of the leaves do not match: {shapes}") from None
     leaf = lambda x, tail: np.broadcast_to(np.asarray(x, dtype=float), batch + tail)
@@ -458,20 +482,35 @@ def validate_model(model: Model) -> Model:
     rel = max(1e-9, 100 * float(np.finfo(np.asarray(model.mass).dtype).eps))
     scale = np.maximum(np.abs(J).max((-1, -2)), 1e-300)
     tol = rel * scale
-    fail(np.abs(J - np.swapaxes(J, -1, -2)).max((-1, -2)) > tol,
-         lambda r, k: f"field 'inertia' is not symmetric: {J[r][k].tolist()}")
+    fail(
+        np.abs(J - np.swapaxes(J, -1, -2)).max((-1, -2)) > tol,
+        lambda r, k: f"field 'inertia' is not symmetric: {J[r][k].tolist()}",
+    )
     massless = np.ones(n + 1, dtype=bool)
     massless[list(model.massive)] = False
-    fail(massless & ((mass != 0) | (np.abs(J).max((-1, -2)) > 0)),
-         lambda r, k: f"fields 'mass' / 'inertia' must stay zero: the model was built with this body massless "
-                      f"(mass {mass[r][k]}); rebuild it with build_model to give the body mass")
-    fail((mass == 0) & (np.abs(J).max((-1, -2)) > 0),
-         lambda r, k: f"a massless body must have zero 'inertia', got {J[r][k].tolist()}")
+    fail(
+        massless & ((mass != 0) | (np.abs(J).max((-1, -2)) > 0)),
+        lambda r, k: (
+            f"fields 'mass' / 'inertia' must stay zero: the model was built with this body massless "
+            f"(mass {mass[r][k]}); rebuild it with build_model to give the body mass"
+        ),
+    )
+    fail(
+        (mass == 0) & (np.abs(J).max((-1, -2)) > 0),
+        lambda r, k: f"a massless body must have zero 'inertia', got {J[r][k].tolist()}",
+    )
     ev = np.linalg.eigvalsh(0.5 * (J + np.swapaxes(J, -1, -2)))
-    fail(ev[..., 0] < -tol, lambda r, k: f"field 'inertia' is not positive semidefinite (eigenvalues {ev[r][k].tolist()})")
-    fail(ev[..., 0] + ev[..., 1] < ev[..., 2] - tol,
-         lambda r, k: f"field 'inertia' violates the triangle inequality of principal moments ({ev[r][k].tolist()}); "
-                      "no mass distribution has it")
+    fail(
+        ev[..., 0] < -tol,
+        lambda r, k: f"field 'inertia' is not positive semidefinite (eigenvalues {ev[r][k].tolist()})",
+    )
+    fail(
+        ev[..., 0] + ev[..., 1] < ev[..., 2] - tol,
+        lambda r, k: (
+            f"field 'inertia' violates the triangle inequality of principal moments ({ev[r][k].tolist()}); "
+            "no mass distribution has it"
+        ),
+    )
     total = mass.sum(-1)
     if np.any(total <= 0):
         run = tuple(int(i) for i in np.argwhere(total <= 0)[0])
@@ -479,12 +518,21 @@ def validate_model(model: Model) -> Model:
     if n == 0:
         return model
     fail(~np.isfinite(axis).all(-1), lambda r, k: f"field 'axis' must be finite, got {axis[r][k - 1].tolist()}", 1)
-    fail(np.abs(np.linalg.norm(axis, axis=-1) - 1) > rel,
-         lambda r, k: f"field 'axis' must be a unit vector (Eq. 4), got {axis[r][k - 1].tolist()} of norm "
-                      f"{np.linalg.norm(axis[r][k - 1]):.12g}", 1)
+    fail(
+        np.abs(np.linalg.norm(axis, axis=-1) - 1) > rel,
+        lambda r, k: (
+            f"field 'axis' must be a unit vector (Eq. 4), got {axis[r][k - 1].tolist()} of norm "
+            f"{np.linalg.norm(axis[r][k - 1]):.12g}"
+        ),
+        1,
+    )
     for field in ("hinge_on_parent", "hinge_on_body"):
         v = leaf(getattr(model, field), (n, 3))
-        fail(~np.isfinite(v).all(-1), lambda r, k, v=v, f=field: f"field {f!r} must be finite, got {v[r][k - 1].tolist()}", 1)
+        fail(
+            ~np.isfinite(v).all(-1),
+            lambda r, k, v=v, f=field: f"field {f!r} must be finite, got {v[r][k - 1].tolist()}",
+            1,
+        )
     sprung = np.zeros(n, dtype=bool)
     sprung[np.asarray(model.sprung, dtype=np.int64) - 1] = True
     for field in ("stiffness", "damping"):
@@ -505,7 +553,7 @@ def _validate_leaves_of(model: Model) -> None:
         if not isinstance(x, (np.ndarray, jax.Array)) or not jnp.issubdtype(x.dtype, jnp.floating):
             raise SceneTypeError(f"{what} must be a floating-point array, got {short(x)}")
         x = np.asarray(x, float)
-        if x.shape[x.ndim - len(tail):] != tail or x.ndim < len(tail):
+        if x.shape[x.ndim - len(tail) :] != tail or x.ndim < len(tail):
             raise SceneError(f"{what} must end in shape {tail}, got {x.shape}")
         if not np.all(np.isfinite(x)):
             raise SceneError(f"{what} must be finite")
@@ -513,8 +561,9 @@ def _validate_leaves_of(model: Model) -> None:
             tol = max(1e-6, 1e3 * float(np.finfo(np.asarray(model.initial.dcm).dtype).eps))
             err = np.abs(x @ np.swapaxes(x, -1, -2) - np.eye(3)).max()
             if err > tol or np.any(np.linalg.det(x) < 0):
-                raise SceneError(f"{what} must be a proper rotation matrix (orthonormal, det +1): "
-                                 f"max |C C^T - I| = {err:.3g}")
+                raise SceneError(
+                    f"{what} must be a proper rotation matrix (orthonormal, det +1): max |C C^T - I| = {err:.3g}"
+                )
     pres = model.prescription
     if isinstance(pres, SinePrescription):
         for field in ("amplitude", "frequency", "phase"):
@@ -607,20 +656,33 @@ def scene_to_dict(model: Model, description: str = "") -> dict:
             A, W, P = sine[k]
             joint = {"kind": "prescribed", "function": "sine", "amplitude": A, "frequency": W, "phase": P}
         elif k in model.sprung:
-            joint = {"kind": "spring_damper", "stiffness": float(model.stiffness[k - 1]),
-                     "damping": float(model.damping[k - 1])}
+            joint = {
+                "kind": "spring_damper",
+                "stiffness": float(model.stiffness[k - 1]),
+                "damping": float(model.damping[k - 1]),
+            }
         else:
             joint = {"kind": "free"}
-        bodies.append({
-            "name": model.names[k], "mass": float(model.mass[k]), "inertia": f(model.inertia[k]),
-            "parent": model.topology.parents[k - 1], "axis": f(model.axis[k - 1]),
-            "hinge_on_parent": f(model.hinge_on_parent[k - 1]), "hinge_on_body": f(model.hinge_on_body[k - 1]),
-            "joint": joint,
-        })
+        bodies.append(
+            {
+                "name": model.names[k],
+                "mass": float(model.mass[k]),
+                "inertia": f(model.inertia[k]),
+                "parent": model.topology.parents[k - 1],
+                "axis": f(model.axis[k - 1]),
+                "hinge_on_parent": f(model.hinge_on_parent[k - 1]),
+                "hinge_on_body": f(model.hinge_on_body[k - 1]),
+                "joint": joint,
+            }
+        )
     s = model.initial
-    return {"format": FORMAT, "name": model.name, "description": description, "bodies": bodies,
-            "initial": {"gamma": f(s.gamma), "gamma_dot": f(s.gamma_dot), "omega0": f(s.omega0),
-                        "attitude_dcm": f(s.dcm)}}
+    return {
+        "format": FORMAT,
+        "name": model.name,
+        "description": description,
+        "bodies": bodies,
+        "initial": {"gamma": f(s.gamma), "gamma_dot": f(s.gamma_dot), "omega0": f(s.omega0), "attitude_dcm": f(s.dcm)},
+    }
 
 
 def save_scene(model: Model, path, description: str = "") -> None:

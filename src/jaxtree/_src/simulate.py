@@ -19,7 +19,8 @@ progress meters are diffrax objects, passed to :func:`diffrax.diffeqsolve` uncha
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import diffrax as dfx
 import equinox as eqx
@@ -54,21 +55,20 @@ from ._integrate import (
 )
 from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
 from .control import AbstractController
-from .kinematics import full_precision
 from .dynamics import (
     SINGULAR_CONDITION,
     _energy_and_momentum,
     _matrix_condition,
     _null_direction_text,
+    _solve_accelerations,
     _unknown_labels,
     _unknown_rows,
     mass_center_acceleration,
     rotational_equations,
-    _solve_accelerations,
     solve_accelerations,
 )
+from .kinematics import full_precision
 from .model import Model, State
-
 
 
 def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw):
@@ -81,12 +81,15 @@ def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controlle
         h = float(as_float(dt0, "simulate: dt0", ()))
         direction = float(np.asarray(t1, float)) - float(np.asarray(t0, float))
         if h * direction < 0:
-            raise SceneError(f"simulate: dt0 = {h:g} points away from t1 (t0 = {float(np.asarray(t0)):g}, "
-                             f"t1 = {float(np.asarray(t1)):g})")
+            raise SceneError(
+                f"simulate: dt0 = {h:g} points away from t1 (t0 = {float(np.asarray(t0)):g}, "
+                f"t1 = {float(np.asarray(t1)):g})"
+            )
     if isinstance(translation, tuple):
         if len(translation) != 2:
-            raise SceneError(f"simulate: translation must be True, False or (X0, X_dot0), got a tuple of "
-                             f"{len(translation)}")
+            raise SceneError(
+                f"simulate: translation must be True, False or (X0, X_dot0), got a tuple of {len(translation)}"
+            )
         for label, x in zip(("X0", "X_dot0"), translation):
             if not is_traced(x):
                 as_float(x, f"simulate: translation {label}", (3,))
@@ -94,9 +97,11 @@ def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controlle
                 raise SceneError(f"simulate: translation {label} must have shape (3,), got {jnp.shape(x)}")
     elif not isinstance(translation, (bool, np.bool_)):
         raise SceneTypeError(f"simulate: translation must be True, False or (X0, X_dot0), got {short(translation)}")
-    for label, value, kind in (("solver", solver, dfx.AbstractSolver),
-                               ("stepsize_controller", stepsize_controller, dfx.AbstractStepSizeController),
-                               ("adjoint", adjoint, dfx.AbstractAdjoint)):
+    for label, value, kind in (
+        ("solver", solver, dfx.AbstractSolver),
+        ("stepsize_controller", stepsize_controller, dfx.AbstractStepSizeController),
+        ("adjoint", adjoint, dfx.AbstractAdjoint),
+    ):
         if value is not None and not isinstance(value, kind):
             raise SceneTypeError(f"simulate: {label} must be a diffrax.{kind.__name__}, got {short(value)}")
     if not isinstance(throw, (bool, np.bool_)):
@@ -299,8 +304,9 @@ def _combine_events(event, attitude: AbstractAttitude) -> tuple[Any, bool, bool]
         if callable(event):
             event = state_event(event)
         else:
-            raise SceneTypeError(f"simulate: event must be a diffrax.Event or a function (t, state) -> scalar, "
-                                 f"got {short(event)}")
+            raise SceneTypeError(
+                f"simulate: event must be a diffrax.Event or a function (t, state) -> scalar, got {short(event)}"
+            )
     if not guard:
         return event, False, event is not None
     guards = (_Singularity(), _Crossing())
@@ -386,7 +392,7 @@ class Solution(eqx.Module):
         H = self.angular_momentum
         return jnp.nanmax(_safe_norm(H - H[0])) / _nonzero(_safe_norm(H[0]))
 
-    def check(self) -> "Solution":
+    def check(self) -> Solution:
         """Raise :class:`SimulationError` (time, state, diagnosis) if the run failed; else return self."""
         check_solution(self)
         return self
@@ -412,8 +418,15 @@ def _history(problem: Problem, ts, ys):
         state = problem.state(t, y)
         att, _, _, _, _, X, Xd = problem.unpack(y)
         return dict(
-            gamma=state.gamma, gamma_dot=state.gamma_dot, omega0=state.omega0, dcm=state.dcm, attitude=att,
-            control_state=problem.control_state(y), X=X, X_dot=Xd, orthogonality=orthogonality_error(state.dcm),
+            gamma=state.gamma,
+            gamma_dot=state.gamma_dot,
+            omega0=state.omega0,
+            dcm=state.dcm,
+            attitude=att,
+            control_state=problem.control_state(y),
+            X=X,
+            X_dot=Xd,
+            orthogonality=orthogonality_error(state.dcm),
         )
 
     return jax.vmap(row)(ts, ys)
@@ -504,8 +517,24 @@ class _Options(NamedTuple):
 
 
 @eqx.filter_jit
-def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver, controller, saveat, adjoint,
-           event, progress_meter, opts: _Options):
+def _solve(
+    problem: Problem,
+    y0: State,
+    X0,
+    Xd0,
+    t0,
+    t1,
+    rtol,
+    atol,
+    dt0,
+    solver,
+    controller,
+    saveat,
+    adjoint,
+    event,
+    progress_meter,
+    opts: _Options,
+):
     dtype = jnp.result_type(problem.model.mass)
     y = problem.pack(y0, None, X0, Xd0)
     # A non-finite start cannot be integrated: NaN error estimates give NaN steps until max_steps
@@ -528,9 +557,23 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     if not opts.user_saveat:
         ts = jnp.linspace(t0, t1, opts.grid, dtype=dtype) if opts.grid is not None else saveat
     ts_h, ys_h, t_final, y_final, sol = integrate(
-        _vector_field, solver, t0, t1, dt0, y, problem, ts=ts, saveat=saveat if opts.user_saveat else None,
-        controller=controller, adjoint=adjoint, event=event, max_steps=opts.max_steps,
-        progress_meter=progress_meter, start_ok=start_ok, rest=rest)
+        _vector_field,
+        solver,
+        t0,
+        t1,
+        dt0,
+        y,
+        problem,
+        ts=ts,
+        saveat=saveat if opts.user_saveat else None,
+        controller=controller,
+        adjoint=adjoint,
+        event=event,
+        max_steps=opts.max_steps,
+        progress_meter=progress_meter,
+        start_ok=start_ok,
+        rest=rest,
+    )
     hist = _history(problem, ts_h, ys_h)
     final_state = problem.state(t_final, y_final)
     _, _, _, _, _, Xf, Xdf = problem.unpack(y_final)
@@ -546,15 +589,38 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
     stats["rhs_evaluations"] = _rhs_evaluations(solver, sol.stats, dt0 is not None)
     R = dfx.RESULTS
     ok = (sol.result == R.successful) | ((sol.result == R.event_occurred) & ~singular)
-    failure = jnp.where(start_ok, jnp.where(ok, 0, result_code(sol.result, singular)),
-                        jnp.where(singular_start, int(Failure.SINGULAR_START), int(Failure.NONFINITE_START)))
+    failure = jnp.where(
+        start_ok,
+        jnp.where(ok, 0, result_code(sol.result, singular)),
+        jnp.where(singular_start, int(Failure.SINGULAR_START), int(Failure.NONFINITE_START)),
+    )
     out = Solution(
-        ts=ts_h, gamma=hist["gamma"], gamma_dot=hist["gamma_dot"], omega0=hist["omega0"], dcm=hist["dcm"],
-        attitude=hist["attitude"], control_state=hist["control_state"], X=hist["X"], X_dot=hist["X_dot"],
-        hold_torque=None, energy=None, angular_momentum=None, orthogonality=hist["orthogonality"], t_final=t_final, final=final_state,
-        final_control_state=problem.control_state(y_final), final_X=Xf, final_X_dot=Xdf,
-        result=sol.result, event_mask=mask, singular=singular, margin=_margin(problem, y_final),
-        failure=failure, stats=stats, raw=sol, problem=problem,
+        ts=ts_h,
+        gamma=hist["gamma"],
+        gamma_dot=hist["gamma_dot"],
+        omega0=hist["omega0"],
+        dcm=hist["dcm"],
+        attitude=hist["attitude"],
+        control_state=hist["control_state"],
+        X=hist["X"],
+        X_dot=hist["X_dot"],
+        hold_torque=None,
+        energy=None,
+        angular_momentum=None,
+        orthogonality=hist["orthogonality"],
+        t_final=t_final,
+        final=final_state,
+        final_control_state=problem.control_state(y_final),
+        final_X=Xf,
+        final_X_dot=Xdf,
+        result=sol.result,
+        event_mask=mask,
+        singular=singular,
+        margin=_margin(problem, y_final),
+        failure=failure,
+        stats=stats,
+        raw=sol,
+        problem=problem,
     )
     if opts.report_in_callback:
         # Under a caller's jit/vmap the values are not known until run time: report failures
@@ -567,8 +633,12 @@ def _solve(problem: Problem, y0: State, X0, Xd0, t0, t1, rtol, atol, dt0, solver
         def diagnose(code, t, state, margin, model):  # only when a run failed: an eigendecomposition
             return _condition(model, state, t)
 
-        report_failures(host, failure != 0,
-                        jax.lax.stop_gradient((failure, t_final, final_state, out.margin, problem.model)), diagnose)
+        report_failures(
+            host,
+            failure != 0,
+            jax.lax.stop_gradient((failure, t_final, final_state, out.margin, problem.model)),
+            diagnose,
+        )
     return out
 
 
@@ -578,8 +648,9 @@ def _margin(problem, y):
     return jnp.asarray(jnp.nan, y.dtype) if m is None else m
 
 
-def _format_failure(kind, t, state: State, condition, margin, attitude_name, result_message="", direction=None,
-                    labels=None):
+def _format_failure(
+    kind, t, state: State, condition, margin, attitude_name, result_message="", direction=None, labels=None
+):
     np.set_printoptions(precision=6, suppress=False, linewidth=120)
     lines = [f"jaxtree.simulate: {MESSAGES[kind]}."]
     if result_message:
@@ -596,8 +667,11 @@ def _format_failure(kind, t, state: State, condition, margin, attitude_name, res
     if np.isnan(c):
         pass
     elif not np.isfinite(c) or c > SINGULAR_CONDITION:
-        where = (_null_direction_text(direction, labels) if direction is not None and labels is not None
-                 and np.all(np.isfinite(np.asarray(direction))) else "for a gimbal this is gimbal lock")
+        where = (
+            _null_direction_text(direction, labels)
+            if direction is not None and labels is not None and np.all(np.isfinite(np.asarray(direction)))
+            else "for a gimbal this is gimbal lock"
+        )
         lines.append(f"  diagnosis: the Eq. (1) matrix is singular or nearly so (condition number {c:.3g}); {where}")
     if attitude_name == "euler123" and np.isfinite(float(margin)):
         lines.append(f"  attitude ({attitude_name}) singularity margin |cos theta_2| - tol = {float(margin):.3g}")
@@ -606,9 +680,16 @@ def _format_failure(kind, t, state: State, condition, margin, attitude_name, res
 
 def _raise_from_callback(code, t, state, condition, margin, attitude_name, direction=None, labels=None):
     def describe(kind, pick):
-        return _format_failure(kind, pick(t), State(*(pick(x) for x in state)), pick(condition), pick(margin),
-                               str(attitude_name), direction=None if direction is None else pick(direction),
-                               labels=labels)
+        return _format_failure(
+            kind,
+            pick(t),
+            State(*(pick(x) for x in state)),
+            pick(condition),
+            pick(margin),
+            str(attitude_name),
+            direction=None if direction is None else pick(direction),
+            labels=labels,
+        )
 
     message = failure_report(code, describe)
     if message is not None:
@@ -629,8 +710,16 @@ def check_solution(sol: Solution) -> None:
         condition, direction = _condition_jit(sol.problem.model, sol.final, sol.t_final)
     else:
         condition, direction = np.full(code.shape, np.nan), None
-    _raise_from_callback(code, sol.t_final, sol.final, condition, sol.margin, sol.problem.attitude.name,
-                         direction=direction, labels=_unknown_labels(sol.problem.model))
+    _raise_from_callback(
+        code,
+        sol.t_final,
+        sol.final,
+        condition,
+        sol.margin,
+        sol.problem.attitude.name,
+        direction=direction,
+        labels=_unknown_labels(sol.problem.model),
+    )
 
 
 # ----------------------------------------------------------------------------- simulate
@@ -746,8 +835,9 @@ def simulate(
     else:
         shape = jnp.shape(saveat) if is_traced(saveat) else as_float(saveat, "simulate: saveat", finite=False).shape
         if len(shape) != 1:
-            raise SceneError(f"simulate: saveat: expected a number of save points or a 1-D array of times, "
-                             f"got shape {shape}")
+            raise SceneError(
+                f"simulate: saveat: expected a number of save points or a 1-D array of times, got shape {shape}"
+            )
     check_times("simulate", t0, t1, None if grid is not None or user_saveat else saveat)
     ev, has_guard, user_event = _combine_events(event, att)
     meter = progress_meter(progress)
@@ -766,8 +856,28 @@ def simulate(
         solver = dfx.Dopri8()
     if adjoint is None:
         adjoint = dfx.RecursiveCheckpointAdjoint()
-    traced = is_traced((model, y0, t0, t1, params, controller, law, saveat, ev, translation, X0, Xd0, rtol, atol,
-                         dt0, solver, stepsize_controller, adjoint))
+    traced = is_traced(
+        (
+            model,
+            y0,
+            t0,
+            t1,
+            params,
+            controller,
+            law,
+            saveat,
+            ev,
+            translation,
+            X0,
+            Xd0,
+            rtol,
+            atol,
+            dt0,
+            solver,
+            stepsize_controller,
+            adjoint,
+        )
+    )
     if not traced and throw:
         start = [np.asarray(x, float) for x in (*y0, *(() if X0 is None else (X0, Xd0)))]
         if not all(np.all(np.isfinite(x)) for x in start):
@@ -775,14 +885,35 @@ def simulate(
             raise SimulationError(_format_failure("nonfinite_start", t0, y0, np.nan, np.nan, att.name))
     opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced))
     as_array = lambda x: None if x is None else jnp.asarray(x, dtype)
-    sol = _solve(problem, y0, as_array(X0), as_array(Xd0), as_array(t0), as_array(t1), as_array(rtol),
-                 as_array(atol), as_array(dt0), solver, stepsize_controller, saveat, adjoint, ev, meter, opts)
+    sol = _solve(
+        problem,
+        y0,
+        as_array(X0),
+        as_array(Xd0),
+        as_array(t0),
+        as_array(t1),
+        as_array(rtol),
+        as_array(atol),
+        as_array(dt0),
+        solver,
+        stepsize_controller,
+        saveat,
+        adjoint,
+        ev,
+        meter,
+        opts,
+    )
     needs_law = model.prescription is not None
-    diag = _diagnostics(model, law if needs_law else None, controller if needs_law else None,
-                        params if needs_law else None, sol.ts,
-                        State(sol.dcm, sol.omega0, sol.gamma, sol.gamma_dot), sol.control_state if needs_law else None)
-    sol = eqx.tree_at(lambda s: (s.energy, s.angular_momentum, s.hold_torque), sol, diag,
-                      is_leaf=lambda x: x is None)
+    diag = _diagnostics(
+        model,
+        law if needs_law else None,
+        controller if needs_law else None,
+        params if needs_law else None,
+        sol.ts,
+        State(sol.dcm, sol.omega0, sol.gamma, sol.gamma_dot),
+        sol.control_state if needs_law else None,
+    )
+    sol = eqx.tree_at(lambda s: (s.energy, s.angular_momentum, s.hold_torque), sol, diag, is_leaf=lambda x: x is None)
     if throw and not traced:
         check_solution(sol)
     return sol

@@ -105,8 +105,13 @@ class _Bodies(NamedTuple):
 def _bodies(model, sub: Substructure) -> _Bodies:
     h = np.asarray(sub.hinges, np.int64) - 1
     bodies = np.concatenate([[0], h + 1])
-    return _Bodies(model.mass[bodies].at[0].set(0.0), model.inertia[bodies].at[0].set(0.0), model.axis[h],
-                   model.hinge_on_parent[h], model.hinge_on_body[h])
+    return _Bodies(
+        model.mass[bodies].at[0].set(0.0),
+        model.inertia[bodies].at[0].set(0.0),
+        model.axis[h],
+        model.hinge_on_parent[h],
+        model.hinge_on_body[h],
+    )
 
 
 def _gauss(topo, d: _Bodies, gamma, yd, v):
@@ -141,8 +146,9 @@ def _gauss(topo, d: _Bodies, gamma, yd, v):
     # J_i = [U | S_k on the path to body i]
     E = jnp.asarray(topo.path_elements, dtype)  # (nu, nu+1): hinge k on the path to body i
     S = jnp.concatenate([Sw, Su], 1)  # (nu, 6)
-    Jac = jnp.concatenate([jnp.broadcast_to(jnp.eye(6, dtype=dtype), (nu + 1, 6, 6)),
-                           jnp.einsum("ka,ki->iak", S, E)], -1)  # (nu+1, 6, 6+nu)
+    Jac = jnp.concatenate(
+        [jnp.broadcast_to(jnp.eye(6, dtype=dtype), (nu + 1, 6, 6)), jnp.einsum("ka,ki->iak", S, E)], -1
+    )  # (nu+1, 6, 6+nu)
     M6 = _inertia_matrix(J, hm, mass)
     A = jnp.einsum("iak,iab,ibl->kl", Jac, M6, Jac)
     b = jnp.einsum("iak,ia->k", Jac, wrench)
@@ -191,7 +197,10 @@ def held_base(t: Terms, v, c, stiffness, damping):
     acceleration `c` (6 each, {b} components about the base's mass center): the small rows of
     ``A(y) [c; y''] + b(y, y', v) - tau_S = 0`` to first order (Eq. 40 for one substructure)."""
     I = t.A0[6:, 6:]
-    K = jnp.einsum("iaj,a->ij", t.A1[6:, :6], c) + 0.5 * jnp.einsum("iabj,a,b->ij", t.G1[6:], v, v) \
+    K = (
+        jnp.einsum("iaj,a->ij", t.A1[6:, :6], c)
+        + 0.5 * jnp.einsum("iabj,a,b->ij", t.G1[6:], v, v)
         + jnp.diag(stiffness)
+    )
     J = jnp.einsum("iaj,a->ij", t.G2[6:], v) + jnp.diag(damping)
     return I, J, K

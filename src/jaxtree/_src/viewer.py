@@ -53,8 +53,16 @@ MAX_BODY_FRAMES = 250_000  # frames x bodies at most: caps a page near 9 MB for 
 THIN = 0.02  # a box's smallest half-width at least this share of its largest
 MODE_FRAMES = 64  # frames per period of a mode page
 
-_PALETTE = ((0.31, 0.47, 0.78), (0.90, 0.55, 0.20), (0.30, 0.66, 0.42), (0.80, 0.33, 0.36),
-            (0.55, 0.43, 0.75), (0.20, 0.65, 0.72), (0.82, 0.70, 0.22), (0.60, 0.45, 0.35))
+_PALETTE = (
+    (0.31, 0.47, 0.78),
+    (0.90, 0.55, 0.20),
+    (0.30, 0.66, 0.42),
+    (0.80, 0.33, 0.36),
+    (0.55, 0.43, 0.75),
+    (0.20, 0.65, 0.72),
+    (0.82, 0.70, 0.22),
+    (0.60, 0.45, 0.35),
+)
 _HUB = (0.62, 0.65, 0.70)
 _MASSLESS = (0.25, 0.25, 0.25)
 
@@ -126,15 +134,41 @@ def _quaternions(R):
     of the four rows of ``4 q q^T`` that R gives, take the one with the largest diagonal)."""
     m = R
     tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
-    rows = np.stack([
-        np.stack([1 + tr, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1),
-        np.stack([m[..., 2, 1] - m[..., 1, 2], 1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
-                  m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0]], -1),
-        np.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 0, 1] + m[..., 1, 0],
-                  1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2], m[..., 1, 2] + m[..., 2, 1]], -1),
-        np.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1],
-                  1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2]], -1),
-    ], -2)
+    rows = np.stack(
+        [
+            np.stack(
+                [1 + tr, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1
+            ),
+            np.stack(
+                [
+                    m[..., 2, 1] - m[..., 1, 2],
+                    1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
+                    m[..., 0, 1] + m[..., 1, 0],
+                    m[..., 0, 2] + m[..., 2, 0],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[..., 0, 2] - m[..., 2, 0],
+                    m[..., 0, 1] + m[..., 1, 0],
+                    1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
+                    m[..., 1, 2] + m[..., 2, 1],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[..., 1, 0] - m[..., 0, 1],
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 1, 2] + m[..., 2, 1],
+                    1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2],
+                ],
+                -1,
+            ),
+        ],
+        -2,
+    )
     diag = np.stack([rows[..., i, i] for i in range(4)], -1)
     best = np.argmax(diag, -1)
     q = np.take_along_axis(rows, best[..., None, None], -2)[..., 0, :]
@@ -178,17 +212,30 @@ def _scene_geometry(model, positions):
             h = np.maximum(h, max(THIN * h.max(), 0.003 * extent))
         half[k] = h
         color = _MASSLESS if not mass[k] > 0 else (_HUB if k == 0 else _PALETTE[(k - 1) % len(_PALETTE)])
-        bodies.append({
-            "name": model.names[k], "mass": float(mass[k]), "half": h.tolist(),
-            "axes": axes[k].reshape(-1).tolist(), "color": list(color), "marker": bool(point_like),
-        })
+        bodies.append(
+            {
+                "name": model.names[k],
+                "mass": float(mass[k]),
+                "half": h.tolist(),
+                "axes": axes[k].reshape(-1).tolist(),
+                "color": list(color),
+                "marker": bool(point_like),
+            }
+        )
     # A hinge axis relative to body k: C^{0k} g' with g' = C^{k0} C^{0 N_k} g = g (Eq. 4 turns
     # about g), so the axis is the same constant vector in b_k's frame as in its parent's.
     hinges = []
     for k in range(1, n + 1):
         length = float(np.clip(0.6 * half[k].max(), 0.005 * extent, 0.25 * extent))
-        hinges.append({"body": k, "parent": int(model.topology.parents[k - 1]), "point": on_body[k - 1].tolist(),
-                       "axis": g[k - 1].tolist(), "half_length": length})
+        hinges.append(
+            {
+                "body": k,
+                "parent": int(model.topology.parents[k - 1]),
+                "point": on_body[k - 1].tolist(),
+                "axis": g[k - 1].tolist(),
+                "half_length": length,
+            }
+        )
     # The view: the middle of the box that holds every body in every frame, and the radius of
     # the sphere about it that does.
     reach = np.linalg.norm(half, axis=-1)[None, :, None]
@@ -233,8 +280,9 @@ def _finite_rows(name, ts, dcm, gamma, n):
         raise ValueError(f"{name}: ts must have shape (T,), got {ts.shape}")
     T = ts.shape[0]
     if dcm.shape != (T, 3, 3):
-        raise ValueError(f"{name}: dcm has shape {dcm.shape}; expected (T, 3, 3) = {(T, 3, 3)} (one C of Def. 9 "
-                         "per time)")
+        raise ValueError(
+            f"{name}: dcm has shape {dcm.shape}; expected (T, 3, 3) = {(T, 3, 3)} (one C of Def. 9 per time)"
+        )
     if gamma.shape != (T, n):
         raise ValueError(f"{name}: gamma has shape {gamma.shape}; the model with {n} hinges needs (T, n) = {(T, n)}")
     keep = np.isfinite(ts)  # a run that stopped early pads its save times with inf
@@ -266,10 +314,20 @@ def animation_html(model: Model, ts, dcm, gamma, *, title=None, max_frames: int 
     ts, dcm, gamma = ts[idx], dcm[idx], gamma[idx]
     title = (model.name or "jaxtree") if title is None else str(title)
     duration = float(ts[-1] - ts[0])
-    subtitle = (f"{model.n + 1} bodies, t = {ts[0]:.6g} .. {ts[-1]:.6g} s, {ts.size} frames"
-                + (f" (of {saved} saved)" if ts.size < saved else ""))
-    return _page(model, ts, dcm, gamma, title=title, subtitle=subtitle, speed=_default_speed(duration),
-                 period=None, kind="result")
+    subtitle = f"{model.n + 1} bodies, t = {ts[0]:.6g} .. {ts[-1]:.6g} s, {ts.size} frames" + (
+        f" (of {saved} saved)" if ts.size < saved else ""
+    )
+    return _page(
+        model,
+        ts,
+        dcm,
+        gamma,
+        title=title,
+        subtitle=subtitle,
+        speed=_default_speed(duration),
+        period=None,
+        kind="result",
+    )
 
 
 def write_animation(path, model: Model, ts, dcm, gamma, *, title=None, max_frames: int = MAX_FRAMES) -> None:
@@ -361,8 +419,10 @@ def mode_html(model: Model, shape, frequency, *, gamma=None, amplitude=None, tit
     n = model.n
     shape = np.asarray(shape)
     if shape.shape != (n,):
-        raise ValueError(f"write_mode_animation: shape has shape {shape.shape}; the model with {n} hinges needs "
-                         f"({n},) (use jaxtree.viewer.expand_shape for a linearization's coordinates)")
+        raise ValueError(
+            f"write_mode_animation: shape has shape {shape.shape}; the model with {n} hinges needs "
+            f"({n},) (use jaxtree.viewer.expand_shape for a linearization's coordinates)"
+        )
     shape = shape.astype(np.result_type(shape, float))
     if rotation is not None:
         rotation = np.asarray(rotation).astype(np.result_type(np.asarray(rotation), float))
@@ -395,12 +455,12 @@ def mode_html(model: Model, shape, frequency, *, gamma=None, amplitude=None, tit
         what = f"mode at {frequency:.6g} rad/s ({frequency / (2 * math.pi):.4g} Hz, period {period:.4g} s)"
     subtitle = f"{what}; largest angle {peak:.3g} rad"
     title = (model.name or "jaxtree") + " mode" if title is None else str(title)
-    return _page(model, ts, dcm, gamma, title=title, subtitle=subtitle, speed=period / 2.0, period=period,
-                 kind="mode")
+    return _page(model, ts, dcm, gamma, title=title, subtitle=subtitle, speed=period / 2.0, period=period, kind="mode")
 
 
-def write_mode_animation(path, model: Model, shape, frequency, *, gamma=None, amplitude=None, title=None,
-                         rotation=None) -> None:
+def write_mode_animation(
+    path, model: Model, shape, frequency, *, gamma=None, amplitude=None, title=None, rotation=None
+) -> None:
     """Write an HTML page (atomically) oscillating one mode: the hinge angles
     ``gamma + amplitude * shape * sin(2 pi t / period)``, ``period = 2 pi / frequency``.
 
