@@ -192,14 +192,28 @@ def _pair_general(lam, tol):
     return np.asarray(upper, dtype=int), np.asarray(lower, dtype=int)
 
 
+# Numerical tolerances of the modal analysis, relative to the largest eigenvalue (or frequency):
+# eigenvalues (and sigma^2) this close to zero are round-off: rigid modes, conjugate-pair
+# matching, and a negative sigma^2 that is not a divergence (float64 eigensolvers leave ~1e-12).
+ROUNDOFF_RTOL = 1e-9
+# a real part above this counts as an unstable mode (10x the round-off band, so that round-off
+# in an undamped gyroscopic system is never called unstable)
+UNSTABLE_RTOL = 1e-8
+# condition number of the normalized eigenvector matrix beyond which the first-order matrix of
+# Eq. (71) is taken as defective (a Jordan block: secular growth, rejected by the seed)
+DEFECTIVE_CONDITION = 1e10
+# gyroscopic frequencies are square roots: round-off of ~1e-12 in K~ shows as ~1e-6 in sigma
+RIGID_SIGMA_RTOL = 1e-6
+
+
 def _general(I, J, K, name):
     I, J, K = (np.asarray(x, dtype=float) for x in (I, J, K))
     nu = I.shape[0]
     P, Q, B = (np.asarray(x) for x in first_order(I, J, K))
     lam, Phi = np.linalg.eig(B)
     scale = max(np.abs(lam).max(initial=0.0), 1e-300)
-    tol = 1e-9 * scale
-    bad = lam.real > 1e-8 * scale
+    tol = ROUNDOFF_RTOL * scale
+    bad = lam.real > UNSTABLE_RTOL * scale
     if np.any(bad):
         raise UnstableError(
             f"modes: unstable {name} system, eigenvalues with positive real part {lam[bad].tolist()}; "
@@ -214,7 +228,7 @@ def _general(I, J, K, name):
     Phi[:, nu:][:, cplx] = np.conj(Phi[:, :nu][:, cplx])
     Phi = Phi / np.linalg.norm(Phi, axis=0, keepdims=True)
     cond = np.linalg.cond(Phi)
-    if not np.isfinite(cond) or cond > 1e10:
+    if not np.isfinite(cond) or cond > DEFECTIVE_CONDITION:
         raise DefectiveError(
             f"modes: the first-order matrix of Eq. (71) is defective or nearly so (condition number of the "
             f"eigenvector matrix {cond:.3g}); a nondiagonal Jordan form means secular growth t^k e^(lambda t), "
@@ -344,13 +358,13 @@ def modes(
         if not traced:
             s2n = np.asarray(s2)
             scale = max(np.abs(s2n).max(initial=0.0), 1e-300)
-            if s2n[0] < -1e-9 * scale:
-                bad = s2n[s2n < -1e-9 * scale]
+            if s2n[0] < -ROUNDOFF_RTOL * scale:
+                bad = s2n[s2n < -ROUNDOFF_RTOL * scale]
                 raise UnstableError(
                     f"modes: sigma^2 < 0 ({bad.tolist()}): divergent (statically unstable) modes; "
                     "the seed rejects such a vehicle (Sec. III D)"
                 )
-            rigid_np = s2n <= 1e-9 * scale
+            rigid_np = s2n <= ROUNDOFF_RTOL * scale
         else:
             rigid_np = None
         rigid = jnp.asarray(rigid_np) if rigid_np is not None else jnp.zeros(nu, bool)
@@ -371,7 +385,7 @@ def modes(
         L, sigma, low, k_evals, k_vecs = _gyroscopic(I, J, K, definite)
         if not traced and not definite:
             scale = max(float(np.max(np.abs(np.asarray(sigma)))), 1e-300)
-            rigid_np = np.asarray(sigma) <= 1e-6 * scale
+            rigid_np = np.asarray(sigma) <= RIGID_SIGMA_RTOL * scale
         else:
             rigid_np = np.zeros(nu, bool) if not traced else None
         rigid = jnp.asarray(rigid_np) if rigid_np is not None else jnp.zeros(nu, bool)
@@ -411,7 +425,7 @@ def modes(
         k = jnp.argmax(jnp.abs(y), axis=0)
         ph = y[k, jnp.arange(nu)]
         shapes = y * (jnp.abs(ph) / jnp.where(ph == 0, 1.0, ph))[None, :]
-        rigid_np = np.asarray(absl) <= 1e-9 * max(float(np.max(np.asarray(absl))), 1e-300)
+        rigid_np = np.asarray(absl) <= ROUNDOFF_RTOL * max(float(np.max(np.asarray(absl))), 1e-300)
         rigid = jnp.asarray(rigid_np)
         B = jnp.asarray(B_np)
         order = np.argsort(np.asarray(sigma), kind="stable")
