@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import enum
 import math
+import typing
 import warnings
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -83,6 +84,42 @@ def default_controller(rtol, atol, t0, t1) -> dfx.PIDController:
     )
 
 
+def _zero_field(t, y, args):
+    return jnp.zeros_like(y)
+
+
+def terms(solver, vector_field: Callable):
+    """diffrax's terms for `solver`: the ODE term, or for an IMEX solver (``KenCarp3/4/5``,
+    ``Sil3``: a pair of terms) a zero explicit part and the whole right side implicit. (Putting
+    only the hinge springs and dampers in the implicit part would cost a second solve of
+    Eq. (1) per stage.)"""
+    term = dfx.ODETerm(vector_field)
+    structure = getattr(solver, "term_structure", None)
+    if typing.get_origin(structure) is dfx.MultiTerm or isinstance(structure, dfx.MultiTerm):
+        return dfx.MultiTerm(dfx.ODETerm(_zero_field), term)
+    return term
+
+
+class RK4(dfx.AbstractERK):
+    """The classical fourth-order Runge-Kutta method, for fixed steps
+    (``stepsize_controller=diffrax.ConstantStepSize(), dt0=h``), as fixed-step engines
+    (MuJoCo's ``RK4``, Basilisk's ``svIntegratorRK4``) use it. It has no embedded error
+    estimate (its error weights are zero): an adaptive controller would accept every step."""
+
+    tableau: typing.ClassVar[dfx.ButcherTableau] = dfx.ButcherTableau(
+        c=np.array([0.5, 0.5, 1.0]),
+        b_sol=np.array([1 / 6, 1 / 3, 1 / 3, 1 / 6]),
+        b_error=np.zeros(4),
+        a_lower=(np.array([0.5]), np.array([0.0, 0.5]), np.array([0.0, 0.0, 1.0])),
+    )
+    interpolation_cls: typing.ClassVar[Callable[..., dfx.ThirdOrderHermitePolynomialInterpolation]] = (
+        dfx.ThirdOrderHermitePolynomialInterpolation.from_k
+    )
+
+    def order(self, terms):
+        return 4
+
+
 class Run(NamedTuple):
     """One integration: the history at the save times, the last state reached and diffrax's
     solution (stats, result, event mask)."""
@@ -137,7 +174,7 @@ def integrate(
         else:
             saveat = dfx.SaveAt(subs=(dfx.SubSaveAt(ts=ts), dfx.SubSaveAt(t1=True)))
     sol = dfx.diffeqsolve(
-        dfx.ODETerm(vector_field),
+        terms(solver, vector_field),
         solver,
         t0,
         t1,

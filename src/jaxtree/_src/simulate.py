@@ -53,6 +53,7 @@ from ._integrate import (
     result_code,
     warn_below_roundoff,
 )
+from .autosolver import choose_solver, given
 from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
 from .control import AbstractController
 from .dynamics import (
@@ -97,8 +98,10 @@ def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controlle
                 raise SceneError(f"simulate: translation {label} must have shape (3,), got {jnp.shape(x)}")
     elif not isinstance(translation, (bool, np.bool_)):
         raise SceneTypeError(f"simulate: translation must be True, False or (X0, X_dot0), got {short(translation)}")
+    if isinstance(solver, str) and solver != "auto":
+        raise SceneError(f"simulate: solver must be 'auto' or a diffrax solver, got {solver!r}")
     for label, value, kind in (
-        ("solver", solver, dfx.AbstractSolver),
+        ("solver", None if isinstance(solver, str) else solver, dfx.AbstractSolver),
         ("stepsize_controller", stepsize_controller, dfx.AbstractStepSizeController),
         ("adjoint", adjoint, dfx.AbstractAdjoint),
     ):
@@ -337,7 +340,8 @@ class Solution(eqx.Module):
       the run reached t1 or a user event; else a code for :class:`SimulationError`).
     - `stats`: ``num_steps``, ``num_accepted_steps``, ``num_rejected_steps``, ``max_steps`` and
       ``rhs_evaluations`` (steps times the solver's stages, plus the start-up evaluations;
-      -1 for solvers that are not explicit Runge-Kutta).
+      -1 for solvers that are not explicit Runge-Kutta), and ``solver``: the
+      :class:`~jaxtree.SolverChoice` (which solver ran, whether ``"auto"`` picked it, and why).
     - `raw`: the :class:`diffrax.Solution` (its dense output, if requested, evaluates flat
       states; :meth:`evaluate` turns them into :class:`~jaxtree.State`); `problem`: the ODE.
     """
@@ -733,7 +737,7 @@ def simulate(
     t0=0.0,
     y0: State | None = None,
     saveat=None,
-    solver: dfx.AbstractSolver | None = None,
+    solver: dfx.AbstractSolver | str | None = "auto",
     stepsize_controller: dfx.AbstractStepSizeController | None = None,
     rtol: float | None = None,
     atol: float | None = None,
@@ -771,7 +775,12 @@ def simulate(
       atol = 2e-10: 1.2e-9 at the save times, 3.9e-10 at the steps). For step accuracy at
       the save times let the steps land on them, ``stepsize_controller=
       diffrax.PIDController(rtol=..., atol=..., step_ts=ts)``, at 2-3 more steps per save time.
-    - `solver`: a diffrax solver (default :class:`diffrax.Dopri8`).
+    - `solver`: a diffrax solver, used as is; or ``"auto"`` (the default; None too):
+      :func:`jaxtree.choose_solver` picks Dopri8, or Kvaerno5 when the linearized equations at
+      `y0` are stiff (fast modes that decay early; a screen of the hinge laws skips the
+      linearization when nothing is close to stiff), and Dopri8 whenever the inputs are traced.
+      ``sol.stats["solver"]`` (a :class:`~jaxtree.SolverChoice`) says what ran and why. IMEX
+      solvers (``diffrax.KenCarp4`` ...) get the whole right side as their implicit part.
     - `stepsize_controller`: a diffrax step-size controller (used as is); default a
       :class:`diffrax.PIDController` with `rtol`, `atol`, PI coefficients 0.3 / 0.3 and a
       minimum step of 1e-12 |t1 - t0| (and an initial step from the largest rate in `y0`).
@@ -852,8 +861,10 @@ def simulate(
     if controller is not None:
         control_size = sum(int(np.prod(x.shape)) for x in jax.tree_util.tree_leaves(jax.eval_shape(controller.initial)))
     problem = Problem(model, att, law, controller, params, bool(translation), control_size)
-    if solver is None:
-        solver = dfx.Dopri8()
+    if solver is None or isinstance(solver, str):
+        solver, choice = choose_solver(model, t1, t0=t0, y0=y0, rtol=rtol, law=law, params=params)
+    else:
+        choice = given(solver)
     if adjoint is None:
         adjoint = dfx.RecursiveCheckpointAdjoint()
     traced = is_traced(
@@ -914,6 +925,7 @@ def simulate(
         sol.control_state if needs_law else None,
     )
     sol = eqx.tree_at(lambda s: (s.energy, s.angular_momentum, s.hold_torque), sol, diag, is_leaf=lambda x: x is None)
+    sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
     if throw and not traced:
         check_solution(sol)
     return sol

@@ -1,0 +1,733 @@
+"""Error against run time: the work-precision report behind ``jaxtree bench``.
+
+For each case (a scene, its time span and save times), each formulation that applies
+(``full``: Eq. 1; ``eq30``: the partially linearized equations, Eq. 30, in the small hinges'
+modal coordinates with every mode kept; ``hybrid-k``: k modes per substructure, Eqs.
+105-123), each solver (diffrax's Tsit5, Dopri5, Dopri8; Kvaerno3, Kvaerno5, KenCarp4; the
+classical RK4 at fixed steps) and a ladder of tolerances (or steps), :func:`work_precision`
+records
+
+- the error: the largest absolute error over the save times in ``omega0`` (rad/s) and
+  ``gamma`` (rad) against a reference computed at rtol = atol = 1e-12 by a *different*
+  solver (two references per case, Dopri8 and Tsit5, or Kvaerno5 and Dopri8 for stiff cases;
+  every row is measured against the one whose solver differs from its own, and their
+  difference is the report's floor);
+- the wall time (median of repeated calls after the first), the compile time apart (first
+  call minus the median), accepted and rejected steps, right sides, energy and momentum drift;
+
+and the same for the peers that are installed and can represent the scene
+(:mod:`jaxtree._src.peers`: Pinocchio's ABA under scipy's DOP853, RK45 and Radau; MuJoCo's RK4
+and implicitfast), each cross-checked against the reference at its tightest setting before
+its timings count.
+
+The cases (:data:`CASES`, :func:`bench_case`) are the reference scenes, the *stiff* chains
+(chain10 with its tip hinge's spring stiffened by s = 1e2 ... 1e8 and damped at a ratio of
+0.7: separated time scales with the fast one decaying; scaling every spring alike would make
+the problem faster, not stiffer) and the *extreme* cases (a fast rotor, a spinning bus, gimbal
+frames near lock, a body with 1e-6 of the bus's inertia, a 1000 s run).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+from collections.abc import Callable, Sequence
+
+import diffrax as dfx
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._integrate import RK4
+from .model import Model
+
+# ----------------------------------------------------------------------------- solvers
+SOLVERS: dict[str, Callable[[], dfx.AbstractSolver]] = {
+    "Tsit5": dfx.Tsit5,
+    "Dopri5": dfx.Dopri5,
+    "Dopri8": dfx.Dopri8,
+    "Kvaerno3": dfx.Kvaerno3,
+    "Kvaerno5": dfx.Kvaerno5,
+    "KenCarp4": dfx.KenCarp4,
+    "RK4": RK4,
+}
+EXPLICIT = ("Tsit5", "Dopri5", "Dopri8")
+IMPLICIT = ("Kvaerno3", "Kvaerno5", "KenCarp4")
+TOLERANCES = (1e-4, 1e-6, 1e-8, 1e-10)
+QUICK_TOLERANCES = (1e-5, 1e-8)
+RK4_STEPS = (2, 4, 8, 16, 32)  # RK4 steps per save interval
+QUICK_RK4_STEPS = (4, 16)
+REFERENCE_TOL = 1e-12
+TARGETS = (1e-6, 1e-9)
+# A run that needs more steps than this stops there: "stalled" in the report (the explicit
+# solvers on the stiffest chains; their time to the end is the stall's time / fraction done).
+STEP_CAP = 100_000
+REFERENCE_STEPS = 2_000_000
+
+
+# ----------------------------------------------------------------------------- cases
+@dataclasses.dataclass(frozen=True)
+class BenchCase:
+    """One row group of the report: `model` run from 0 to `t1` with `n_save` save times.
+    `group`: ``"reference"``, ``"stiff"`` or ``"extreme"``; `small`: the small hinges of the
+    ``eq30`` / ``hybrid-k`` formulations (None: full only); `hybrid_modes`: the k of the
+    ``hybrid-k`` rows; `solvers` / `tolerances`: restrictions for long cases (None: all)."""
+
+    name: str
+    group: str
+    description: str
+    model: Model
+    t1: float
+    n_save: int = 101
+    small: tuple[int, ...] | None = None
+    hybrid_modes: tuple[int, ...] = ()
+    solvers: tuple[str, ...] | None = None
+    tolerances: tuple[float, ...] | None = None
+
+
+def _scene(name):
+    from .scene import load_scene
+
+    return load_scene(name)
+
+
+def _with(model: Model, **fields) -> Model:
+    names = tuple(fields)
+    return eqx.tree_at(lambda m: tuple(getattr(m, k) for k in names), model, tuple(fields.values()))
+
+
+def _hinge_inertia(model: Model) -> np.ndarray:
+    """Per hinge, its body's moment of inertia about the hinge line (parallel axes)."""
+    axis, r = np.asarray(model.axis, float), np.asarray(model.hinge_on_body, float)
+    inertia, mass = np.asarray(model.inertia, float)[1:], np.asarray(model.mass, float)[1:]
+    return np.einsum("ki,kij,kj->k", axis, inertia, axis) + mass * np.sum(np.cross(axis, r) ** 2, 1)
+
+
+def stiff_chain(scale: float) -> Model:
+    """chain10 with the tip hinge's spring x `scale` and damped at a ratio of 0.7; the other
+    hinges keep their springs, damped at a ratio of 0.02 (benchmarks/bench_stability.py)."""
+    base = _scene("chain10")
+    k = np.asarray(base.stiffness, float).copy()
+    k[-1] *= scale
+    zeta = np.full(base.n, 0.02)
+    zeta[-1] = 0.7
+    c = 2 * zeta * np.sqrt(k * _hinge_inertia(base))
+    return _with(base, stiffness=jnp.asarray(k), damping=jnp.asarray(c))
+
+
+def _fig4_state(**changes) -> Model:
+    model = _scene("fig4_free")
+    s = model.initial
+    gamma, gamma_dot = np.asarray(s.gamma, float).copy(), np.asarray(s.gamma_dot, float).copy()
+    omega0 = np.asarray(s.omega0, float).copy()
+    if "rotor" in changes:
+        gamma_dot[model.names.index("rotor") - 1] = changes["rotor"]
+    if "inner" in changes:
+        gamma[model.names.index("gimbal_inner") - 1] = changes["inner"]
+    if "omega0" in changes:
+        omega0 = np.asarray(changes["omega0"], float)
+    state = s._replace(omega0=jnp.asarray(omega0), gamma=jnp.asarray(gamma), gamma_dot=jnp.asarray(gamma_dot))
+    return _with(model, initial=state)
+
+
+def _tiny_body() -> Model:
+    model = _scene("fig4_free")
+    k = model.names.index("panel_side")
+    mass = np.asarray(model.mass, float).copy()
+    inertia = np.asarray(model.inertia, float).copy()
+    mass[k] = 1e-6 * mass[0]
+    inertia[k] = 1e-6 * inertia[0]
+    return _with(model, mass=jnp.asarray(mass), inertia=jnp.asarray(inertia))
+
+
+def _panel_hinges(model: Model, prefix: str) -> tuple[int, ...]:
+    return tuple(k for k in range(1, model.n + 1) if model.names[k].startswith(prefix))
+
+
+def _case(name: str) -> BenchCase:
+    if name.startswith("stiff_"):
+        scale = float(name.split("_", 1)[1])
+        return BenchCase(
+            name,
+            "stiff",
+            f"chain10, tip hinge's spring x {scale:g} (damping ratio 0.7), 1 s",
+            stiff_chain(scale),
+            1.0,
+        )
+    if name in ("fig4", "fig4_free", "chain50"):
+        what = {"fig4": "the seed's Fig. 4 (platform prescribed)", "fig4_free": "Fig. 4, platform free"}
+        return BenchCase(name, "reference", what.get(name, "hub and a sprung boom of 50 segments") + ", 10 s", _scene(name), 10.0)
+    if name == "appendix_c":
+        m = _scene(name)
+        return BenchCase(name, "reference", "the seed's Appendix C, 10 s", m, 10.0, small=(1, 2), hybrid_modes=(1,))
+    if name == "wings":
+        m = _scene(name)
+        return BenchCase(
+            name, "reference", "hub and two wings of 4 sprung panels, 10 s", m, 10.0,
+            small=tuple(range(1, m.n + 1)), hybrid_modes=(1, 2),
+        )  # fmt: skip
+    if name == "panels95":
+        m = _scene(name)
+        return BenchCase(
+            name, "reference", "the 95-body vehicle of Fig. 2/3c, 10 s", m, 10.0,
+            small=_panel_hinges(m, "wing"), hybrid_modes=(2,),
+        )  # fmt: skip
+    extreme = {
+        "rotor_10pi": (lambda: _fig4_state(rotor=10 * math.pi), "fig4_free, rotor at 10 pi rad/s, 10 s", 10.0),
+        "rotor_1000pi": (lambda: _fig4_state(rotor=1000 * math.pi), "fig4_free, rotor at 1000 pi rad/s, 10 s", 10.0),
+        "bus_spin": (lambda: _fig4_state(omega0=(0.0, 0.0, 10.0)), "fig4_free, bus spinning at 10 rad/s, 10 s", 10.0),
+        "gimbal_lock": (
+            lambda: _fig4_state(inner=math.pi / 2 - 1e-3),
+            "fig4_free, inner gimbal 1e-3 rad from lock, 10 s",
+            10.0,
+        ),
+        "tiny_body": (_tiny_body, "fig4_free, panel_side with 1e-6 of the bus's mass and inertia, 10 s", 10.0),
+    }
+    if name in extreme:
+        build, what, t1 = extreme[name]
+        return BenchCase(name, "extreme", what, build(), t1)
+    if name == "long_run":
+        return BenchCase(
+            name, "extreme", "fig4_free over 1000 s (drift against time)", _scene("fig4_free"), 1000.0,
+            n_save=201, solvers=("Tsit5", "Dopri8", "Kvaerno5"), tolerances=(1e-6, 1e-8, 1e-10),
+        )  # fmt: skip
+    raise ValueError(f"unknown bench case {name!r}; known: {', '.join(CASES)}")
+
+
+CASES = (
+    "fig4",
+    "fig4_free",
+    "appendix_c",
+    "wings",
+    "chain50",
+    "panels95",
+    "stiff_1e2",
+    "stiff_1e4",
+    "stiff_1e6",
+    "stiff_1e8",
+    "rotor_10pi",
+    "rotor_1000pi",
+    "bus_spin",
+    "gimbal_lock",
+    "tiny_body",
+    "long_run",
+)
+QUICK_CASES = ("wings",)
+
+
+def bench_case(name: str) -> BenchCase:
+    """The case `name` of :data:`CASES` (``"stiff_1e8"`` etc. for any scale)."""
+    return _case(name)
+
+
+# ----------------------------------------------------------------------------- runs
+def _error(omega0, gamma, ref) -> float:
+    w, g = np.asarray(omega0, float), np.asarray(gamma, float)
+    if not (np.all(np.isfinite(w)) and np.all(np.isfinite(g))):
+        return math.nan
+    return float(max(np.abs(w - ref[0]).max(), np.abs(g - ref[1]).max()))
+
+
+def _timed(call, repeats: int, budget: float):
+    """``(result, first call s, median s)``: `repeats` more calls, fewer past `budget` seconds."""
+    t = time.perf_counter()
+    out = jax.block_until_ready(call())
+    first = time.perf_counter() - t
+    runs, start = [], time.perf_counter()
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(call())
+        runs.append(time.perf_counter() - t)
+        if time.perf_counter() - start > budget:
+            break
+    return out, first, statistics.median(runs) if runs else first
+
+
+def _stats_row(sol, span):
+    st = sol.stats
+    steps = int(st["num_accepted_steps"])
+    rhs = int(st.get("rhs_evaluations", -1))
+    t_final = float(np.asarray(sol.t_final))
+    return steps, int(st["num_rejected_steps"]), rhs, t_final
+
+
+def _drifts(sol) -> tuple[float, float]:
+    e = np.asarray(sol.energy, float)
+    h = np.asarray(sol.angular_momentum, float)
+    ok = np.isfinite(e) & np.all(np.isfinite(h), 1)
+    if not ok.any():
+        return math.nan, math.nan
+    e, h = e[ok], h[ok]
+    de = float(np.abs(e - e[0]).max() / max(abs(e[0]), 1e-300))
+    dh = float(np.linalg.norm(h - h[0], axis=1).max() / max(np.linalg.norm(h[0]), 1e-300))
+    return de, dh
+
+
+class _Runner:
+    """The jaxtree runs of one case and formulation: ``run(solver name, setting)``."""
+
+    def __init__(self, case: BenchCase, formulation: str):
+        from .hybrid import hybrid_model, simulate_hybrid
+        from .simulate import simulate
+
+        self.case, self.formulation = case, formulation
+        self.ts = np.linspace(0.0, case.t1, case.n_save)
+        self.hybrid = None
+        if formulation != "full":
+            assert case.small is not None
+            k = None if formulation == "eq30" else int(formulation.split("-")[1])
+            self.hybrid = hybrid_model(case.model, case.small, k)
+        self._simulate, self._simulate_hybrid = simulate, simulate_hybrid
+
+    def call(self, solver_name: str, setting: float, max_steps: int = STEP_CAP):
+        solver = SOLVERS[solver_name]()
+        kw: dict = dict(saveat=jnp.asarray(self.ts), solver=solver, max_steps=max_steps, throw=False)
+        if solver_name == "RK4":
+            kw.update(stepsize_controller=dfx.ConstantStepSize(), dt0=(self.ts[1] - self.ts[0]) / setting)
+        else:
+            kw.update(rtol=setting, atol=setting)
+        if self.hybrid is None:
+            return lambda: self._simulate(self.case.model, self.case.t1, **kw)
+        return lambda: self._simulate_hybrid(self.hybrid, self.case.t1, **kw)
+
+
+def _energy_of(sol):
+    return getattr(sol, "energy", None)
+
+
+def _row_of(case, formulation, engine, solver, setting, sol_fields, ref, first, median, extra):
+    row = dict(
+        case=case.name,
+        group=case.group,
+        formulation=formulation,
+        engine=engine,
+        solver=solver,
+        method=f"{engine} {solver}" + ("" if formulation == "full" else f" [{formulation}]"),
+        setting=setting,
+        error=_error(sol_fields[0], sol_fields[1], ref) if ref is not None else math.nan,
+        time_s=median,
+        compile_s=max(first - median, 0.0) if engine == "jaxtree" else math.nan,
+    )
+    row.update(extra)
+    return row
+
+
+@dataclasses.dataclass
+class BenchReport:
+    """The rows of a work-precision run (one dict per run: case, group, formulation, engine,
+    solver, method, setting, error, time_s, compile_s, steps, rejected, rhs, energy_drift,
+    momentum_drift, status, note) with the machine line, the references' floors per case, the
+    solver that ``"auto"`` picks per case, and the peers' cross-checks."""
+
+    rows: list[dict]
+    machine: str
+    date: str
+    references: dict[str, dict]
+    auto: dict[str, str]
+    cross_checks: dict[str, dict]
+    settings: dict
+
+    COLUMNS = (
+        "case", "group", "formulation", "engine", "solver", "method", "setting", "status", "error",
+        "time_s", "compile_s", "steps", "rejected", "rhs", "energy_drift", "momentum_drift", "note",
+    )  # fmt: skip
+
+    def best(self, case: str, target: float) -> dict[str, dict]:
+        """Per method, its cheapest row of `case` that reaches `target`."""
+        out: dict[str, dict] = {}
+        for r in self.rows:
+            if r["case"] != case or not (r["error"] <= target) or r["status"] != "ok":
+                continue
+            if r["method"] not in out or r["time_s"] < out[r["method"]]["time_s"]:
+                out[r["method"]] = r
+        return out
+
+    def to_csv(self) -> str:
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=self.COLUMNS, extrasaction="ignore", lineterminator="\n")
+        w.writeheader()
+        for r in self.rows:
+            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+        return buf.getvalue()
+
+    def cases(self) -> list[str]:
+        return list(dict.fromkeys(r["case"] for r in self.rows))
+
+    def summary(self, case: str) -> list[str]:
+        """Markdown lines: time to each target per method, fastest first, with the ratio to the
+        fastest peer."""
+        lines = []
+        for target in TARGETS:
+            best = sorted(self.best(case, target).values(), key=lambda r: r["time_s"])
+            if not best:
+                lines.append(f"- to {target:g}: no run reached it")
+                continue
+            peers = [r for r in best if r["engine"] != "jaxtree"]
+            ours = [r for r in best if r["engine"] == "jaxtree"]
+            part = ", ".join(f"{r['method']} {_ms(r['time_s'])}" for r in best[:6])
+            ratio = ""
+            if peers and ours:
+                ratio = (
+                    f" — jaxtree's best ({ours[0]['method']}) / fastest peer ({peers[0]['method']}): "
+                    f"**{ours[0]['time_s'] / peers[0]['time_s']:.2f}x**"
+                )
+            lines.append(f"- to {target:g}: {part}{ratio}")
+        return lines
+
+    def to_markdown(self, plots: dict[str, str] | None = None) -> str:
+        s = self.settings
+        out = [
+            "# Work-precision report",
+            "",
+            f"Generated by `{s.get('command', 'jaxtree bench')}` on {self.date}.",
+            "",
+            f"Machine: {self.machine}",
+            "",
+            "Error: the largest absolute error over the save times in omega0 (rad/s) and gamma (rad), "
+            f"against a reference at rtol = atol = {REFERENCE_TOL:g} by a different solver (the floor column: the two "
+            "references' difference). Time: the median of repeated calls after the first, compile time apart "
+            "(jaxtree only). Peers run only on the scenes they can represent, cross-checked first. "
+            f"A run stopped at the step cap ({STEP_CAP} steps) is *stalled*; its note says how far it got.",
+            "",
+        ]
+        for case in self.cases():
+            rows = [r for r in self.rows if r["case"] == case]
+            ref = self.references.get(case, {})
+            out += [f"## {case} ({rows[0]['group']})", ""]
+            if ref:
+                out.append(
+                    f"{ref.get('description', '')}. References {ref['primary']} / {ref['secondary']}, floor "
+                    f"{ref['floor']:.1e}. `solver=\"auto\"` picks: {self.auto.get(case, '-')}."
+                )
+            checks = self.cross_checks.get(case, {})
+            if checks:
+                out.append(
+                    "Peers' cross-check at their tightest setting: "
+                    + ", ".join(f"{k} {v:.1e}" for k, v in checks.items())
+                    + "."
+                )
+            out.append("")
+            out += self.summary(case)
+            if plots and case in plots:
+                out += ["", f"![{case}]({plots[case]})"]
+            out += [
+                "",
+                "| method | setting | status | error | time (ms) | compile (s) | steps | rejected | energy drift | momentum drift |",
+                "|---|---|---|---|---|---|---|---|---|---|",
+            ]
+            for r in rows:
+                out.append(
+                    f"| {r['method']} | {_setting(r)} | {r['status']} | {_e(r['error'])} | {_ms(r['time_s'], False)} | "
+                    f"{_f(r['compile_s'])} | {r.get('steps', '')} | {r.get('rejected', '')} | "
+                    f"{_e(r.get('energy_drift', math.nan))} | {_e(r.get('momentum_drift', math.nan))} |"
+                )
+            out.append("")
+        return "\n".join(out) + "\n"
+
+    def plot(self, case: str, path=None):
+        from .plots import plot_work_precision
+
+        methods: dict[str, tuple[list, list]] = {}
+        for r in self.rows:
+            if r["case"] == case and r["status"] == "ok":
+                e, t = methods.setdefault(r["method"], ([], []))
+                e.append(r["error"])
+                t.append(r["time_s"])
+        return plot_work_precision(methods, path, title=f"{case}: error against run time", error_label="max error")
+
+    def save(self, directory, *, stem: str = "work_precision", plots: bool = True) -> dict[str, str]:
+        """Write ``<stem>.csv``, ``<stem>.md`` and one ``<stem>_<case>.png`` per case into
+        `directory` (each atomically); returns the paths."""
+        from .output import atomic_write
+
+        os.makedirs(directory, exist_ok=True)
+        paths = {"csv": os.path.join(directory, f"{stem}.csv"), "md": os.path.join(directory, f"{stem}.md")}
+        figs: dict[str, str] = {}
+        if plots:
+            import matplotlib
+
+            matplotlib.use("Agg")
+            import matplotlib.pyplot as plt
+
+            for case in self.cases():
+                name = f"{stem}_{case}.png"
+                fig = self.plot(case, os.path.join(directory, name))
+                plt.close(fig)
+                figs[case] = name
+                paths[case] = os.path.join(directory, name)
+        with atomic_write(paths["csv"], "w") as fh:
+            fh.write(self.to_csv())
+        with atomic_write(paths["md"], "w") as fh:
+            fh.write(self.to_markdown(figs))
+        return paths
+
+
+def _ms(seconds, unit=True) -> str:
+    if not (seconds == seconds):
+        return "-"
+    return f"{1e3 * seconds:.3g} ms" if unit else f"{1e3 * seconds:.3g}"
+
+
+def _e(x) -> str:
+    return "-" if x is None or not (x == x) else f"{x:.1e}"
+
+
+def _f(x) -> str:
+    return "-" if x is None or not (x == x) else f"{x:.2f}"
+
+
+def _setting(r) -> str:
+    if r["solver"] in ("RK4", "RK4 (MuJoCo)") or r["engine"] == "mujoco":
+        return f"{r['setting']:g} steps/save"
+    return f"tol {r['setting']:g}"
+
+
+def machine_line() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    from importlib.metadata import version
+
+    def v(name):
+        try:
+            return version(name)
+        except Exception:
+            return "-"
+
+    return (
+        f"{platform.system()} {platform.release()}, {cpu}, {os.cpu_count()} cores; python {platform.python_version()}, "
+        f"jax {jax.__version__}, diffrax {v('diffrax')}, equinox {v('equinox')}, numpy {np.__version__}, "
+        f"jaxtree {v('jaxtree')}, pin {v('pin')}, mujoco {v('mujoco')}, scipy {v('scipy')}; "
+        f"backend {jax.default_backend()}"
+    )
+
+
+class _Progress:
+    def __init__(self, total: int, enabled: bool):
+        self.total, self.done, self.enabled = total, 0, enabled
+        self.start = time.perf_counter()
+        self.bar = None
+        if enabled:
+            try:
+                from tqdm.auto import tqdm
+
+                self.bar = tqdm(total=total, unit="run", file=sys.stderr, dynamic_ncols=True)
+            except ImportError:
+                pass
+
+    def step(self, label: str, n: int = 1):
+        self.done += n
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.set_description_str(label[:60])
+            self.bar.update(n)
+        else:
+            print(f"[{self.done}/{self.total} {time.perf_counter() - self.start:6.0f} s] {label}", file=sys.stderr)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _references(case: BenchCase):
+    """Two tight runs by different solvers: ``(primary, secondary, ref arrays by name, floor)``."""
+    from .simulate import simulate
+
+    pair = ("Kvaerno5", "Dopri8") if case.group == "stiff" else ("Dopri8", "Tsit5")
+    ts = jnp.asarray(np.linspace(0.0, case.t1, case.n_save))
+    refs = {}
+    for name in pair:
+        sol = simulate(
+            case.model,
+            case.t1,
+            saveat=ts,
+            solver=SOLVERS[name](),
+            rtol=REFERENCE_TOL,
+            atol=REFERENCE_TOL,
+            max_steps=REFERENCE_STEPS,
+        )
+        refs[name] = (np.asarray(sol.omega0, float), np.asarray(sol.gamma, float))
+    a, b = refs[pair[0]], refs[pair[1]]
+    floor = float(max(np.abs(a[0] - b[0]).max(), np.abs(a[1] - b[1]).max()))
+    return pair, refs, floor
+
+
+def _formulations(case: BenchCase, wanted: Sequence[str] | None) -> list[str]:
+    forms = ["full"]
+    if case.small is not None:
+        forms += ["eq30"] + [f"hybrid-{k}" for k in case.hybrid_modes]
+    if wanted is not None:
+        forms = [f for f in forms if f in wanted or (f.startswith("hybrid") and "hybrid" in wanted)]
+    return forms
+
+
+def _peer_runs(case, ts, ref, quick, repeats, budget, progress):
+    """The peers' rows and cross-checks for `case` (those installed that can represent it)."""
+    from .peers import mujoco_runner, peer_support, pinocchio_runner
+
+    rows, checks = [], {}
+    if peer_support(case.model) is not None:
+        return rows, checks
+    ladders = []
+    try:
+        import pinocchio  # noqa: F401
+        import scipy  # noqa: F401
+
+        run = pinocchio_runner(case.model, ts)
+        tols = QUICK_TOLERANCES if quick else TOLERANCES
+        for method in ("DOP853", "RK45", "Radau"):
+            # RK45 and Radau at tight tolerances cost minutes in Python: two settings each
+            ladder = tols if method == "DOP853" else tols[:2]
+            ladders.append(("pinocchio", f"scipy {method}", ladder, lambda s, m=method: run(m, s, s), "tol"))
+    except ImportError:
+        pass
+    try:
+        import mujoco  # noqa: F401
+
+        mrun = mujoco_runner(case.model, ts)
+        steps = QUICK_RK4_STEPS if quick else (1, 2, 4, 8, 16, 32, 64)
+        ladders.append(("mujoco", "RK4", steps, lambda k: mrun("RK4", k), "steps"))
+        ladders.append(("mujoco", "implicitfast", steps, lambda k: mrun("implicitfast", k), "steps"))
+    except ImportError:
+        pass
+    for engine, solver, ladder, fn, _ in ladders:
+        # cross-check first, at the tightest setting: a peer that disagrees is reported, not timed
+        tight = fn(ladder[-1])
+        err = _error(tight[0], tight[1], ref)
+        checks[f"{engine} {solver}"] = err
+        for setting in ladder:
+            label = f"{case.name} {engine} {solver} {setting:g}"
+            try:
+                out = fn(setting)
+                times = [out[2]]
+                t0 = time.perf_counter()
+                for _ in range(repeats):
+                    if time.perf_counter() - t0 > budget:
+                        break
+                    times.append(fn(setting)[2])
+                status, note = ("ok", "") if err <= 1e-5 else ("disagrees", f"cross-check {err:.1e}")
+                rows.append(
+                    dict(
+                        case=case.name, group=case.group, formulation="full", engine=engine, solver=solver,
+                        method=f"{engine} {solver}", setting=setting, status=status, error=_error(out[0], out[1], ref),
+                        time_s=statistics.median(times), compile_s=math.nan, steps="", rejected="", rhs=out[3],
+                        energy_drift=math.nan, momentum_drift=math.nan, note=note,
+                    )
+                )  # fmt: skip
+            except Exception as e:  # a peer's failure is a row of the report, not the end of it
+                rows.append(
+                    dict(
+                        case=case.name, group=case.group, formulation="full", engine=engine, solver=solver,
+                        method=f"{engine} {solver}", setting=setting, status="failed", error=math.nan,
+                        time_s=math.nan, compile_s=math.nan, note=str(e).splitlines()[0][:120],
+                    )
+                )  # fmt: skip
+            progress.step(label)
+    return rows, checks
+
+
+def _plan(case: BenchCase, solvers, tolerances, quick, formulations):
+    names = [s for s in (case.solvers or tuple(SOLVERS)) if solvers is None or s in solvers]
+    tols = tolerances or case.tolerances or (QUICK_TOLERANCES if quick else TOLERANCES)
+    plan = []
+    for form in _formulations(case, formulations):
+        # the modal formulations: the solvers that matter for them (explicit Dopri8, implicit Kvaerno5)
+        for s in names if form == "full" else [s for s in names if s in ("Dopri8", "Kvaerno5")]:
+            settings = (QUICK_RK4_STEPS if quick else RK4_STEPS) if s == "RK4" else tols
+            plan.append((form, s, tuple(settings)))
+    return plan
+
+
+def work_precision(
+    cases: Sequence[str | BenchCase] | None = None,
+    *,
+    solvers: Sequence[str] | None = None,
+    tolerances: Sequence[float] | None = None,
+    formulations: Sequence[str] | None = None,
+    peers: bool = True,
+    quick: bool = False,
+    repeats: int | None = None,
+    budget: float = 2.0,
+    progress: bool = True,
+    command: str = "jaxtree bench",
+) -> BenchReport:
+    """Measure error against run time (see the module's text) and return a :class:`BenchReport`
+    (``.save(directory)`` writes CSV, Markdown and PNG plots).
+
+    - `cases`: names of :data:`CASES` or :class:`BenchCase` objects (default: all;
+      ``quick``: ``wings``); `solvers`: names of :data:`SOLVERS` (default all);
+      `tolerances`: the ladder (default :data:`TOLERANCES`); `formulations`: a subset of
+      ``("full", "eq30", "hybrid")``; `peers`: time the installed peers too;
+    - `quick`: two tolerances, one repeat, the quick case list (a minute or so);
+    - `repeats`: timed calls after the first (default 3, quick 1), fewer past `budget` seconds.
+    """
+    from .autosolver import choose_solver
+
+    quick = bool(quick)
+    repeats = (1 if quick else 3) if repeats is None else int(repeats)
+    chosen = [c if isinstance(c, BenchCase) else bench_case(c) for c in (cases or (QUICK_CASES if quick else CASES))]
+    unknown = [s for s in (solvers or ()) if s not in SOLVERS]
+    if unknown:
+        raise ValueError(f"unknown solver(s) {unknown}; known: {', '.join(SOLVERS)}")
+    plans = {c.name: _plan(c, solvers, tolerances, quick, formulations) for c in chosen}
+    total = sum(len(p[2]) for plan in plans.values() for p in plan) + 2 * len(chosen)
+    bar = _Progress(total, progress)
+    rows: list[dict] = []
+    refs_info: dict[str, dict] = {}
+    auto: dict[str, str] = {}
+    checks: dict[str, dict] = {}
+    try:
+        for case in chosen:
+            pair, refs, floor = _references(case)
+            bar.step(f"{case.name}: references", 2)
+            refs_info[case.name] = dict(primary=pair[0], secondary=pair[1], floor=floor, description=case.description)
+            auto[case.name] = str(choose_solver(case.model, case.t1)[1])
+            for form, solver, settings in plans[case.name]:
+                runner = _Runner(case, form)
+                ref = refs[pair[1] if solver == pair[0] else pair[0]]
+                for setting in settings:
+                    label = f"{case.name} {form} {solver} {setting:g}"
+                    call = runner.call(solver, setting)
+                    sol, first, median = _timed(call, repeats, budget)
+                    steps, rejected, rhs, t_final = _stats_row(sol, case.t1)
+                    ok = bool(sol.failure == 0) if hasattr(sol, "failure") else bool(sol.result == dfx.RESULTS.successful)
+                    status, note = "ok", ""
+                    if not ok:
+                        stalled = steps + rejected >= STEP_CAP
+                        status = "stalled" if stalled else "failed"
+                        note = f"stopped at t = {t_final:.4g} of {case.t1:g} s" + (
+                            f" after {STEP_CAP} steps" if stalled else f": {sol.result}"
+                        )
+                    de, dh = _drifts(sol) if ok and form == "full" else (math.nan, math.nan)
+                    rows.append(
+                        _row_of(
+                            case, form, "jaxtree", solver, setting, (sol.omega0, sol.gamma), ref if ok else None,
+                            first, median,
+                            dict(status=status, steps=steps, rejected=rejected, rhs=rhs, energy_drift=de,
+                                 momentum_drift=dh, note=note),
+                        )
+                    )  # fmt: skip
+                    bar.step(label)
+            if peers:
+                peer_rows, peer_checks = _peer_runs(
+                    case, np.linspace(0.0, case.t1, case.n_save), refs[pair[0]], quick, repeats, budget, bar
+                )
+                rows += peer_rows
+                if peer_checks:
+                    checks[case.name] = peer_checks
+    finally:
+        bar.close()
+    settings = dict(quick=quick, repeats=repeats, command=command)
+    return BenchReport(rows, machine_line(), time.strftime("%Y-%m-%d %H:%M %Z"), refs_info, auto, checks, settings)
