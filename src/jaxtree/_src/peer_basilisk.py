@@ -2,8 +2,9 @@
 
 The hub is a ``spacecraft.Spacecraft`` (its mass center at the body-frame origin B,
 ``r_BcB_B = 0``); every chain of hinges that leaves the hub is one
-``spinningBodyNDOFStateEffector`` (Vaz Carneiro, Allard and Schaub, AAS 23-?, 2023), a chain
-of single-axis spinning bodies. No gravity, no external loads: the system's mass center moves
+``spinningBodyNDOFStateEffector`` (J. Vaz Carneiro, C. Allard and H. Schaub, "Effector Dynamics
+for Sequentially Rotating Rigid Body Spacecraft Components", AAS/AIAA Astrodynamics Specialist
+Conference, 2023), a chain of single-axis spinning bodies. No gravity, no external loads: the system's mass center moves
 uniformly, so only the rotational motion (Eq. 1 of Likins 1972) is compared.
 
 Conventions, from Basilisk's ``spinningBodyNDOFStateEffector.cpp``:
