@@ -133,6 +133,9 @@ from ._src._checks import SceneTypeError as SceneTypeError
 from ._src._checks import SceneWarning as SceneWarning
 from ._src._integrate import DEFAULT_ATOL as DEFAULT_ATOL
 from ._src._integrate import DEFAULT_RTOL as DEFAULT_RTOL
+from ._src._integrate import (
+    RK4 as RK4,
+)
 from ._src._integrate import Failure as Failure
 from ._src.articulated import resolve_method as resolve_method
 from ._src.attitude import (
@@ -148,6 +151,12 @@ from ._src.attitude import (
     Quaternion as Quaternion,
 )
 from ._src.attitude import get_attitude as get_attitude
+from ._src.autosolver import (
+    SolverChoice as SolverChoice,
+)
+from ._src.autosolver import (
+    choose_solver as choose_solver,
+)
 from ._src.barycentric import (
     Barycentric as Barycentric,
 )
@@ -159,6 +168,24 @@ from ._src.barycentric import (
 )
 from ._src.barycentric import (
     seed_equations as seed_equations,
+)
+from ._src.bench import (
+    CASES as BENCH_CASES,
+)
+from ._src.bench import (
+    BenchCase as BenchCase,
+)
+from ._src.bench import (
+    BenchReport as BenchReport,
+)
+from ._src.bench import (
+    bench_case as bench_case,
+)
+from ._src.bench import (
+    stiff_chain as stiff_chain,
+)
+from ._src.bench import (
+    work_precision as work_precision,
 )
 from ._src.campaign import FAILURES as FAILURES
 from ._src.campaign import (
@@ -421,6 +448,9 @@ __all__ = [
     "check_solution",
     "hinge_angle_event",
     "state_event",
+    "choose_solver",
+    "SolverChoice",
+    "RK4",
     "default_tolerance",
     "DEFAULT_RTOL",
     "DEFAULT_ATOL",
@@ -466,6 +496,13 @@ __all__ = [
     "plot_drift",
     "plot_mode_shapes",
     "plot_work_precision",
+    # error against run time (`jaxtree bench`): cases, the report, the peers in the same run
+    "work_precision",
+    "BenchReport",
+    "BenchCase",
+    "bench_case",
+    "BENCH_CASES",
+    "stiff_chain",
     "write_animation",
     "write_mode_animation",
     "animation_html",

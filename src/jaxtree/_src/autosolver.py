@@ -143,7 +143,7 @@ def choose_solver(
         why = (
             "no sprung hinge is fast enough to make the run stiff"
             if screen == 0.0
-            else f"the fastest hinge law ({screen:.3g} rad/s alone) needs no more steps than the motion"
+            else f"the fastest hinge law ({screen:.3g} rad/s alone) is far from stiff over {span:g} s"
         )
         return dfx.Dopri8(), SolverChoice("Dopri8", True, why, screen, span * screen / R_STABILITY)
     lam = _eigenvalues(model, y0, t0, law, params)

@@ -13,6 +13,8 @@ Subcommands (``jaxtree SUBCOMMAND --help`` for each):
 - ``check SCENE``: validate a scene; its tree, the seed's Tables 1-2, masses and the condition
   number of Eq. (1) at the initial state;
 - ``plot RESULT``: the plots of a result file;
+- ``bench [CASE ...]``: error against run time for each solver, formulation and peer: a CSV,
+  a Markdown report and one work-precision plot per case (:func:`jaxtree.work_precision`);
 - ``sample`` (also: no subcommand at all): the seed's sample problem (``python -m jaxtree``).
 
 A user's mistake (a missing file, an invalid scene, a bad option) prints one line naming what
@@ -31,13 +33,14 @@ import signal
 import sys
 import time
 
-SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "sample")
+SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "bench", "sample")
 EXIT_USAGE, EXIT_FAILED, EXIT_INTERRUPTED = 2, 1, 130
 # Seconds to sleep after each part of `simulate` is written: lets a test interrupt a run
 # between parts deterministically. Not for users.
 CHUNK_DELAY_ENV = "JAXTREE_CHUNK_DELAY"
 
 SOLVERS = {
+    "auto": "auto",
     "dopri8": "Dopri8",
     "dopri5": "Dopri5",
     "tsit5": "Tsit5",
@@ -46,6 +49,7 @@ SOLVERS = {
     "kvaerno3": "Kvaerno3",
     "kvaerno4": "Kvaerno4",
     "kvaerno5": "Kvaerno5",
+    "kencarp4": "KenCarp4",
 }
 ATTITUDES = ("quaternion", "dcm", "euler123")
 
@@ -250,10 +254,11 @@ def _parser():
     s.add_argument("--atol", type=_positive(), default=None, help="absolute tolerance (default 1e-9)")
     s.add_argument(
         "--solver",
-        default="dopri8",
+        default="auto",
         type=str.lower,
         choices=sorted(SOLVERS),
-        help="diffrax solver (default dopri8; kvaerno3/4/5 are implicit, for stiff scenes)",
+        help="diffrax solver (default auto: dopri8, or kvaerno5 when the linearized equations at the start "
+        "are stiff; kvaerno3/4/5 and kencarp4 are implicit)",
     )
     s.add_argument(
         "--attitude",
@@ -394,6 +399,26 @@ def _parser():
         "-o", "--out", default=None, metavar="PREFIX", help="file name prefix (default: RESULT without .nc)"
     )
 
+    b = sub.add_parser(
+        "bench",
+        help="error against run time: solvers, formulations and peers",
+        description="Work-precision report: for each case, formulation (full Eq. 1, Eq. 30, hybrid) and solver, "
+        "the error against a tight reference by a different solver and the run time, with the installed peers "
+        "(Pinocchio + scipy, MuJoCo, Basilisk) in the same run. Writes OUT/work_precision.csv, .md and one "
+        "PNG per case. Cases: " + ", ".join(_bench_cases()) + " (default: all; --quick: wings).",
+    )
+    b.add_argument("cases", metavar="CASE", nargs="*", help="bench cases (see above), or stiff_<scale>")
+    b.add_argument(
+        "-o", "--out", default="work_precision", metavar="DIR", help="output folder (default work_precision)"
+    )
+    b.add_argument("--quick", action="store_true", help="a short run: wings, four solvers, two tolerances")
+    b.add_argument("--solvers", nargs="+", metavar="NAME", default=None, help="solver names (default all)")
+    b.add_argument("--tols", nargs="+", type=_positive(), default=None, metavar="TOL", help="tolerance ladder")
+    b.add_argument("--no-peers", action="store_true", help="leave the peers out")
+    b.add_argument("--no-plots", action="store_true", help="CSV and Markdown only")
+    b.add_argument("--repeats", type=_count(1), default=None, help="timed calls after the first (default 3)")
+    b.add_argument("--no-progress", action="store_true", help="no progress bar")
+
     sub.add_parser("sample", help="the seed's sample problem (the default without a subcommand)", add_help=False)
     return p
 
@@ -414,6 +439,7 @@ def main(argv=None) -> int:
     command = f"jaxtree {argv[0]}" if argv[0] in SUBCOMMANDS else "jaxtree"
     try:
         args = _parser().parse_args(argv)
+        args.argv = argv
         if args.version:
             _fast_cpu_compiler()
             from .results import versions
@@ -432,10 +458,61 @@ def main(argv=None) -> int:
             "animate": cmd_animate,
             "check": cmd_check,
             "plot": cmd_plot,
+            "bench": cmd_bench,
         }[args.command](args)
     except UserError as e:
         _say(f"{e.prog or command}: error: {e}")
         return EXIT_USAGE
+
+
+# ----------------------------------------------------------------------------- bench
+def _bench_cases():
+    from .bench import CASES
+
+    return CASES
+
+
+def cmd_bench(args) -> int:
+    from .bench import SOLVERS as BENCH_SOLVERS
+    from .bench import bench_case, work_precision
+
+    cases = []
+    for name in args.cases:
+        try:
+            cases.append(bench_case(name))
+        except ValueError as e:
+            raise UserError(str(e)) from None
+    by_lower = {k.lower(): k for k in BENCH_SOLVERS}
+    solvers = None
+    if args.solvers:
+        bad = [s for s in args.solvers if s.lower() not in by_lower]
+        if bad:
+            raise UserError(f"unknown solver(s) {', '.join(bad)}; known: {', '.join(BENCH_SOLVERS)}")
+        solvers = [by_lower[s.lower()] for s in args.solvers]
+    if not args.no_plots:
+        _matplotlib()
+    command = "jaxtree " + " ".join(getattr(args, "argv", ["bench"]))
+    t = time.perf_counter()
+    report = work_precision(
+        cases or None,
+        solvers=solvers,
+        tolerances=args.tols,
+        peers=not args.no_peers,
+        quick=args.quick,
+        repeats=args.repeats,
+        progress=not args.no_progress,
+        command=command.strip(),
+    )
+    paths = report.save(args.out, plots=not args.no_plots)
+    for case in report.cases():
+        print(f"{case}:")
+        for line in report.summary(case):
+            print("  " + line.removeprefix("- "))
+    failed = [r for r in report.rows if r["status"] == "failed"]
+    _say(f"wrote {paths['csv']}, {paths['md']} ({len(report.rows)} runs, {time.perf_counter() - t:.0f} s)")
+    if failed:
+        _say(f"{len(failed)} runs failed: see the report's notes")
+    return 0
 
 
 # ----------------------------------------------------------------------------- check
@@ -462,13 +539,20 @@ def _config(args, model):
     from .results import _scene_json
 
     tol = default_tolerance(jnp.result_type(model.mass))
+    solver, why = SOLVERS[args.solver], "given (--solver)"
+    if solver == "auto":
+        from .autosolver import choose_solver
+
+        _, choice = choose_solver(model, args.t1, t0=args.t0, rtol=args.rtol or tol)
+        solver, why = choice.name, f"auto: {choice.reason}"
     cfg = {
         "scene": _scene_json(model),
         "t0": float(args.t0),
         "t1": float(args.t1),
         "points": int(args.points),
         "chunks": int(args.chunks),
-        "solver": SOLVERS[args.solver],
+        "solver": solver,
+        "solver_choice": why,
         "rtol": float(args.rtol or tol),
         "atol": float(args.atol or tol),
         "attitude": args.attitude,
@@ -981,7 +1065,8 @@ def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
             if hyb is not None
             else "Eq. (1)"
         )
-        + f"; {cfg['solver']}, rtol {cfg['rtol']:g}, atol {cfg['atol']:g}, attitude {cfg['attitude']}"
+        + f"; {cfg['solver']}, rtol {cfg['rtol']:g}, atol {cfg['atol']:g}, attitude {cfg['attitude']}",
+        f"  solver: {cfg['solver']}, {cfg.get('solver_choice', 'given')}",
     ]
     lines.append(
         f"  result: {a.get('result')} at t = {float(a.get('t_final')):.6g} s"

@@ -53,8 +53,8 @@ from ._integrate import (
     result_code,
     warn_below_roundoff,
 )
-from .autosolver import choose_solver, given
 from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
+from .autosolver import choose_solver, given
 from .control import AbstractController
 from .dynamics import (
     SINGULAR_CONDITION,

@@ -1,0 +1,152 @@
+"""The solver choice of ``simulate(solver="auto")``, the fixed-step RK4 and IMEX solvers, and the
+work-precision report behind ``jaxtree bench``.
+
+Independent sources: the convergence order of RK4 (halving the step divides the error by
+2^4), a second solver family (explicit Dopri8 against the implicit choice on the stiff chain),
+the dissipation of a damped vehicle (its energy never rises), the conservation of angular
+momentum without loads, and two references by different solvers agreeing.
+"""
+
+import csv
+import math
+
+import diffrax as dfx
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxtree
+from jaxtree._src import cli
+
+STIFF = jaxtree.stiff_chain(1e8)
+
+
+def _momentum_scale(model, sol):
+    """|H| of the whole vehicle turning rigidly with its initial energy about its stiffest axis:
+    the scale of a drift when the vehicle starts with no angular momentum."""
+    J = np.asarray(jaxtree.mass_matrix(model, model.initial.gamma))[:3, :3]
+    return math.sqrt(2 * float(sol.energy[0]) * np.linalg.eigvalsh(J).max())
+
+
+def test_auto_picks_an_implicit_solver_for_the_stiffest_chain_and_finishes_in_a_few_hundred_steps():
+    sol = jaxtree.simulate(STIFF, 1.0, saveat=jnp.linspace(0.0, 1.0, 21), rtol=1e-6, atol=1e-6)
+    choice = sol.stats["solver"]
+    assert isinstance(choice, jaxtree.SolverChoice) and choice.auto and choice.name == "Kvaerno5", choice
+    assert "stiff" in choice.reason and choice.explicit_steps > 1e5
+    assert sol.ok and int(sol.stats["num_accepted_steps"]) < 500, sol.stats
+    # a damped vehicle without loads: the energy never rises, the angular momentum (zero at the start) stays
+    E = np.asarray(sol.energy)
+    assert np.all(np.diff(E) <= 1e-6 * E[0]) and E[-1] < E[0]
+    H = np.linalg.norm(np.asarray(sol.angular_momentum), axis=1)
+    assert H.max() <= 1e-6 * _momentum_scale(STIFF, sol)
+
+
+def test_the_implicit_choice_agrees_with_an_explicit_run_on_the_stiff_chain():
+    # over 20 ms Dopri8 needs ~1e4 steps, which a test can afford; "auto" still finds the run stiff
+    ts = jnp.linspace(0.0, 0.02, 21)  # the same layout as above: one compilation
+    auto = jaxtree.simulate(STIFF, 0.02, saveat=ts, rtol=1e-9, atol=1e-9)
+    assert auto.stats["solver"].name == "Kvaerno5"
+    explicit = jaxtree.simulate(STIFF, 0.02, saveat=ts, solver=dfx.Dopri8(), rtol=1e-11, atol=1e-11, max_steps=100_000)
+    assert int(explicit.stats["num_accepted_steps"]) > 5000  # the stability limit of ~1.5e6 rad/s
+    for field in ("gamma", "gamma_dot", "omega0"):
+        a, b = np.asarray(getattr(auto, field)), np.asarray(getattr(explicit, field))
+        assert np.abs(a - b).max() <= 1e-6 * max(1.0, np.abs(b).max()), field
+
+
+def test_auto_keeps_dopri8_on_fig4_free_and_records_the_choice():
+    model = jaxtree.load_scene("fig4_free")
+    solver, choice = jaxtree.choose_solver(model, 10.0)
+    assert isinstance(solver, dfx.Dopri8) and choice.name == "Dopri8" and choice.auto
+    sol = jaxtree.simulate(model, 0.05, saveat=3)
+    assert sol.stats["solver"].name == "Dopri8" and sol.stats["solver"].auto
+    given = jaxtree.simulate(jaxtree.stiff_chain(1e2), 0.01, saveat=3, solver=dfx.Tsit5())
+    assert given.stats["solver"].name == "Tsit5" and not given.stats["solver"].auto
+
+
+def test_auto_leaves_fast_undamped_modes_to_an_explicit_solver():
+    base = jaxtree.load_scene("chain10")
+    stiff = eqx.tree_at(lambda m: m.stiffness, base, base.stiffness * 1e6)  # undamped: nothing decays
+    _, choice = jaxtree.choose_solver(stiff, 1.0, rtol=1e-6)
+    assert choice.name == "Dopri8" and "does not decay" in choice.reason, choice
+    # the linearization saw the chain's fastest mode, above the screen's single-hinge estimate
+    assert choice.fastest > 1e3 * 49.0
+
+
+def test_auto_under_tracing_is_the_explicit_default():
+    def run(scale):
+        model = eqx.tree_at(lambda m: m.stiffness, STIFF, STIFF.stiffness * scale)
+        return jaxtree.simulate(model, 1.0, saveat=2).stats["solver"]
+
+    choice = jax.eval_shape(run, 1.0)
+    assert choice.name == "Dopri8" and "traced" in choice.reason
+
+
+def test_rk4_is_fourth_order():
+    model = jaxtree.load_scene("appendix_b")
+    ts = jnp.linspace(0.0, 2.0, 5)
+    ref = jaxtree.simulate(model, 2.0, saveat=ts, rtol=1e-13, atol=1e-13)
+
+    def error(h):
+        sol = jaxtree.simulate(
+            model, 2.0, saveat=ts, solver=jaxtree.RK4(), stepsize_controller=dfx.ConstantStepSize(), dt0=h
+        )
+        assert int(sol.stats["num_accepted_steps"]) == round(2.0 / h)
+        return np.abs(np.asarray(sol.gamma) - np.asarray(ref.gamma)).max()
+
+    e1, e2 = error(0.02), error(0.01)
+    assert 12.0 < e1 / e2 < 20.0, (e1, e2)  # 2^4 = 16
+
+
+def test_an_imex_solver_runs_with_the_whole_right_side_implicit():
+    model = jaxtree.load_scene("appendix_b")
+    ts = jnp.linspace(0.0, 0.5, 5)
+    ref = jaxtree.simulate(model, 0.5, saveat=ts, rtol=1e-13, atol=1e-13)
+    sol = jaxtree.simulate(model, 0.5, saveat=ts, solver=dfx.KenCarp4(), rtol=1e-6, atol=1e-6)
+    assert sol.stats["solver"].name == "KenCarp4" and sol.stats["rhs_evaluations"] == -1
+    assert np.abs(np.asarray(sol.gamma) - np.asarray(ref.gamma)).max() < 1e-4
+
+
+def test_work_precision_measures_error_against_an_independent_reference(tmp_path):
+    report = jaxtree.work_precision(
+        [jaxtree.bench_case("wings")],
+        solvers=["Dopri8", "RK4"],
+        tolerances=[1e-7],
+        formulations=["full"],
+        peers=False,
+        repeats=1,
+        progress=False,
+    )
+    ref = report.references["wings"]
+    assert ref["primary"] == "Dopri8" and ref["secondary"] == "Tsit5" and ref["floor"] < 1e-9
+    assert report.auto["wings"].startswith("Dopri8 (auto)")
+    rows = {(r["solver"], r["setting"]): r for r in report.rows}
+    assert all(r["status"] == "ok" and r["time_s"] > 0 for r in rows.values())
+    dopri = rows["Dopri8", 1e-7]
+    assert ref["floor"] < dopri["error"] < 1e-5 and dopri["steps"] > 0 and dopri["compile_s"] >= 0
+    # RK4 at fixed steps: the error falls as h^4 (8 -> 16 steps per save interval: 16x)
+    assert 10.0 < rows["RK4", 8]["error"] / rows["RK4", 16]["error"] < 24.0
+    # no damping-free energy on a damped scene; the momentum is conserved to the tolerance
+    assert math.isnan(dopri["energy_drift"]) and dopri["momentum_drift"] < 1e-6
+    paths = report.save(tmp_path)
+    with open(paths["csv"]) as fh:
+        table = list(csv.DictReader(fh))
+    assert len(table) == len(report.rows) and {r["solver"] for r in table} == {"Dopri8", "RK4"}
+    text = open(paths["md"]).read()
+    assert "## wings (reference)" in text and "floor" in text and "wings.png" in text
+    assert (tmp_path / "work_precision_wings.png").stat().st_size > 1000
+
+
+def test_bench_command_mistakes_print_one_line(capsys):
+    for argv, needle in (
+        (["bench", "nosuchcase"], "unknown bench case"),
+        (["bench", "--solvers", "rk99"], "rk99"),
+        (["bench", "--tols", "-1"], "--tols"),
+    ):
+        rc = cli.main(argv)
+        err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+        assert rc == cli.EXIT_USAGE and len(err) == 1 and needle in err[0], (argv, err)
+    with pytest.raises(SystemExit) as e:
+        cli.main(["bench", "--help"])
+    assert e.value.code == 0 and "stiff_1e8" in capsys.readouterr().out
