@@ -67,6 +67,7 @@ LARGE_SOLVERS = ("Tsit5", "Dopri5", "Dopri8", "Kvaerno5", "RK4")
 TOLERANCES = (1e-4, 1e-6, 1e-8, 1e-10)
 QUICK_TOLERANCES = (1e-5, 1e-8)
 RK4_STEPS = (2, 4, 8, 16, 32)  # RK4 steps per save interval
+RK4_STABILITY = 2.78  # |h lambda| where RK4's stability region ends on the real and imaginary axes
 QUICK_RK4_STEPS = (4, 16)
 REFERENCE_TOL = 1e-12
 TARGETS = (1e-6, 1e-9)
@@ -304,7 +305,7 @@ def _jaxtree_row(case, form, solver, setting, call, ref, repeats, budget, cap, c
         _, _, median = _timed(call, repeats, budget, first_done=(sol, first))
     else:
         stalled = steps + rejected >= cap
-        status = "stalled" if stalled else "failed"
+        status = "stalled" if stalled else ("unstable" if solver == "RK4" else "failed")
         note = f"stopped at t = {t_final:.4g} of {case.t1:g} s" + (f" after {cap} steps" if stalled else "")
     de, dh = _drifts(sol) if ok and form == "full" else (math.nan, math.nan)
     if not conservative:
@@ -786,7 +787,8 @@ def work_precision(
             pair, refs, floor = _references(case)
             bar.step(f"{case.name}: references", 2)
             refs_info[case.name] = dict(primary=pair[0], secondary=pair[1], floor=floor, description=case.description)
-            auto[case.name] = str(choose_solver(case.model, case.t1)[1])
+            choice = choose_solver(case.model, case.t1)[1]
+            auto[case.name] = str(choice)
             conservative = not np.any(np.asarray(case.model.damping) != 0.0) and case.model.loads is None
             for form, solver, settings in plans[case.name]:
                 runner = _Runner(case, form)
@@ -795,6 +797,15 @@ def work_precision(
                 skip = ""
                 for setting in settings:
                     label = f"{case.name} {form} {solver} {setting:g}"
+                    h = case.t1 / (case.n_save - 1) / setting
+                    if solver == "RK4" and h * choice.fastest > RK4_STABILITY:
+                        rows.append(
+                            _row_of(case, form, "jaxtree", solver, setting, None, None, math.nan, math.nan,
+                                    dict(status="unstable", note=f"h |lambda|max = {h * choice.fastest:.3g} > "
+                                         f"{RK4_STABILITY} (RK4's stability limit): not run"))
+                        )  # fmt: skip
+                        bar.step(label)
+                        continue
                     if skip:
                         rows.append(
                             _row_of(case, form, "jaxtree", solver, setting, None, None, math.nan, math.nan,
