@@ -11,6 +11,7 @@ import os
 import pathlib
 import tempfile
 
+import jax
 import numpy as np
 
 from .simulate import Solution
@@ -150,7 +151,7 @@ def save_plot(path, runs: dict[str, Solution], title: str = "") -> bool:
 
 def summary(name: str, sol: Solution, wall: float | None = None, first: float | None = None) -> str:
     """A few lines: final state, energy and momentum drift, steps and times."""
-    st = {k: int(np.asarray(v)) for k, v in sol.stats.items()}
+    st = {k: int(np.asarray(v)) for k, v in sol.stats.items() if isinstance(v, (jax.Array, np.ndarray, int))}
     f = sol.final
     np_opts = dict(precision=6, suppress_small=True, max_line_width=150)
     lines = [

@@ -269,9 +269,13 @@ def solution_attrs(sol) -> dict:
     """Attributes of a :class:`jaxtree.Solution`: attitude, result, where it ended, steps, drift."""
     from ._integrate import failure_kind
 
-    st = {k: int(np.asarray(x)) for k, x in sol.stats.items() if np.ndim(x) == 0}
+    # the step counts, and the solver's record (a SolverChoice: which solver ran and why)
+    st = {k: int(np.asarray(x)) for k, x in sol.stats.items() if isinstance(x, (jax.Array, np.ndarray, int))}
     kind = failure_kind(sol.failure)
+    choice = sol.stats.get("solver")
+    extra = {} if choice is None else {"solver": choice.name, "solver_choice": str(choice)}
     return {
+        **extra,
         "attitude": sol.problem.attitude.name,
         "result": "ok" if kind is None else kind,
         "result_code": int(np.asarray(sol.failure)),
