@@ -317,7 +317,7 @@ def hybrid_model_args(
     damping=None,
     form=None,
     precompute=None,
-    attitude="quaternion",
+    attitude: object = "quaternion",
     rtol=1e-9,
     basis=None,
 ):

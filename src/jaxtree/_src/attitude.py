@@ -29,6 +29,7 @@ import abc
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 
 from .kinematics import tilde
@@ -129,15 +130,15 @@ class AbstractAttitude(eqx.Module):
     has_singularity: ClassVar[bool] = False
 
     @abc.abstractmethod
-    def from_dcm(self, C):
+    def from_dcm(self, C) -> jax.Array:
         """The attitude variables (size,) of a rotation matrix C."""
 
     @abc.abstractmethod
-    def to_dcm(self, x):
+    def to_dcm(self, x) -> jax.Array:
         """C of Def. 9 (3, 3) from the attitude variables (size,)."""
 
     @abc.abstractmethod
-    def rate(self, x, omega0):
+    def rate(self, x, omega0) -> jax.Array:
         """Time derivative of the variables for angular velocity omega0 (in {b^0})."""
 
     def margin(self, x):

@@ -94,7 +94,7 @@ def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     """One member: its histories and per-run figures (a dict of arrays)."""
     from .simulate import simulate
 
-    kw = {}
+    kw: dict[str, Any] = {}
     if cfg.dt is not None:
         kw = dict(stepsize_controller=dfx.ConstantStepSize(), dt0=jnp.asarray(cfg.dt, ts.dtype))
     sol = simulate(
@@ -396,7 +396,9 @@ class _Store:
             self._check(dict(group.attrs))
             if "chunk_done" not in group:
                 return set()
-            return {int(i) for i in np.flatnonzero(np.asarray(group["chunk_done"][:]))}
+            chunk_done = group["chunk_done"]
+            assert isinstance(chunk_done, zarr.Array), "write() makes chunk_done an array"
+            return {int(i) for i in np.flatnonzero(np.asarray(chunk_done[:]))}
         if os.path.exists(self.path):
             import xarray as xr
 
@@ -426,8 +428,9 @@ class _Store:
             ds.drop_vars([v for v in ds.coords if "run" not in ds[v].dims]).to_zarr(
                 self.path, region=region, consolidated=False
             )
-            group = zarr.open_group(self.path, mode="r+")
-            group["chunk_done"][index] = True
+            chunk_done = zarr.open_group(self.path, mode="r+")["chunk_done"]
+            assert isinstance(chunk_done, zarr.Array), "made an array with the template above"
+            chunk_done[index] = True
             return
         from .output import atomic_write
 

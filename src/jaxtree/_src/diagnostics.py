@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .dynamics import SINGULAR_CONDITION, _matrix_condition, _unknown_labels, rotational_equations
-from .model import Model, State
+from .model import Model, SinePrescription, State
 from .scene import SceneError, load_scene, scene_from_dict
 
 # Above this condition number the summary warns that digits are being lost (float64 keeps
@@ -111,7 +111,7 @@ def _joint_text(model: Model, k: int) -> str:
     kind = model.joints[k - 1]
     if k in model.prescribed:
         pres = model.prescription
-        if hasattr(pres, "amplitude"):
+        if isinstance(pres, SinePrescription):
             i = list(pres.hinges).index(k)
             return (
                 f"prescribed gamma = {float(pres.amplitude[i]):g} sin({float(pres.frequency[i]):g} t "

@@ -34,7 +34,7 @@ accumulated over the same outboard sets.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, Protocol, overload
 
 import jax
 import jax.numpy as jnp
@@ -104,6 +104,10 @@ def configuration(model: Model, gamma) -> Configuration:
     return _configuration(model, gamma)[0]
 
 
+@overload
+def _configuration(model: Model, gamma, omega0: None = None, gamma_dot: None = None) -> tuple[Configuration, None]: ...
+@overload
+def _configuration(model: Model, gamma, omega0: jax.Array, gamma_dot: jax.Array) -> tuple[Configuration, jax.Array]: ...
 def _configuration(model, gamma, omega0=None, gamma_dot=None):
     """:func:`configuration`, and with `omega0` and `gamma_dot` also the body angular velocities
     (:func:`body_angular_velocities`), whose path-element sum shares one pass with the mass
@@ -122,6 +126,7 @@ def _configuration(model, gamma, omega0=None, gamma_dot=None):
     if omega0 is None:
         rho, omega = ancestor_sum(topo, steps), None
     else:
+        assert gamma_dot is not None, "omega0 and gamma_dot come together"
         rates = jnp.concatenate([omega0[None, :], axis * gamma_dot[:, None]], 0)
         both = ancestor_sum(topo, jnp.concatenate([steps, rates], 1))
         rho, omega = both[:, :3], both[:, 3:]
@@ -195,6 +200,10 @@ def _masks(model):
     return upper, strict
 
 
+@overload
+def _mass_matrix(model: Model, cfg: Configuration, extra: None = None) -> jax.Array: ...
+@overload
+def _mass_matrix(model: Model, cfg: Configuration, extra: jax.Array) -> tuple[jax.Array, jax.Array]: ...
 def _mass_matrix(model, cfg, extra=None):
     """The matrix of Eq. (1); with `extra`, also its outboard sums: ``(matrix, sums)``."""
     total_mass, J0, v, p, L, sums = _hinge_momenta(model, cfg, extra)
@@ -246,7 +255,15 @@ def hinge_torques(model: Model, gamma, gamma_dot):
     return jnp.concatenate([law, jnp.zeros((1,), dtype)])[where]
 
 
-def external_loads(model: Model, t, state: State, cfg: Configuration):
+class _Rotations(Protocol):
+    """What :func:`external_loads` reads of a configuration: the rotations C^{0k} of the
+    bodies (a :class:`Configuration`, or the barycentric module's own frames)."""
+
+    @property
+    def R(self) -> jax.Array: ...
+
+
+def external_loads(model: Model, t, state: State, cfg: _Rotations):
     """``(bodies, force, torque)`` of the model's external loads in {b^0} components, or None."""
     if model.loads is None:
         return None

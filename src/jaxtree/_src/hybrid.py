@@ -402,6 +402,7 @@ def _large_frame(hm: HybridModel, bases, t, dcm, w, gL, gdL, v0=None):
     gddP = None
     gcol, gdcol = gL, gdL
     if nP:
+        assert model.prescription is not None, "a model with prescribed hinges has a prescription"
         gp, gdp, gddP = model.prescription.derivatives(jnp.asarray(t, dtype))
         gcol = jnp.concatenate([gL, gp.astype(dtype)])
         gdcol = jnp.concatenate([gdL, gdp.astype(dtype)])
@@ -488,6 +489,7 @@ def _pre_system(hm: HybridModel, t, y):
     s_in = s * hm._keep_m().astype(dtype)
     dcm = hm.attitude.to_dcm(att)
     pre = hm.pre
+    assert pre is not None, "called for a model with precomputed terms only"
     A0zz, b0z, Jb, vb, cb, gddP = _large_frame(hm, pre.bases, t, dcm, w, gL, gdL)
     nz = A0zz.shape[0]
     u = hm.u
@@ -538,6 +540,7 @@ def _pre_system(hm: HybridModel, t, y):
     rhs = -(b0[Rw] + b1[Rw] - minv * (A0RT @ b0[T] + A1RT @ b0[T] + A0RT @ b1[T]))
     nx = 3 + nL
     if nP:
+        assert gddP is not None, "_large_frame returns the prescribed accelerations when there are some"
         rhs = rhs - AK[:, nx:] @ gddP
     mat = jnp.concatenate([AK[:, :nx], AW], 1)
     mat = mat.at[nx:, nx:].add(hm.kin)
@@ -676,12 +679,16 @@ def _real_pairs(md, picked, tol):
     lam = np.asarray(md.eigenvalues)
     a_r, b_r, a_l, b_l = [], [], [], []
     for j in picked:
-        if abs(lam[j].imag) > tol:
-            a_r.append(R[:, j].real), b_r.append(R[:, j].imag)
-            a_l.append(Lf[:, j].real), b_l.append(Lf[:, j].imag)
+        if abs(np.imag(lam[j])) > tol:
+            a_r.append(np.real(R[:, j]))
+            b_r.append(np.imag(R[:, j]))
+            a_l.append(np.real(Lf[:, j]))
+            b_l.append(np.imag(Lf[:, j]))
         else:
-            a_r.append(R[:, j].real), b_r.append(R[:, j + nu].real)
-            a_l.append(Lf[:, j].real), b_l.append(Lf[:, j + nu].real)
+            a_r.append(np.real(R[:, j]))
+            b_r.append(np.real(R[:, j + nu]))
+            a_l.append(np.real(Lf[:, j]))
+            b_l.append(np.real(Lf[:, j + nu]))
     return np.stack(a_r + b_r, 1), np.stack(a_l + b_l, 1)
 
 
@@ -718,7 +725,7 @@ def _basis(md, I, K, cand, form, zeta):
     sig = np.asarray(md.frequencies)[cand]
     Z = np.zeros((nu, k))
     if form == "real":
-        phi = np.asarray(md.shapes).real[:, cand]  # Eq. (119), phi^T I phi = U
+        phi = np.real(np.asarray(md.shapes))[:, cand]  # Eq. (119), phi^T I phi = U
         Ip = phi.T @ I
         return dict(
             positions=np.concatenate([phi, Z], 1),
@@ -795,7 +802,8 @@ def _assemble(blocks, nu, form):
         out["kin"][np.ix_(um, um)] = p["kin"]
         out["kin_rhs"][np.ix_(um, mm_)] = p["kin_rhs"]
         out["project"][np.ix_(mm_, np.concatenate([r, nu + r]))] = p["project"]
-        mmaps.append(mm_), umaps.append(um)
+        mmaps.append(mm_)
+        umaps.append(um)
     return out, [(g, j) for _, g, j in order], mmaps, umaps
 
 
@@ -924,9 +932,41 @@ def hybrid_model(
         basis=basis,
     )
     S = resolve_hinges(model, small)
-    L = tuple(k for k in model.unknown_hinges if k not in S)
-    dtype = jnp.result_type(model.mass)
     groups = _sub.substructures(model, S)
+    basis, precompute = _basis_and_precompute(model, S, groups, basis, precompute)
+    if form not in (None, "real", "first_order"):
+        raise ValueError(f"hybrid_model: form must be 'real' or 'first_order', got {form!r}")
+    w_nom, g_nom, C_nom = _nominal_motion(model, omega0, gamma, dcm)
+    tms = [_sub.terms(model, g, g_nom) for g in groups] if (precompute or basis == "substructure") else None
+    if basis == "set":
+        lin = linearize(model, S, omega0=omega0, gamma=gamma, dcm=dcm)
+        systems = [(tuple(range(len(S))), np.asarray(lin.I), np.asarray(lin.J), np.asarray(lin.K), lin.coordinates)]
+    else:
+        assert tms is not None, "computed for the substructure basis"
+        systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom, C_nom, attitude)
+    mds = [_modes(I, J, K, labels=lab, rtol=rtol) for (_, I, J, K, lab) in systems]
+    kinds = [md.kind for md in mds]
+    if form is None:
+        form = "real" if all(kd == "real" for kd in kinds) else "first_order"
+    if form == "real" and any(kd != "real" for kd in kinds):
+        bad = next(kd for kd in kinds if kd != "real")
+        raise ModalError(
+            f"hybrid_model: form='real' needs real modes (J = 0, K symmetric); the modes of the set A "
+            f"are {bad!r}. Use form='first_order' (Eq. 118)."
+        )
+    blocks, picked = _retained_modes(model, groups, systems, mds, n_modes, cutoff, form, basis)
+    zeta = _zeta(
+        damping,
+        sum(len(b[1]) for b in blocks),
+        kinds[0] if len(set(kinds)) == 1 else "general" if "general" in kinds else kinds[0],
+    )
+    return _assemble_model(
+        model, S, groups, tms, w_nom, g_nom, blocks, picked, zeta, form, kinds[0], precompute, basis, attitude
+    )
+
+
+def _basis_and_precompute(model: Model, S, groups, basis: str | None, precompute: bool | None) -> tuple[str, bool]:
+    """The modal basis and whether to precompute the substructure terms (defaults and checks)."""
     terminal = all(g.terminal for g in groups)
     small_bodies = set(S)
     loads_small = model.loads is not None and any(int(b) in small_bodies for b in model.loads.bodies)
@@ -948,72 +988,65 @@ def hybrid_model(
             "hinge outboard of a small one) and no external load on a small body"
             + ("; the loads act on small bodies" if loads_small else "")
         )
-    if form not in (None, "real", "first_order"):
-        raise ValueError(f"hybrid_model: form must be 'real' or 'first_order', got {form!r}")
-    w_nom, g_nom, C_nom = _nominal_motion(model, omega0, gamma, dcm)
-    nu = len(S)
-    tms = [_sub.terms(model, g, g_nom) for g in groups] if (precompute or basis == "substructure") else None
+    return basis, precompute
 
-    if basis == "set":
-        lin = linearize(model, S, omega0=omega0, gamma=gamma, dcm=dcm)
-        systems = [(tuple(range(nu)), np.asarray(lin.I), np.asarray(lin.J), np.asarray(lin.K), lin.coordinates)]
-    else:
-        systems = []
-        cfg = configuration(model, g_nom)
-        r_cm = -cfg.rho[0]  # the system mass center from b_0's: the nominal spins about it
-        skeleton = HybridModel(
-            model=model,
-            gamma_nominal=g_nom,
-            omega0_nominal=w_nom,
-            inertia=jnp.zeros((0, 0)),
-            frequencies=jnp.zeros(0),
-            damping_ratios=jnp.zeros(0),
-            positions=jnp.zeros((nu, 0)),
-            rates=jnp.zeros((nu, 0)),
-            accel=jnp.zeros((nu, 0)),
-            rows=jnp.zeros((nu, 0)),
-            kin=jnp.zeros((0, 0)),
-            kin_rhs=jnp.zeros((0, 0)),
-            project=jnp.zeros((0, 2 * nu)),
-            keep=jnp.zeros(0),
-            modal_inverse=None,
-            pre=None,
-            attitude=get_attitude(attitude),
-            small=S,
-            large=L,
-            form="real",
-            kind="real",
-            mode_index=(),
-            groups=groups,
-            basis=basis,
-        )
-        gL = g_nom[np.asarray(L, np.int64) - 1]
-        v0 = jnp.concatenate([w_nom, cross(r_cm, w_nom)])  # b_0's velocity in the spin about the mass center
-        held = _held_prescription(skeleton)
-        _, _, _, vb, _, _ = _large_frame(
-            held, tuple(g.base for g in groups), jnp.asarray(0.0, dtype), C_nom, w_nom, gL, jnp.zeros_like(gL), v0=v0
-        )
-        sprung = np.zeros(model.n)
-        sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
-        for grp, tm, vg in zip(groups, tms, vb):
-            h = np.asarray(grp.hinges, np.int64) - 1
-            k_s = jnp.asarray(np.asarray(model.stiffness) * sprung)[h]
-            d_s = jnp.asarray(np.asarray(model.damping) * sprung)[h]
-            I, J, K = _sub.held_base(tm, vg, jnp.zeros(6, dtype), k_s, d_s)  # steady spin: no base acceleration
-            rows = tuple(S.index(k) for k in grp.hinges)
-            systems.append(
-                (rows, np.asarray(I), np.asarray(J), np.asarray(K), tuple(model.names[k] for k in grp.hinges))
-            )
-    mds = [_modes(I, J, K, labels=lab, rtol=rtol) for (_, I, J, K, lab) in systems]
-    kinds = [md.kind for md in mds]
-    if form is None:
-        form = "real" if all(kd == "real" for kd in kinds) else "first_order"
-    if form == "real" and any(kd != "real" for kd in kinds):
-        bad = next(kd for kd in kinds if kd != "real")
-        raise ModalError(
-            f"hybrid_model: form='real' needs real modes (J = 0, K symmetric); the modes of the set A "
-            f"are {bad!r}. Use form='first_order' (Eq. 118)."
-        )
+
+def _substructure_systems(model: Model, S, groups, tms, g_nom, w_nom, C_nom, attitude) -> list:
+    """Eq. (42) of each substructure on its held base in the nominal spin about the system mass
+    center: ``(rows in A, I, J, K, coordinate names)`` per substructure."""
+    nu = len(S)
+    L = tuple(k for k in model.unknown_hinges if k not in S)
+    dtype = jnp.result_type(model.mass)
+    cfg = configuration(model, g_nom)
+    r_cm = -cfg.rho[0]  # the system mass center from b_0's: the nominal spins about it
+    skeleton = HybridModel(
+        model=model,
+        gamma_nominal=g_nom,
+        omega0_nominal=w_nom,
+        inertia=jnp.zeros((0, 0)),
+        frequencies=jnp.zeros(0),
+        damping_ratios=jnp.zeros(0),
+        positions=jnp.zeros((nu, 0)),
+        rates=jnp.zeros((nu, 0)),
+        accel=jnp.zeros((nu, 0)),
+        rows=jnp.zeros((nu, 0)),
+        kin=jnp.zeros((0, 0)),
+        kin_rhs=jnp.zeros((0, 0)),
+        project=jnp.zeros((0, 2 * nu)),
+        keep=jnp.zeros(0),
+        modal_inverse=None,
+        pre=None,
+        attitude=get_attitude(attitude),
+        small=S,
+        large=L,
+        form="real",
+        kind="real",
+        mode_index=(),
+        groups=groups,
+        basis="substructure",
+    )
+    gL = g_nom[np.asarray(L, np.int64) - 1]
+    v0 = jnp.concatenate([w_nom, cross(r_cm, w_nom)])  # b_0's velocity in the spin about the mass center
+    held = _held_prescription(skeleton)
+    _, _, _, vb, _, _ = _large_frame(
+        held, tuple(g.base for g in groups), jnp.asarray(0.0, dtype), C_nom, w_nom, gL, jnp.zeros_like(gL), v0=v0
+    )
+    sprung = np.zeros(model.n)
+    sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
+    systems = []
+    for grp, tm, vg in zip(groups, tms, vb):
+        h = np.asarray(grp.hinges, np.int64) - 1
+        k_s = jnp.asarray(np.asarray(model.stiffness) * sprung)[h]
+        d_s = jnp.asarray(np.asarray(model.damping) * sprung)[h]
+        I, J, K = _sub.held_base(tm, vg, jnp.zeros(6, dtype), k_s, d_s)  # steady spin: no base acceleration
+        rows = tuple(S.index(k) for k in grp.hinges)
+        systems.append((rows, np.asarray(I), np.asarray(J), np.asarray(K), tuple(model.names[k] for k in grp.hinges)))
+    return systems
+
+
+def _retained_modes(model: Model, groups, systems, mds, n_modes, cutoff, form: str, basis: str):
+    """The retained modes of each system (:func:`_select`): ``blocks`` of ``(rows, sigma, indices,
+    modes, I, K)`` for the systems that keep some, and ``picked``, ``(system, indices)`` of each."""
     if basis == "substructure" and n_modes is not None and not isinstance(n_modes, (int, np.integer)):
         per = list(n_modes)
         if len(per) != len(groups):
@@ -1035,8 +1068,14 @@ def hybrid_model(
         blocks.append((rows, sigma[cand], cand, md, I, K))
     if not blocks:
         raise ValueError("hybrid_model: no mode retained (check cutoff)")
-    k = sum(len(b[1]) for b in blocks)
-    zeta = _zeta(damping, k, kinds[0] if len(set(kinds)) == 1 else "general" if "general" in kinds else kinds[0])
+    return blocks, picked
+
+
+def _assemble_model(model, S, groups, tms, w_nom, g_nom, blocks, picked, zeta, form, kind, precompute, basis, attitude):
+    """The :class:`HybridModel` of the retained modes: their modal matrices assembled over the set
+    A in ascending frequency, the modal damping `zeta` (in that order), the precomputed terms."""
+    nu = len(S)
+    dtype = jnp.result_type(model.mass)
     # modal damping follows the global (frequency) order of the modes: split it by group afterwards
     order = sorted(((float(sig[j]), g, j) for g, (_, sig, *_r) in enumerate(blocks) for j in range(len(sig))))
     zg = [np.zeros(len(b[1])) for b in blocks]
@@ -1044,26 +1083,11 @@ def hybrid_model(
         zg[g][j] = zeta[q]
     parts_g = [(rows, sig, _basis(md, I, K, cand, form, zg[g])) for g, (rows, sig, cand, md, I, K) in enumerate(blocks)]
     parts, mode_order, mmaps, umaps = _assemble(parts_g, nu, form)
-    sig_all = np.asarray([blocks[g][1][j] for g, j in mode_order])
-    zeta_all = np.asarray([zg[g][j] for g, j in mode_order])
     mode_index = tuple(int(blocks[g][2][j]) for g, j in mode_order)
     group_of = [picked[g][0] for g in range(len(blocks))]
-    mode_group = tuple(int(group_of[g]) for g, _ in mode_order)
     f = lambda x: jnp.asarray(x, dtype)
-    u, m = parts["accel"].shape[1], parts["positions"].shape[1]
-    pre = None
-    if precompute:
-        # every substructure, also one with no retained mode (its mass still moves with its base)
-        gm, gu = [], []
-        for gi in range(len(groups)):
-            if gi in group_of:
-                gm.append(mmaps[group_of.index(gi)]), gu.append(umaps[group_of.index(gi)])
-            else:
-                gm.append(np.zeros(0, np.int64)), gu.append(np.zeros(0, np.int64))
-        if basis == "set":  # the set's modes span every substructure
-            gm = [np.arange(m)] * len(groups)
-            gu = [np.arange(u)] * len(groups)
-        pre = _build_pre(model, groups, tms, S, g_nom, parts, gm, gu, u, m)
+    u = parts["accel"].shape[1]
+    pre = _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, umaps, basis) if precompute else None
     one_base = len({g.base for g in groups}) == 1
     inertia = mass_matrix(model, g_nom)[np.ix_(np.asarray(S) + 2, np.asarray(S) + 2)]
     hm = HybridModel(
@@ -1071,8 +1095,8 @@ def hybrid_model(
         gamma_nominal=g_nom,
         omega0_nominal=w_nom,
         inertia=f(inertia),
-        frequencies=f(sig_all),
-        damping_ratios=f(zeta_all),
+        frequencies=f(np.asarray([blocks[g][1][j] for g, j in mode_order])),
+        damping_ratios=f(np.asarray([zg[g][j] for g, j in mode_order])),
         positions=f(parts["positions"]),
         rates=f(parts["rates"]),
         accel=f(parts["accel"]),
@@ -1081,19 +1105,37 @@ def hybrid_model(
         kin_rhs=f(parts["kin_rhs"]),
         project=f(parts["project"]),
         keep=jnp.ones(len(mode_index), dtype),
-        modal_inverse=f(np.eye(u)) if (terminal and one_base) else None,
+        modal_inverse=f(np.eye(u)) if (all(g.terminal for g in groups) and one_base) else None,
         pre=pre,
         attitude=get_attitude(attitude),
         small=S,
-        large=L,
+        large=tuple(k for k in model.unknown_hinges if k not in S),
         form=form,
-        kind=kinds[0],
+        kind=kind,
         mode_index=mode_index,
-        mode_group=mode_group,
+        mode_group=tuple(int(group_of[g]) for g, _ in mode_order),
         groups=groups,
         basis=basis,
     )
     return _with_inverse(hm)
+
+
+def _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, umaps, basis):
+    """:func:`_build_pre` with each substructure's modal columns: every substructure, also one
+    with no retained mode (its mass still moves with its base)."""
+    u, m = parts["accel"].shape[1], parts["positions"].shape[1]
+    gm, gu = [], []
+    for gi in range(len(groups)):
+        if gi in group_of:
+            gm.append(mmaps[group_of.index(gi)])
+            gu.append(umaps[group_of.index(gi)])
+        else:
+            gm.append(np.zeros(0, np.int64))
+            gu.append(np.zeros(0, np.int64))
+    if basis == "set":  # the set's modes span every substructure
+        gm = [np.arange(m)] * len(groups)
+        gu = [np.arange(u)] * len(groups)
+    return _build_pre(model, groups, tms, S, g_nom, parts, gm, gu, u, m)
 
 
 class _HeldPrescription(eqx.Module):

@@ -44,7 +44,7 @@ class Prescription(eqx.Module):
     hinges: eqx.AbstractVar[tuple[int, ...]]
 
     @abc.abstractmethod
-    def __call__(self, t):
+    def __call__(self, t) -> jax.Array:
         """Angles of the prescribed hinges at time t, shape ``(len(hinges),)``."""
 
     def derivatives(self, t):
@@ -79,7 +79,7 @@ class BodyLoads(eqx.Module):
     bodies: eqx.AbstractVar[tuple[int, ...]]
 
     @abc.abstractmethod
-    def __call__(self, t, state: State):
+    def __call__(self, t, state: State) -> tuple[jax.Array, jax.Array]:
         """``(force, torque)``, each ``(len(bodies), 3)``, at time t and `state`."""
 
 

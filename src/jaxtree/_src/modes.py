@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -174,18 +175,18 @@ def _pair_general(lam, tol):
     """Indices (upper, lower) pairing the 2nu eigenvalues: complex conjugates, then real ones."""
     lam = np.asarray(lam)
     idx = np.arange(lam.size)
-    cplx = idx[lam.imag > tol]
-    neg = list(idx[lam.imag < -tol])
-    real = idx[np.abs(lam.imag) <= tol]
+    cplx = idx[np.imag(lam) > tol]
+    neg = list(idx[np.imag(lam) < -tol])
+    real = idx[np.abs(np.imag(lam)) <= tol]
     upper, lower = [], []
-    for j in cplx[np.argsort(lam.imag[cplx])]:
+    for j in cplx[np.argsort(np.imag(lam)[cplx])]:
         k = min(neg, key=lambda i: abs(lam[i] - np.conj(lam[j])))
         neg.remove(k)
         upper.append(j)
         lower.append(k)
     if len(real) % 2 or neg:
         raise DefectiveError("modes: eigenvalues do not come in conjugate or real pairs: " + str(lam))
-    real = real[np.argsort(lam.real[real])]
+    real = real[np.argsort(np.real(lam)[real])]
     rp = [(real[2 * i], real[2 * i + 1]) for i in range(len(real) // 2)]
     upper = [a for a, _ in rp] + upper
     lower = [b for _, b in rp] + lower
@@ -213,7 +214,7 @@ def _general(I, J, K, name):
     lam, Phi = np.linalg.eig(B)
     scale = max(np.abs(lam).max(initial=0.0), 1e-300)
     tol = ROUNDOFF_RTOL * scale
-    bad = lam.real > UNSTABLE_RTOL * scale
+    bad = np.real(lam) > UNSTABLE_RTOL * scale
     if np.any(bad):
         raise UnstableError(
             f"modes: unstable {name} system, eigenvalues with positive real part {lam[bad].tolist()}; "
@@ -223,7 +224,7 @@ def _general(I, J, K, name):
     order = np.concatenate([up, lo])
     lam = lam[order]
     Phi = Phi[:, order]
-    cplx = np.abs(lam[:nu].imag) > tol
+    cplx = np.abs(np.imag(lam[:nu])) > tol
     # exact conjugate pairs (real solutions, Eq. 94)
     Phi[:, nu:][:, cplx] = np.conj(Phi[:, :nu][:, cplx])
     Phi = Phi / np.linalg.norm(Phi, axis=0, keepdims=True)
@@ -296,6 +297,49 @@ def modes(
     differentiable (``jax.grad`` of `frequencies`) for distinct nonzero frequencies.
     """
     _checks.modes_args(I, J, K, damping, kind, labels, rtol)
+    I, J, K, coords, hinges_of = _system(I, J, K, labels)
+    dtype = I.dtype
+    nu = I.shape[0]
+    traced = is_traced((I, J, K, damping))
+    kind, definite = _kind(I, J, K, kind, traced, rtol)
+    zeta = _modal_damping(damping, nu, dtype, kind, traced)
+    P, Q, B0 = first_order(I, J, K)
+    cdtype = jnp.result_type(dtype, jnp.complex64)
+    if kind == "real":
+        m = _real_modes(I, K, zeta, traced, cdtype)
+    elif kind == "gyroscopic":
+        m = _gyroscopic_modes(I, J, K, P, B0, zeta, definite, traced, cdtype)
+    else:
+        if traced:
+            raise ValueError("modes: the general case needs concrete arrays")
+        m = _general_modes(I, J, K)
+
+    # participation: |phi_ij|^2 I_ii, normalized per mode
+    w = jnp.abs(m.shapes) ** 2 * jnp.diag(I)[:, None]
+    tot = jnp.sum(w, axis=0, keepdims=True)
+    part = w / jnp.where(tot > 0, tot, 1.0)
+    labs = () if traced else _labels(np.asarray(m.shapes), np.asarray(part), coords, np.asarray(m.rigid), hinges_of)
+    return Modes(
+        eigenvalues=m.eigenvalues.astype(cdtype),
+        frequencies=m.frequencies,
+        damping_ratios=m.damping_ratios.astype(dtype),
+        shapes=m.shapes,
+        right=m.right.astype(cdtype),
+        left=m.left.astype(cdtype),
+        P=P,
+        Q=Q,
+        B=m.B,
+        rigid=m.rigid,
+        participation=part,
+        kind=kind,
+        coordinates=coords,
+        labels=labs,
+    )
+
+
+def _system(I, J, K, labels) -> tuple[jax.Array, jax.Array, jax.Array, tuple[str, ...], tuple[int, ...]]:
+    """``I, J, K`` of one float dtype (at least float32; from a :class:`LinearSystem` given as
+    `I`), the coordinate names and the hinge of each coordinate (empty unless a LinearSystem)."""
     hinges_of = ()
     if isinstance(I, LinearSystem):
         lin = I
@@ -310,10 +354,15 @@ def modes(
     nu = I.shape[0]
     if I.shape != (nu, nu) or J.shape != (nu, nu) or K.shape != (nu, nu):
         raise ValueError(f"modes: I, J, K must be square of one size, got {I.shape}, {J.shape}, {K.shape}")
-    traced = is_traced((I, J, K, damping))
     coords = tuple(labels) if labels is not None else tuple(f"y{i + 1}" for i in range(nu))
     if len(coords) != nu:
         raise ValueError(f"modes: {len(coords)} labels for {nu} coordinates")
+    return I, J, K, coords, hinges_of
+
+
+def _kind(I, J, K, kind: str | None, traced: bool, rtol: float) -> tuple[str, bool]:
+    """The case to solve (`kind` given, or detected by :func:`structure` on concrete matrices,
+    which are checked against it) and whether K is positive definite (assumed when traced)."""
     definite = True
     if traced:
         if kind is None:
@@ -338,7 +387,11 @@ def modes(
         definite = st.K_positive
     if kind not in ("real", "gyroscopic", "general"):
         raise ValueError(f"modes: unknown kind {kind!r}")
+    return kind, definite
 
+
+def _modal_damping(damping, nu: int, dtype, kind: str, traced: bool) -> jax.Array:
+    """The modal damping ratios zeta (nu,) of Eq. (104): zero when `damping` is None."""
     zeta = jnp.zeros(nu, dtype) if damping is None else jnp.broadcast_to(jnp.asarray(damping, dtype), (nu,))
     if not traced and damping is not None:
         zn = np.asarray(zeta)
@@ -349,110 +402,110 @@ def modes(
                 "modes: modal damping (Eq. 104 / Sec. III E) applies to undamped real or gyroscopic "
                 "modes; this system already has a general J"
             )
-    P, Q, B0 = first_order(I, J, K)
-    cdtype = jnp.result_type(dtype, jnp.complex64)
+    return zeta
 
-    if kind == "real":
-        s2, phi = _real_core(I, K)
-        sigma = jnp.sqrt(jnp.clip(s2, 0.0))
-        if not traced:
-            s2n = np.asarray(s2)
-            scale = max(np.abs(s2n).max(initial=0.0), 1e-300)
-            if s2n[0] < -ROUNDOFF_RTOL * scale:
-                bad = s2n[s2n < -ROUNDOFF_RTOL * scale]
-                raise UnstableError(
-                    f"modes: sigma^2 < 0 ({bad.tolist()}): divergent (statically unstable) modes; "
-                    "the seed rejects such a vehicle (Sec. III D)"
-                )
-            rigid_np = s2n <= ROUNDOFF_RTOL * scale
-        else:
-            rigid_np = None
-        rigid = jnp.asarray(rigid_np) if rigid_np is not None else jnp.zeros(nu, bool)
-        safe = jnp.where(rigid, 1.0, sigma)
-        up = jnp.concatenate([phi, 1j * safe * phi], 0) / (jnp.sqrt(2.0) * safe)
-        up = jnp.where(rigid[None, :], 0.0, up).astype(cdtype)
-        right = jnp.concatenate([up, jnp.conj(up)], 1)
-        left = jnp.conj(right)
-        root = jnp.sqrt((1.0 - zeta**2).astype(cdtype))  # Eq. (104): eta = exp(lambda t)
-        lam_up = -zeta * sigma + 1j * sigma * root
-        lam = jnp.concatenate([lam_up, jnp.conj(lam_up)])
-        shapes = phi
-        C = (I @ phi) * (2.0 * zeta * sigma) @ (phi.T @ I)  # J equivalent to Eq. (104)
-        B = jnp.block(
-            [[jnp.zeros_like(I), jnp.eye(nu, dtype=dtype)], [-jnp.linalg.solve(I, K), -jnp.linalg.solve(I, C)]]
+
+class _Solved(NamedTuple):
+    """What each case computes, in the fields of :class:`Modes` (before the dtype casts)."""
+
+    eigenvalues: jax.Array
+    frequencies: jax.Array
+    damping_ratios: jax.Array
+    shapes: jax.Array
+    right: jax.Array
+    left: jax.Array
+    B: jax.Array
+    rigid: jax.Array
+
+
+def _real_modes(I, K, zeta, traced: bool, cdtype) -> _Solved:
+    """Eqs. (97)-(103), with the modal damping of Eq. (104)."""
+    nu = I.shape[0]
+    s2, phi = _real_core(I, K)
+    sigma = jnp.sqrt(jnp.clip(s2, 0.0))
+    rigid_np = None if traced else _real_rigid(np.asarray(s2))
+    rigid = jnp.asarray(rigid_np) if rigid_np is not None else jnp.zeros(nu, bool)
+    safe = jnp.where(rigid, 1.0, sigma)
+    up = jnp.concatenate([phi, 1j * safe * phi], 0) / (jnp.sqrt(2.0) * safe)
+    up = jnp.where(rigid[None, :], 0.0, up).astype(cdtype)
+    right = jnp.concatenate([up, jnp.conj(up)], 1)
+    left = jnp.conj(right)
+    root = jnp.sqrt((1.0 - zeta**2).astype(cdtype))  # Eq. (104): eta = exp(lambda t)
+    lam_up = -zeta * sigma + 1j * sigma * root
+    lam = jnp.concatenate([lam_up, jnp.conj(lam_up)])
+    C = (I @ phi) * (2.0 * zeta * sigma) @ (phi.T @ I)  # J equivalent to Eq. (104)
+    B = jnp.block([[jnp.zeros_like(I), jnp.eye(nu, dtype=I.dtype)], [-jnp.linalg.solve(I, K), -jnp.linalg.solve(I, C)]])
+    return _Solved(lam, sigma, zeta, phi, right, left, B, rigid)
+
+
+def _real_rigid(s2: np.ndarray) -> np.ndarray:
+    """The rigid (zero-frequency) modes among the eigenvalues ``sigma^2``; a negative one beyond
+    round-off is a divergence (:class:`UnstableError`)."""
+    scale = max(np.abs(s2).max(initial=0.0), 1e-300)
+    if s2[0] < -ROUNDOFF_RTOL * scale:
+        bad = s2[s2 < -ROUNDOFF_RTOL * scale]
+        raise UnstableError(
+            f"modes: sigma^2 < 0 ({bad.tolist()}): divergent (statically unstable) modes; "
+            "the seed rejects such a vehicle (Sec. III D)"
         )
-    elif kind == "gyroscopic":
-        L, sigma, low, k_evals, k_vecs = _gyroscopic(I, J, K, definite)
-        if not traced and not definite:
-            scale = max(float(np.max(np.abs(np.asarray(sigma)))), 1e-300)
-            rigid_np = np.asarray(sigma) <= RIGID_SIGMA_RTOL * scale
-        else:
-            rigid_np = np.zeros(nu, bool) if not traced else None
-        rigid = jnp.asarray(rigid_np) if rigid_np is not None else jnp.zeros(nu, bool)
-        sigma = jnp.where(rigid, 0.0, sigma)  # square roots of round-off in K~ (about 1e-8) are zero
-        safe = jnp.where(rigid, 1.0, sigma)
-        v2 = low[nu:]
-        Linv_T = lambda X: jax.scipy.linalg.solve_triangular(L.T, X, lower=False)
-        ydot = Linv_T(v2.astype(cdtype))
-        y = ydot / (1j * safe)
-        up = jnp.concatenate([y, ydot], 0)
-        up = jnp.where(rigid[None, :], 0.0, up)
-        right = jnp.concatenate([up, jnp.conj(up)], 1)
-        left = jnp.conj(right)  # Eq. (96)
-        lam_up = (-zeta + 1j) * sigma  # Sec. III E: i sigma -> -zeta sigma + i sigma
-        lam = jnp.concatenate([lam_up, jnp.conj(lam_up)])
-        shapes = y
-        if rigid_np is not None and rigid_np.any():
-            # rigid-body shapes: the I-orthonormal null vectors of K (smallest eigenvalues of K~)
-            nr = int(rigid_np.sum())
-            null = Linv_T(k_vecs[:, :nr]).astype(cdtype)
-            shapes = shapes.at[:, np.flatnonzero(rigid_np)].set(null)
-        # damped state matrix: B + Phi (Lambda_d - Lambda) Phi'^T P (elastic columns only)
-        dl = jnp.concatenate([-zeta * sigma, -zeta * sigma]).astype(cdtype)
-        B = (B0 + (right * dl) @ (left.T @ P)).real
-    else:
-        if traced:
-            raise ValueError("modes: the general case needs concrete arrays")
-        lam_np, Phi, left_np, _, _, B_np = _general(I, J, K, "general")
-        lam = jnp.asarray(lam_np)
-        right = jnp.asarray(Phi)
-        left = jnp.asarray(left_np)
-        sigma = jnp.abs(lam[:nu].imag)
-        absl = jnp.abs(lam[:nu])
-        zeta = jnp.where(absl > 0, -lam[:nu].real / jnp.where(absl > 0, absl, 1.0), 0.0)
-        # shapes: y part of Phi, scaled so that the largest entry is real and positive
-        y = right[:nu, :nu]
-        k = jnp.argmax(jnp.abs(y), axis=0)
-        ph = y[k, jnp.arange(nu)]
-        shapes = y * (jnp.abs(ph) / jnp.where(ph == 0, 1.0, ph))[None, :]
-        rigid_np = np.asarray(absl) <= ROUNDOFF_RTOL * max(float(np.max(np.asarray(absl))), 1e-300)
-        rigid = jnp.asarray(rigid_np)
-        B = jnp.asarray(B_np)
-        order = np.argsort(np.asarray(sigma), kind="stable")
-        if np.any(order != np.arange(nu)):
-            sel = np.concatenate([order, order + nu])
-            lam, right, left = lam[sel], right[:, sel], left[:, sel]
-            sigma, zeta, shapes, rigid = sigma[order], zeta[order], shapes[:, order], rigid[order]
-            rigid_np = rigid_np[order]
+    return s2 <= ROUNDOFF_RTOL * scale
 
-    # participation: |phi_ij|^2 I_ii, normalized per mode
-    w = jnp.abs(shapes) ** 2 * jnp.diag(I)[:, None]
-    tot = jnp.sum(w, axis=0, keepdims=True)
-    part = w / jnp.where(tot > 0, tot, 1.0)
-    labs = () if traced else _labels(np.asarray(shapes), np.asarray(part), coords, np.asarray(rigid), hinges_of)
-    return Modes(
-        eigenvalues=lam.astype(cdtype),
-        frequencies=sigma,
-        damping_ratios=zeta.astype(dtype),
-        shapes=shapes,
-        right=right.astype(cdtype),
-        left=left.astype(cdtype),
-        P=P,
-        Q=Q,
-        B=B,
-        rigid=rigid,
-        participation=part,
-        kind=kind,
-        coordinates=coords,
-        labels=labs,
-    )
+
+def _gyroscopic_modes(I, J, K, P, B0, zeta, definite: bool, traced: bool, cdtype) -> _Solved:
+    """Eqs. (91)-(96) by the Hermitian form of Eq. (70), with the modal damping of Sec. III E."""
+    nu = I.shape[0]
+    L, sigma, low, k_evals, k_vecs = _gyroscopic(I, J, K, definite)
+    if not traced and not definite:
+        scale = max(float(np.max(np.abs(np.asarray(sigma)))), 1e-300)
+        rigid_np = np.asarray(sigma) <= RIGID_SIGMA_RTOL * scale
+    else:
+        rigid_np = np.zeros(nu, bool) if not traced else None
+    rigid = jnp.asarray(rigid_np) if rigid_np is not None else jnp.zeros(nu, bool)
+    sigma = jnp.where(rigid, 0.0, sigma)  # square roots of round-off in K~ (about 1e-8) are zero
+    safe = jnp.where(rigid, 1.0, sigma)
+    v2 = low[nu:]
+    Linv_T = lambda X: jax.scipy.linalg.solve_triangular(L.T, X, lower=False)
+    ydot = Linv_T(v2.astype(cdtype))
+    y = ydot / (1j * safe)
+    up = jnp.concatenate([y, ydot], 0)
+    up = jnp.where(rigid[None, :], 0.0, up)
+    right = jnp.concatenate([up, jnp.conj(up)], 1)
+    left = jnp.conj(right)  # Eq. (96)
+    lam_up = (-zeta + 1j) * sigma  # Sec. III E: i sigma -> -zeta sigma + i sigma
+    lam = jnp.concatenate([lam_up, jnp.conj(lam_up)])
+    shapes = y
+    if rigid_np is not None and rigid_np.any():
+        # rigid-body shapes: the I-orthonormal null vectors of K (smallest eigenvalues of K~)
+        nr = int(rigid_np.sum())
+        null = Linv_T(k_vecs[:, :nr]).astype(cdtype)
+        shapes = shapes.at[:, np.flatnonzero(rigid_np)].set(null)
+    # damped state matrix: B + Phi (Lambda_d - Lambda) Phi'^T P (elastic columns only)
+    dl = jnp.concatenate([-zeta * sigma, -zeta * sigma]).astype(cdtype)
+    B = (B0 + (right * dl) @ (left.T @ P)).real
+    return _Solved(lam, sigma, zeta, shapes, right, left, B, rigid)
+
+
+def _general_modes(I, J, K) -> _Solved:
+    """Eqs. (70)-(90) by a general eigensolver (concrete arrays), modes by ascending frequency;
+    the damping ratios are ``-Re lambda / |lambda|``."""
+    nu = I.shape[0]
+    lam_np, Phi, left_np, _, _, B_np = _general(I, J, K, "general")
+    lam = jnp.asarray(lam_np)
+    right = jnp.asarray(Phi)
+    left = jnp.asarray(left_np)
+    sigma = jnp.abs(lam[:nu].imag)
+    absl = jnp.abs(lam[:nu])
+    zeta = jnp.where(absl > 0, -lam[:nu].real / jnp.where(absl > 0, absl, 1.0), 0.0)
+    # shapes: y part of Phi, scaled so that the largest entry is real and positive
+    y = right[:nu, :nu]
+    k = jnp.argmax(jnp.abs(y), axis=0)
+    ph = y[k, jnp.arange(nu)]
+    shapes = y * (jnp.abs(ph) / jnp.where(ph == 0, 1.0, ph))[None, :]
+    rigid = jnp.asarray(np.asarray(absl) <= ROUNDOFF_RTOL * max(float(np.max(np.asarray(absl))), 1e-300))
+    B = jnp.asarray(B_np)
+    order = np.argsort(np.asarray(sigma), kind="stable")
+    if np.any(order != np.arange(nu)):
+        sel = np.concatenate([order, order + nu])
+        lam, right, left = lam[sel], right[:, sel], left[:, sel]
+        sigma, zeta, shapes, rigid = sigma[order], zeta[order], shapes[:, order], rigid[order]
+    return _Solved(lam, sigma, zeta, shapes, right, left, B, rigid)

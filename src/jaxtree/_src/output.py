@@ -6,10 +6,12 @@ in the same folder, then a rename), so a crash never leaves a half-written resul
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import os
 import pathlib
 import tempfile
+from typing import Any, cast
 
 import jax
 import numpy as np
@@ -61,7 +63,9 @@ def save_npz(path, runs: dict[str, Solution]) -> None:
     """One ``.npz`` with the histories of several runs, keys ``"<run>/<field>"``."""
     arrays = {f"{name}/{k}": v for name, sol in runs.items() for k, v in histories(sol).items()}
     buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
+    # cast: pyright matches the unpacked arrays against savez_compressed's keyword allow_pickle; the
+    # keys are "<run>/<field>", never that keyword
+    np.savez_compressed(buf, **cast(dict[str, Any], arrays))
     with atomic_write(path) as fh:
         fh.write(buf.getvalue())
 
@@ -153,13 +157,13 @@ def summary(name: str, sol: Solution, wall: float | None = None, first: float | 
     """A few lines: final state, energy and momentum drift, steps and times."""
     st = {k: int(np.asarray(v)) for k, v in sol.stats.items() if isinstance(v, (jax.Array, np.ndarray, int))}
     f = sol.final
-    np_opts = dict(precision=6, suppress_small=True, max_line_width=150)
+    fmt = functools.partial(np.array2string, precision=6, suppress_small=True, max_line_width=150)
     lines = [
         f"[{name}] t_final = {float(sol.t_final):.6g} s, result: {'ok' if sol.ok else 'FAILED'}",
-        f"  gamma     = {np.array2string(np.asarray(f.gamma), **np_opts)}",
-        f"  gamma_dot = {np.array2string(np.asarray(f.gamma_dot), **np_opts)}",
-        f"  omega0    = {np.array2string(np.asarray(f.omega0), **np_opts)}",
-        f"  C         = {np.array2string(np.asarray(f.dcm).ravel(), **np_opts)} (row-major)",
+        f"  gamma     = {fmt(np.asarray(f.gamma))}",
+        f"  gamma_dot = {fmt(np.asarray(f.gamma_dot))}",
+        f"  omega0    = {fmt(np.asarray(f.omega0))}",
+        f"  C         = {fmt(np.asarray(f.dcm).ravel())} (row-major)",
         f"  energy: E0 = {float(sol.energy[0]):.9g}, max |E - E0| / |E0| = {float(sol.energy_drift()):.3e}"
         + (" (prescribed hinges do work)" if sol.problem.model.prescribed else ""),
         f"  angular momentum: max |H - H0| / |H0| = {float(sol.momentum_drift()):.3e}",

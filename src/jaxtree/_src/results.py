@@ -36,14 +36,19 @@ import platform
 import shutil
 import sys
 import tempfile
-from typing import Any
+from collections.abc import Iterable
+from typing import TYPE_CHECKING, Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike
 
 from .model import Model, State
+
+if TYPE_CHECKING:
+    import xarray  # annotations only: xarray is imported when a result is written or read (_xr)
 
 RESULT_FORMAT = "jaxtree-result/1"
 ENGINE = "h5netcdf"
@@ -160,7 +165,7 @@ def simulation_dataset(
     hold_torque=None,
     orthogonality=None,
     modal=None,
-    positions=True,
+    positions: bool | tuple[ArrayLike, ArrayLike] = True,
     attrs: dict | None = None,
 ):
     """The :class:`xarray.Dataset` of a simulation's histories (see the module docstring).
@@ -327,7 +332,7 @@ def modes_dataset(model: Model, md, *, small=(), omega0=None, gamma=None, attrs:
         full[np.asarray(small) - 1] = np.real(turned)
     w = np.zeros(3) if omega0 is None else np.asarray(omega0, float)
     g = np.zeros(n) if gamma is None else np.asarray(gamma, float)
-    c = lambda x: np.asarray(x, complex)  # noqa: E731
+    c = lambda x: np.asarray(x, np.complex128)  # noqa: E731
     coords = {
         "mode": ("mode", np.arange(1, nu + 1), {"long_name": "mode number (ascending frequency)"}),
         "coordinate": ("coordinate", np.arange(1, nu + 1), {"long_name": "small coordinate"}),
@@ -451,7 +456,7 @@ class ChunkedResult:
     def write_part(self, index: int, ds) -> pathlib.Path:
         return write_netcdf(ds, self.parts_dir / f"part-{index:05d}.nc")
 
-    def load_parts(self):
+    def load_parts(self) -> list[xarray.Dataset]:
         xr = _xr()
         return [xr.load_dataset(p, engine=ENGINE, decode_timedelta=False, decode_times=False) for p in self.parts()]
 
@@ -461,15 +466,16 @@ class ChunkedResult:
             return None
         return _xr().load_dataset(parts[-1], engine=ENGINE, decode_timedelta=False, decode_times=False)
 
-    def merged(self, complete: bool = False, attrs: dict | None = None, parts=None):
+    def merged(
+        self, complete: bool = False, attrs: dict | None = None, parts: Iterable[xarray.Dataset] | None = None
+    ) -> xarray.Dataset | None:
         """The parts joined along ``time`` (resume variables dropped), or None without parts.
         `parts`: the part datasets when the caller holds them (default: read from disk)."""
         xr = _xr()
         parts = self.load_parts() if parts is None else list(parts)
         if not parts:
             return None
-        drop = lambda d: d.drop_vars([k for k in d.data_vars if str(k).startswith("resume_")])  # noqa: E731
-        parts = [drop(p) for p in parts]
+        parts = [p.drop_vars([k for k in p.data_vars if str(k).startswith("resume_")]) for p in parts]
         ds = xr.concat(
             parts,
             dim="time",
@@ -483,8 +489,9 @@ class ChunkedResult:
         ds.attrs = dict(parts[0].attrs)
         for key in ("steps_accepted", "steps_rejected", "rhs_evaluations"):
             vals = [p.attrs.get(key) for p in parts]
-            if all(v is not None for v in vals):
-                ds.attrs[key] = int(sum(int(v) for v in vals))
+            known = [v for v in vals if v is not None]
+            if len(known) == len(vals):
+                ds.attrs[key] = int(sum(int(v) for v in known))
         for key in ("result", "result_code", "t_final"):
             if key in last:
                 ds.attrs[key] = last[key]
@@ -523,7 +530,9 @@ def _open(path):
         if int(ds.attrs.get("complete", 1)) or not chunked.parts():
             return ds
     if chunked.parts():
-        return chunked.merged(complete=False)
+        ds = chunked.merged(complete=False)
+        assert ds is not None, "there are parts"
+        return ds
     if path.exists():
         raise IsADirectoryError(f"{path}: is a folder, not a result file")
     raise FileNotFoundError(f"no result file {str(path)!r}" + (" (nor parts of an interrupted run)"))

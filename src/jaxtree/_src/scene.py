@@ -15,7 +15,7 @@ import os
 import pathlib
 import tempfile
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax
@@ -209,7 +209,9 @@ def _joint(joint, k, name):
 _INITIAL_KEYS = {"gamma", "gamma_dot", "omega0", "dcm", "attitude_dcm"}
 
 
-def _initial(initial, n):
+def _initial(initial, n) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The checked initial state as numpy arrays, in the order of :class:`~jaxtree.State`'s fields
+    (``dcm, omega0, gamma, gamma_dot``): build_model makes the JAX arrays after all checks."""
     if isinstance(initial, State):
         initial = initial._asdict()
     elif initial is None:
@@ -234,7 +236,7 @@ def _initial(initial, n):
     omega0 = vec("omega0", 3)
     C = initial.get("dcm")
     C = np.eye(3) if C is None else rotation(C, "initial: field 'attitude_dcm'")
-    return State(C, omega0, gamma, gamma_dot)  # numpy: build_model makes the JAX arrays after all checks
+    return C, omega0, gamma, gamma_dot
 
 
 # ----------------------------------------------------------------------------- building
@@ -260,17 +262,58 @@ def build_model(
 
     Raises :class:`SceneError` naming the body and field of any invalid input.
     """
-    if isinstance(bodies, (str, bytes, dict)) or not isinstance(bodies, Iterable):
-        raise SceneTypeError(f"bodies: expected a list of Body records or objects, got {short(bodies)}")
-    bodies = [b if isinstance(b, Body) else _body_from_dict(b, i) for i, b in enumerate(bodies)]
-    if not bodies:
-        raise SceneError("bodies: a scene needs at least the reference body")
+    bodies = _body_records(bodies)
     if not isinstance(name, str):
         raise SceneTypeError(f"name: expected a string, got {short(name)}")
     if not isinstance(method, str):
         raise SceneTypeError(f"method: must be 'auto', 'dense' or 'articulated', got {short(method)}")
     _method(method)
     n = len(bodies) - 1
+    names = _body_names(bodies)
+    fields = _body_fields(bodies, names)
+    if sum(fields.masses) <= 0:
+        raise SceneError("bodies: the total mass must be positive (field 'mass' is 0 on every body)")
+    topology = Topology(fields.parents, names)
+    laws = _joint_laws(fields.joints, n)
+    state = _initial(initial, n)
+    massive = tuple(k for k in range(n + 1) if fields.masses[k] > 0)
+    _check_sprung_hinges(topology, laws.sprung, massive, names)
+    if loads is not None:
+        _check_loads(loads, n)
+
+    # every check passed: only now make JAX arrays (nothing above touches JAX)
+    return Model(
+        mass=jnp.asarray(fields.masses),
+        inertia=jnp.asarray(np.stack(fields.inertias)),
+        axis=jnp.asarray(np.reshape(np.asarray(fields.axes, dtype=float), (n, 3))),
+        hinge_on_parent=jnp.asarray(np.reshape(np.asarray(fields.on_parent, dtype=float), (n, 3))),
+        hinge_on_body=jnp.asarray(np.reshape(np.asarray(fields.on_body, dtype=float), (n, 3))),
+        stiffness=jnp.asarray(laws.stiffness),
+        damping=jnp.asarray(laws.damping),
+        initial=State(*(jnp.asarray(x) for x in state)),
+        prescription=_prescription(laws.sine, laws.funcs),
+        loads=loads,
+        topology=topology,
+        joints=tuple(j.kind for j in fields.joints),
+        sprung=tuple(laws.sprung),
+        massive=massive,
+        name=name,
+        method=_method(method),
+    )
+
+
+def _body_records(bodies) -> list[Body]:
+    """`bodies` as a non-empty list of :class:`Body` records (dicts converted)."""
+    if isinstance(bodies, (str, bytes, dict)) or not isinstance(bodies, Iterable):
+        raise SceneTypeError(f"bodies: expected a list of Body records or objects, got {short(bodies)}")
+    bodies = [b if isinstance(b, Body) else _body_from_dict(b, i) for i, b in enumerate(bodies)]
+    if not bodies:
+        raise SceneError("bodies: a scene needs at least the reference body")
+    return bodies
+
+
+def _body_names(bodies: list[Body]) -> list[str]:
+    """The bodies' names, each a non-empty string and none repeated."""
     for k, b in enumerate(bodies):
         if not isinstance(b.name, str) or not b.name:
             raise SceneTypeError(f"body {k}: field 'name' must be a non-empty string, got {short(b.name)}")
@@ -280,8 +323,26 @@ def build_model(
         if nm in first:
             raise SceneError(f"{_where(k, nm)}: field 'name' duplicates body {first[nm]}")
         first[nm] = k
+    return names
 
-    parents, axes, on_parent, on_body, masses, inertias, joints = [], [], [], [], [], [], []
+
+@dataclasses.dataclass
+class _BodyFields:
+    """The checked fields of all bodies: `masses`, `inertias` per body (n+1), the hinge fields
+    per hinge body (n)."""
+
+    masses: list[float] = dataclasses.field(default_factory=list)
+    inertias: list[np.ndarray] = dataclasses.field(default_factory=list)
+    parents: list[int] = dataclasses.field(default_factory=list)
+    axes: list[np.ndarray] = dataclasses.field(default_factory=list)
+    on_parent: list[np.ndarray] = dataclasses.field(default_factory=list)
+    on_body: list[np.ndarray] = dataclasses.field(default_factory=list)
+    joints: list[Joint] = dataclasses.field(default_factory=list)
+
+
+def _body_fields(bodies: list[Body], names: list[str]) -> _BodyFields:
+    """Check every body in turn (mass, inertia, then its hinge fields) and collect the fields."""
+    out = _BodyFields()
     for k, b in enumerate(bodies):
         nm = names[k]
         if b.mass is None:
@@ -289,72 +350,97 @@ def build_model(
         m = _scalar(b.mass, k, nm, "mass")
         if m < 0:
             raise SceneError(f"{_where(k, nm)}: field 'mass' must be >= 0, got {m}")
-        masses.append(m)
+        out.masses.append(m)
         if b.inertia is None:
             raise SceneError(f"{_where(k, nm)}: field 'inertia' is missing")
-        inertias.append(_inertia(b.inertia, m, k, nm))
+        out.inertias.append(_inertia(b.inertia, m, k, nm))
         if k == 0:
-            if b.parent is not None:
-                raise SceneError(f"{_where(0, nm)}: the reference body must not have a 'parent'")
-            for field in ("axis", "hinge_on_parent", "hinge_on_body"):
-                if getattr(b, field) is not None:
-                    raise SceneError(f"{_where(0, nm)}: the reference body has no hinge: remove field {field!r}")
-            if not (
-                b.joint is None
-                or isinstance(b.joint, Free)
-                or (isinstance(b.joint, dict) and b.joint == {"kind": "free"})
-            ):
-                raise SceneError(f"{_where(0, nm)}: the reference body has no hinge: remove field 'joint'")
+            _check_reference_body(b, nm)
             continue
-        if b.parent is None:
-            raise SceneError(f"{_where(k, nm)}: field 'parent' is missing (every body but the first needs one)")
-        p = b.parent
-        if isinstance(p, str):
-            if p not in names[:k]:
-                later = f" (body {names.index(p)}: parents come before children)" if p in names else ""
-                raise SceneError(
-                    f"{_where(k, nm)}: field 'parent' names {p!r}, which is not an earlier body{later} (Def. 4)"
-                )
-            p = names.index(p)
-        if isinstance(p, (bool, np.bool_)) or not isinstance(p, (int, np.integer)) or not 0 <= int(p) < k:
-            raise SceneError(
-                f"{_where(k, nm)}: field 'parent' must be an index in 0..{k - 1} (Def. 4: parents before children), "
-                f"got {short(p)}"
-            )
-        parents.append(int(p))
-        if b.axis is None:
-            raise SceneError(f"{_where(k, nm)}: field 'axis' is missing")
-        g = _vector(b.axis, k, nm, "axis")
-        big = float(np.abs(g).max())
-        norm = big * float(np.linalg.norm(g / big)) if big > 0 else 0.0  # no overflow for huge entries
-        if norm < 1e-12:
-            raise SceneError(f"{_where(k, nm)}: field 'axis' must be a nonzero 3-vector, got {g.tolist()}")
-        axes.append((g / big) / (norm / big))
-        for field, store in (("hinge_on_parent", on_parent), ("hinge_on_body", on_body)):
+        out.parents.append(_parent(b.parent, k, names))
+        out.axes.append(_axis(b.axis, k, nm))
+        for field, store in (("hinge_on_parent", out.on_parent), ("hinge_on_body", out.on_body)):
             v = getattr(b, field)
             if v is None:
                 raise SceneError(f"{_where(k, nm)}: field {field!r} is missing")
             store.append(_vector(v, k, nm, field))
-        joints.append(_joint(b.joint, k, nm))
+        out.joints.append(_joint(b.joint, k, nm))
+    return out
 
-    if sum(masses) <= 0:
-        raise SceneError("bodies: the total mass must be positive (field 'mass' is 0 on every body)")
-    topology = Topology(parents, names)
 
-    stiffness = np.zeros(n)
-    damping = np.zeros(n)
-    sprung, sine, funcs = [], [], []
+def _check_reference_body(b: Body, nm: str) -> None:
+    """The reference body b_0 has no parent, no hinge fields and no joint law."""
+    if b.parent is not None:
+        raise SceneError(f"{_where(0, nm)}: the reference body must not have a 'parent'")
+    for field in ("axis", "hinge_on_parent", "hinge_on_body"):
+        if getattr(b, field) is not None:
+            raise SceneError(f"{_where(0, nm)}: the reference body has no hinge: remove field {field!r}")
+    if not (
+        b.joint is None or isinstance(b.joint, Free) or (isinstance(b.joint, dict) and b.joint == {"kind": "free"})
+    ):
+        raise SceneError(f"{_where(0, nm)}: the reference body has no hinge: remove field 'joint'")
+
+
+def _parent(p, k: int, names: list[str]) -> int:
+    """The index of body k's parent, given by index or name: an earlier body (Def. 4)."""
+    nm = names[k]
+    if p is None:
+        raise SceneError(f"{_where(k, nm)}: field 'parent' is missing (every body but the first needs one)")
+    if isinstance(p, str):
+        if p not in names[:k]:
+            later = f" (body {names.index(p)}: parents come before children)" if p in names else ""
+            raise SceneError(
+                f"{_where(k, nm)}: field 'parent' names {p!r}, which is not an earlier body{later} (Def. 4)"
+            )
+        p = names.index(p)
+    if isinstance(p, (bool, np.bool_)) or not isinstance(p, (int, np.integer)) or not 0 <= int(p) < k:
+        raise SceneError(
+            f"{_where(k, nm)}: field 'parent' must be an index in 0..{k - 1} (Def. 4: parents before children), "
+            f"got {short(p)}"
+        )
+    return int(p)
+
+
+def _axis(value, k: int, nm: str) -> np.ndarray:
+    """The unit hinge axis g^k of body k, from a nonzero 3-vector."""
+    if value is None:
+        raise SceneError(f"{_where(k, nm)}: field 'axis' is missing")
+    g = _vector(value, k, nm, "axis")
+    big = float(np.abs(g).max())
+    norm = big * float(np.linalg.norm(g / big)) if big > 0 else 0.0  # no overflow for huge entries
+    if norm < 1e-12:
+        raise SceneError(f"{_where(k, nm)}: field 'axis' must be a nonzero 3-vector, got {g.tolist()}")
+    return (g / big) / (norm / big)
+
+
+class _JointLaws(NamedTuple):
+    """The joint laws sorted by kind: spring-damper coefficients per hinge (zero on the others)
+    and the `sprung` hinges, and the ``(hinge, joint)`` pairs of the sine and function
+    prescriptions."""
+
+    stiffness: np.ndarray
+    damping: np.ndarray
+    sprung: list[int]
+    sine: list[tuple[int, PrescribedSine]]
+    funcs: list[tuple[int, Prescribed]]
+
+
+def _joint_laws(joints: list[Joint], n: int) -> _JointLaws:
+    laws = _JointLaws(np.zeros(n), np.zeros(n), [], [], [])
     for k, j in enumerate(joints, start=1):
         if isinstance(j, SpringDamper):
-            stiffness[k - 1], damping[k - 1] = j.stiffness, j.damping
-            sprung.append(k)
+            laws.stiffness[k - 1], laws.damping[k - 1] = j.stiffness, j.damping
+            laws.sprung.append(k)
         elif isinstance(j, PrescribedSine):
-            sine.append((k, j))
+            laws.sine.append((k, j))
         elif isinstance(j, Prescribed):
-            funcs.append((k, j))
-    state = _initial(initial, n)
-    massive = tuple(k for k in range(n + 1) if masses[k] > 0)
-    heavy = np.zeros(n + 1, dtype=bool)
+            laws.funcs.append((k, j))
+    return laws
+
+
+def _check_sprung_hinges(topology: Topology, sprung: list[int], massive: tuple[int, ...], names: list[str]) -> None:
+    """A spring or damper needs some mass outboard of its hinge (else the motion is undetermined)."""
+    heavy = np.zeros(len(names), dtype=bool)
     heavy[list(massive)] = True
     for k in sprung:
         if not heavy[topology.path_elements[k - 1].astype(bool)].any():
@@ -362,14 +448,20 @@ def build_model(
                 f"{_where(k, names[k])}: field 'joint' puts a spring or damper on a hinge with only massless "
                 "bodies outboard (zero inertia about the hinge: the motion is undetermined)"
             )
-    if loads is not None:
-        if not isinstance(loads, BodyLoads):
-            raise SceneTypeError(f"loads: expected a jaxtree.BodyLoads, got {short(loads)}")
-        for k in loads.bodies:
-            if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not 0 <= int(k) <= n:
-                raise SceneError(f"loads: body index {short(k)} is not in 0..{n}")
 
-    # every check passed: only now make JAX arrays (nothing above touches JAX)
+
+def _check_loads(loads, n: int) -> None:
+    """`loads` a :class:`~jaxtree.BodyLoads` whose bodies are indices 0..n."""
+    if not isinstance(loads, BodyLoads):
+        raise SceneTypeError(f"loads: expected a jaxtree.BodyLoads, got {short(loads)}")
+    for k in loads.bodies:
+        if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not 0 <= int(k) <= n:
+            raise SceneError(f"loads: body index {short(k)} is not in 0..{n}")
+
+
+def _prescription(sine: list[tuple[int, PrescribedSine]], funcs: list[tuple[int, Prescribed]]) -> Prescription | None:
+    """One :class:`~jaxtree.Prescription` of the prescribed hinges (a group when both kinds occur),
+    or None when no hinge is prescribed."""
     parts = []
     if sine:
         parts.append(
@@ -387,25 +479,7 @@ def build_model(
         prescription = parts[0]
     elif parts:
         prescription = _PrescriptionGroup(sum((p.hinges for p in parts), ()), tuple(parts))
-
-    return Model(
-        mass=jnp.asarray(masses),
-        inertia=jnp.asarray(np.stack(inertias)),
-        axis=jnp.asarray(np.reshape(np.asarray(axes, dtype=float), (n, 3))),
-        hinge_on_parent=jnp.asarray(np.reshape(np.asarray(on_parent, dtype=float), (n, 3))),
-        hinge_on_body=jnp.asarray(np.reshape(np.asarray(on_body, dtype=float), (n, 3))),
-        stiffness=jnp.asarray(stiffness),
-        damping=jnp.asarray(damping),
-        initial=State(*(jnp.asarray(x) for x in state)),
-        prescription=prescription,
-        loads=loads,
-        topology=topology,
-        joints=tuple(j.kind for j in joints),
-        sprung=tuple(sprung),
-        massive=massive,
-        name=name,
-        method=_method(method),
-    )
+    return prescription
 
 
 def _method(method):
