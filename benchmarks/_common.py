@@ -1,31 +1,17 @@
 """Helpers shared by the benchmark scripts: the machine line and first-call / median timing."""
 
-import os
-import platform
 import statistics
 import time
 
-import diffrax
-import equinox as eqx
 import jax
-import numpy as np
 
 
 def machine() -> str:
-    """One line: OS, CPU model, cores, load average, Python and library versions, JAX backend."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
-    except OSError:
-        pass
-    load = ", load average {:.2f} {:.2f} {:.2f}".format(*os.getloadavg()) if hasattr(os, "getloadavg") else ""
-    return (
-        f"{platform.system()} {platform.release()}, {cpu}, {os.cpu_count()} cores{load}; "
-        f"python {platform.python_version()}, jax {jax.__version__}, diffrax {diffrax.__version__}, "
-        f"equinox {eqx.__version__}, numpy {np.__version__}; backend {jax.default_backend()} "
-        f"{jax.devices()[0].device_kind}"
-    )
+    """One line: OS, CPU model, cores, load average, Python and library versions, JAX backend
+    (the work-precision report's line, :func:`jaxtree._src.bench.machine_line`)."""
+    from jaxtree._src.bench import machine_line
+
+    return machine_line()
 
 
 def timed(fn, repeats):

@@ -6,9 +6,6 @@ and angular momentum conservation on the mapped vehicle."""
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-import pytest
-
-pytest.importorskip("Basilisk")
 
 import jaxtree  # noqa: E402
 from jaxtree._src.peer_basilisk import basilisk_available, basilisk_run, basilisk_supports  # noqa: E402
