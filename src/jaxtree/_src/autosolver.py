@@ -96,7 +96,7 @@ def _eigenvalues(model: Model, y0: State, t0, law, params) -> np.ndarray:
     from .linearize import linearize_vehicle
 
     lin = linearize_vehicle(model, omega0=y0.omega0, gamma=y0.gamma, dcm=y0.dcm, t=t0)
-    I, J, K = (np.asarray(x, float) for x in (lin.I, lin.J, lin.K))
+    I, J, K = (np.array(x, float) for x in (lin.I, lin.J, lin.K))  # writable copies
     if law is not None:
         hinges = np.asarray(lin.hinges[3:]) - 1
 
