@@ -1,7 +1,8 @@
 """Error against run time: the work-precision report behind ``jaxtree bench``.
 
 For each case (a scene, its time span and save times), each formulation that applies
-(``full``: Eq. 1; ``eq30``: the partially linearized equations, Eq. 30, in the small hinges'
+(``full``: Eq. 1; ``float32``: Eq. 1 with the model in float32, as GPU batches run it;
+``eq30``: the partially linearized equations, Eq. 30, in the small hinges'
 modal coordinates with every mode kept; ``hybrid-k``: k modes per substructure, Eqs.
 105-123), each solver (diffrax's Tsit5, Dopri5, Dopri8; Kvaerno3, Kvaerno5, KenCarp4; the
 classical RK4 at fixed steps) and a ladder of tolerances (or steps), :func:`work_precision`
@@ -65,6 +66,8 @@ IMPLICIT = ("Kvaerno3", "Kvaerno5", "KenCarp4")
 # of 100-200 states by forward differentiation of Eq. 1; compiling it takes minutes here).
 LARGE_SOLVERS = ("Tsit5", "Dopri5", "Dopri8", "Kvaerno5", "RK4")
 TOLERANCES = (1e-4, 1e-6, 1e-8, 1e-10)
+# The full Eq. (1) in float32 (GPU batches): tolerances above its roundoff (1000 eps ~ 1e-4)
+FLOAT32_TOLERANCES = (1e-3, 1e-4)
 QUICK_TOLERANCES = (1e-5, 1e-8)
 RK4_STEPS = (2, 4, 8, 16, 32)  # RK4 steps per save interval
 RK4_STABILITY = 2.78  # |h lambda| where RK4's stability region ends on the real and imaginary axes
@@ -307,7 +310,7 @@ def _jaxtree_row(case, form, solver, setting, call, ref, repeats, budget, cap, c
         stalled = steps + rejected >= cap
         status = "stalled" if stalled else ("unstable" if solver == "RK4" else "failed")
         note = f"stopped at t = {t_final:.4g} of {case.t1:g} s" + (f" after {cap} steps" if stalled else "")
-    de, dh = _drifts(sol) if ok and form == "full" else (math.nan, math.nan)
+    de, dh = _drifts(sol) if ok and form in ("full", "float32") else (math.nan, math.nan)
     if not conservative:
         de = math.nan  # damped hinges: the energy is not conserved
     return _row_of(
@@ -326,7 +329,8 @@ class _Runner:
         self.case, self.formulation = case, formulation
         self.ts = np.linspace(0.0, case.t1, case.n_save)
         self.hybrid = None
-        if formulation != "full":
+        self.model = case.model.astype(jnp.float32) if formulation == "float32" else case.model
+        if formulation not in ("full", "float32"):
             assert case.small is not None
             k = None if formulation == "eq30" else int(formulation.split("-")[1])
             self.hybrid = hybrid_model(case.model, case.small, k)
@@ -334,13 +338,14 @@ class _Runner:
 
     def call(self, solver_name: str, setting: float, max_steps: int):
         solver = SOLVERS[solver_name]()
-        kw: dict = dict(saveat=jnp.asarray(self.ts), solver=solver, max_steps=max_steps, throw=False)
+        ts = jnp.asarray(self.ts, jnp.result_type(self.model.mass))
+        kw: dict = dict(saveat=ts, solver=solver, max_steps=max_steps, throw=False)
         if solver_name == "RK4":
             kw.update(stepsize_controller=dfx.ConstantStepSize(), dt0=(self.ts[1] - self.ts[0]) / setting)
         else:
             kw.update(rtol=setting, atol=setting)
         if self.hybrid is None:
-            return lambda: self._simulate(self.case.model, self.case.t1, **kw)
+            return lambda: self._simulate(self.model, self.case.t1, **kw)
         return lambda: self._simulate_hybrid(self.hybrid, self.case.t1, **kw)
 
 
@@ -612,7 +617,7 @@ def _references(case: BenchCase):
 
 
 def _formulations(case: BenchCase, wanted: Sequence[str] | None) -> list[str]:
-    forms = ["full"]
+    forms = ["full", "float32"]
     if case.small is not None:
         forms += ["eq30"] + [f"hybrid-{k}" for k in case.hybrid_modes]
     if wanted is not None:
@@ -733,6 +738,11 @@ def _plan(case: BenchCase, solvers, tolerances, quick, formulations):
     tols = tolerances or case.tolerances or (QUICK_TOLERANCES if quick else TOLERANCES)
     plan = []
     for form in _formulations(case, formulations):
+        if form == "float32":  # Eq. (1) in float32 by the solver that its class of scene needs
+            s = "Kvaerno5" if case.group == "stiff" else "Dopri8"
+            if s in names:
+                plan.append((form, s, FLOAT32_TOLERANCES))
+            continue
         # the modal formulations: the solvers that matter for them (explicit Dopri8, implicit Kvaerno5)
         for s in names if form == "full" else [s for s in names if s in ("Dopri8", "Kvaerno5")]:
             settings = (QUICK_RK4_STEPS if quick else RK4_STEPS) if s == "RK4" else tols
@@ -752,6 +762,7 @@ def work_precision(
     budget: float = 2.0,
     progress: bool = True,
     command: str = "jaxtree bench",
+    on_case: Callable[[BenchReport], object] | None = None,
 ) -> BenchReport:
     """Measure error against run time (see the module's text) and return a :class:`BenchReport`
     (``.save(directory)`` writes CSV, Markdown and PNG plots).
@@ -759,9 +770,12 @@ def work_precision(
     - `cases`: names of :data:`CASES` or :class:`BenchCase` objects (default: all;
       ``quick``: ``wings``); `solvers`: names of :data:`SOLVERS` (default all);
       `tolerances`: the ladder (default :data:`TOLERANCES`); `formulations`: a subset of
-      ``("full", "eq30", "hybrid")``; `peers`: time the installed peers too;
+      ``("full", "float32", "eq30", "hybrid")`` (``float32``: Eq. 1 with the model cast to
+      float32, at :data:`FLOAT32_TOLERANCES`); `peers`: time the installed peers too;
     - `quick`: two tolerances, one repeat, the quick case list (a minute or so);
-    - `repeats`: timed calls after the first (default 3, quick 1), fewer past `budget` seconds.
+    - `repeats`: timed calls after the first (default 3, quick 1), fewer past `budget` seconds;
+    - `on_case`: called with the report so far after each case (``jaxtree bench`` saves it
+      there, so that a long run interrupted keeps the cases it finished).
     """
     from .autosolver import choose_solver
 
@@ -778,6 +792,12 @@ def work_precision(
             sum(len(ld[2]) for ld in _peer_ladders(c, np.linspace(0.0, c.t1, c.n_save), quick)) for c in chosen
         )
     bar = _Progress(total, progress)
+    run_settings = dict(quick=quick, repeats=repeats, command=command)
+
+    def report() -> BenchReport:
+        date = time.strftime("%Y-%m-%d %H:%M %Z")
+        return BenchReport(list(rows), machine_line(), date, refs_info, auto, checks, run_settings)
+
     rows: list[dict] = []
     refs_info: dict[str, dict] = {}
     auto: dict[str, str] = {}
@@ -826,7 +846,8 @@ def work_precision(
                 rows += peer_rows
                 if peer_checks:
                     checks[case.name] = peer_checks
+            if on_case is not None:
+                on_case(report())
     finally:
         bar.close()
-    settings = dict(quick=quick, repeats=repeats, command=command)
-    return BenchReport(rows, machine_line(), time.strftime("%Y-%m-%d %H:%M %Z"), refs_info, auto, checks, settings)
+    return report()

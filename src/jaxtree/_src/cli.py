@@ -502,6 +502,7 @@ def cmd_bench(args) -> int:
         repeats=args.repeats,
         progress=not args.no_progress,
         command=command.strip(),
+        on_case=lambda partial: partial.save(args.out, plots=not args.no_plots),
     )
     paths = report.save(args.out, plots=not args.no_plots)
     for case in report.cases():
