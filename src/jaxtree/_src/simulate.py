@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import diffrax as dfx
 import equinox as eqx
@@ -284,7 +284,9 @@ class _Singularity(eqx.Module):
     """Boolean: the attitude variables are within tolerance of their singularity."""
 
     def __call__(self, t, y, args: Problem, **kwargs):
-        return args.attitude.margin(args.unpack(y)[0]) < 0
+        margin = args.attitude.margin(args.unpack(y)[0])
+        assert margin is not None  # the guard is installed only when attitude.has_singularity
+        return margin < 0
 
 
 class _Crossing(eqx.Module):
@@ -370,7 +372,7 @@ class Solution(eqx.Module):
     margin: jax.Array
     failure: jax.Array
     stats: dict
-    raw: dfx.Solution
+    raw: dfx.Solution | None  # None in a Solution read back from a file (jaxtree.results)
     problem: Problem
 
     @property
@@ -380,6 +382,8 @@ class Solution(eqx.Module):
 
     def evaluate(self, t) -> State:
         """State at time t from the dense output (needs ``saveat=diffrax.SaveAt(..., dense=True)``)."""
+        if self.raw is None:
+            raise ValueError("evaluate: this Solution has no dense output (it was read back from a file)")
         if self.raw.interpolation is None:
             raise ValueError("evaluate: run simulate with saveat=diffrax.SaveAt(..., dense=True)")
         return self.problem.state(t, self.raw.evaluate(t))
@@ -418,7 +422,7 @@ def _nonzero(x):
 def _history(problem: Problem, ts, ys):
     """The saved flat states decoded: all hinges, C, attitude variables, controller states, X."""
 
-    def row(t, y):
+    def row(t, y) -> dict[str, Any]:
         state = problem.state(t, y)
         att, _, _, _, _, X, Xd = problem.unpack(y)
         return dict(
@@ -507,6 +511,11 @@ def _initial_step(problem: Problem, y0, t0, t1):
     rate = jnp.where(jnp.isfinite(rate), rate, 0.0)  # a non-finite state fails on the first steps
     h = jnp.minimum(1e-2 / (1.0 + rate), jnp.abs(t1 - t0))
     return jnp.where(t1 >= t0, h, -h)
+
+
+# The fields of a Solution that simulate fills in from _diagnostics, compiled apart from the
+# solve: None until then (typed as the arrays they become; no Solution is returned with them None).
+_FILLED_BY_SIMULATE = cast(jax.Array, None)
 
 
 class _Options(NamedTuple):
@@ -608,9 +617,9 @@ def _solve(
         control_state=hist["control_state"],
         X=hist["X"],
         X_dot=hist["X_dot"],
-        hold_torque=None,
-        energy=None,
-        angular_momentum=None,
+        hold_torque=_FILLED_BY_SIMULATE,
+        energy=_FILLED_BY_SIMULATE,
+        angular_momentum=_FILLED_BY_SIMULATE,
         orthogonality=hist["orthogonality"],
         t_final=t_final,
         final=final_state,
