@@ -155,7 +155,7 @@ def choose_solver(
         return dfx.Dopri8(), SolverChoice("Dopri8", True, why, fastest, steps)
     # every eigenvalue an explicit method could not step over within the budget must decay
     fast = mag * span / R_STABILITY > budget
-    decays = 0.1 * span * np.abs(np.minimum(lam.real, 0.0)) >= math.log(1.0 / rtol)
+    decays = 0.1 * span * np.abs(np.minimum(np.real(lam), 0.0)) >= math.log(1.0 / rtol)
     if np.all(decays[fast]):
         why = (
             f"stiff: modes up to {fastest:.3g} rad/s would hold an explicit method to {steps:.3g} steps, "

@@ -339,9 +339,10 @@ class _Runner:
             kw.update(stepsize_controller=dfx.ConstantStepSize(), dt0=(self.ts[1] - self.ts[0]) / setting)
         else:
             kw.update(rtol=setting, atol=setting)
-        if self.hybrid is None:
+        hybrid = self.hybrid
+        if hybrid is None:
             return lambda: self._simulate(self.case.model, self.case.t1, **kw)
-        return lambda: self._simulate_hybrid(self.hybrid, self.case.t1, **kw)
+        return lambda: self._simulate_hybrid(hybrid, self.case.t1, **kw)
 
 
 def _energy_of(sol):
