@@ -633,7 +633,7 @@ def _peer_ladders(case, ts, quick):
     tols = QUICK_TOLERANCES if quick else TOLERANCES
     steps = QUICK_RK4_STEPS if quick else (1, 2, 4, 8, 16, 32, 64)
     try:
-        import pinocchio  # noqa: F401
+        import pinocchio  # noqa: F401  # pyright: ignore[reportMissingImports]  (optional: the peers extra)
         import scipy  # noqa: F401
 
         run = pinocchio_runner(case.model, ts)
@@ -644,7 +644,7 @@ def _peer_ladders(case, ts, quick):
     except ImportError:
         pass
     try:
-        import mujoco  # noqa: F401
+        import mujoco  # noqa: F401  # pyright: ignore[reportMissingImports]  (optional: the peers extra)
 
         mrun = mujoco_runner(case.model, ts)
         ladders.append(("mujoco", "RK4", steps, lambda k: mrun("RK4", k)))
