@@ -120,7 +120,14 @@ def _budget(rtol: float) -> float:
 
 
 def choose_solver(
-    model: Model, t1, *, t0=0.0, y0: State | None = None, rtol: float | None = None, law=None, params=None
+    model: Model,
+    t1,
+    *,
+    t0: float | jax.Array = 0.0,
+    y0: State | None = None,
+    rtol: float | None = None,
+    law=None,
+    params=None,
 ) -> tuple[dfx.AbstractSolver, SolverChoice]:
     """The solver for a run of `model` from `t0` to `t1` at `rtol` (see the module's text):
     ``(diffrax solver, SolverChoice)``. Dopri8 unless the linearized equations at `y0` (default

@@ -743,7 +743,7 @@ def simulate(
     model: Model,
     t1,
     *,
-    t0=0.0,
+    t0: float | jax.Array = 0.0,
     y0: State | None = None,
     saveat=None,
     solver: dfx.AbstractSolver | str | None = "auto",
