@@ -387,7 +387,7 @@ def failure_report(code, describe):
     return "\n".join(msgs)
 
 
-def result_code(result, singular=False):
+def result_code(result, singular: bool | jax.Array = False):
     """The :class:`Failure` code of a failed diffrax result (whatever it is; success is masked
     by the caller): step limit, step-size collapse, a singular attitude (`singular`), or other."""
     R = dfx.RESULTS

@@ -141,12 +141,12 @@ class AbstractAttitude(eqx.Module):
     def rate(self, x, omega0) -> jax.Array:
         """Time derivative of the variables for angular velocity omega0 (in {b^0})."""
 
-    def margin(self, x):
+    def margin(self, x) -> jax.Array | None:
         """Distance to a singularity of the parametrisation; the run stops when it falls below 0.
         None when the parametrisation has none."""
         return None
 
-    def side(self, x):
+    def side(self, x) -> jax.Array | None:
         """A continuous function whose sign changes where the variables cross their singular set
         (a run that steps across it stops there too); None when there is none."""
         return None

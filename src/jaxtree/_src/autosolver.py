@@ -120,7 +120,14 @@ def _budget(rtol: float) -> float:
 
 
 def choose_solver(
-    model: Model, t1, *, t0=0.0, y0: State | None = None, rtol: float | None = None, law=None, params=None
+    model: Model,
+    t1,
+    *,
+    t0: float | jax.Array = 0.0,
+    y0: State | None = None,
+    rtol: float | None = None,
+    law=None,
+    params=None,
 ) -> tuple[dfx.AbstractSolver, SolverChoice]:
     """The solver for a run of `model` from `t0` to `t1` at `rtol` (see the module's text):
     ``(diffrax solver, SolverChoice)``. Dopri8 unless the linearized equations at `y0` (default
@@ -155,7 +162,7 @@ def choose_solver(
         return dfx.Dopri8(), SolverChoice("Dopri8", True, why, fastest, steps)
     # every eigenvalue an explicit method could not step over within the budget must decay
     fast = mag * span / R_STABILITY > budget
-    decays = 0.1 * span * np.abs(np.minimum(lam.real, 0.0)) >= math.log(1.0 / rtol)
+    decays = 0.1 * span * np.abs(np.minimum(np.real(lam), 0.0)) >= math.log(1.0 / rtol)
     if np.all(decays[fast]):
         why = (
             f"stiff: modes up to {fastest:.3g} rad/s would hold an explicit method to {steps:.3g} steps, "

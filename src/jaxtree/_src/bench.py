@@ -344,9 +344,10 @@ class _Runner:
             kw.update(stepsize_controller=dfx.ConstantStepSize(), dt0=(self.ts[1] - self.ts[0]) / setting)
         else:
             kw.update(rtol=setting, atol=setting)
-        if self.hybrid is None:
+        hybrid = self.hybrid
+        if hybrid is None:
             return lambda: self._simulate(self.model, self.case.t1, **kw)
-        return lambda: self._simulate_hybrid(self.hybrid, self.case.t1, **kw)
+        return lambda: self._simulate_hybrid(hybrid, self.case.t1, **kw)
 
 
 def _energy_of(sol):
@@ -637,7 +638,7 @@ def _peer_ladders(case, ts, quick):
     tols = QUICK_TOLERANCES if quick else TOLERANCES
     steps = QUICK_RK4_STEPS if quick else (1, 2, 4, 8, 16, 32, 64)
     try:
-        import pinocchio  # noqa: F401
+        import pinocchio  # noqa: F401  # pyright: ignore[reportMissingImports]  (optional: the peers extra)
         import scipy  # noqa: F401
 
         run = pinocchio_runner(case.model, ts)
@@ -648,7 +649,7 @@ def _peer_ladders(case, ts, quick):
     except ImportError:
         pass
     try:
-        import mujoco  # noqa: F401
+        import mujoco  # noqa: F401  # pyright: ignore[reportMissingImports]  (optional: the peers extra)
 
         mrun = mujoco_runner(case.model, ts)
         ladders.append(("mujoco", "RK4", steps, lambda k: mrun("RK4", k)))

@@ -32,6 +32,7 @@ import pathlib
 import signal
 import sys
 import time
+from typing import Any
 
 SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "bench", "sample")
 EXIT_USAGE, EXIT_FAILED, EXIT_INTERRUPTED = 2, 1, 130
@@ -802,7 +803,7 @@ def _part_dataset(runner, part, count, skip_first, attrs):
     r = part.rows(None)  # every row of the (padded) part: one shape, one compiled geometry
     r["positions"] = body_positions(runner.model, r["gamma"])
     first = 1 if skip_first else 0
-    r = {
+    r: dict[str, Any] = {
         k: (
             v[first:count]
             if isinstance(v, np.ndarray)
@@ -1018,10 +1019,7 @@ def _error_estimate(runner, ds, bounds, rows_per_part, grid, cfg):
         if runner.hybrid is not None:
             y = part.sol.ys[-1]
         else:
-            from .model import State
-
-            f = part.sol.final
-            y = State(*(np.asarray(x) for x in f))
+            y = part.sol.final
     d = {k: float(np.max(np.abs(np.concatenate(v) - ds[k].values))) for k, v in rows.items()}
     return {
         "error_estimate_gamma": d["gamma"],
@@ -1057,7 +1055,10 @@ def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
     import numpy as np
 
     a = ds.attrs
-    opts = dict(precision=6, suppress_small=True, max_line_width=150)
+
+    def fmt(values):
+        return np.array2string(values, precision=6, suppress_small=True, max_line_width=150)
+
     hyb = runner.hybrid
     lines = [
         f"scene {model.name!r}: {model.n + 1} bodies; "
@@ -1100,8 +1101,8 @@ def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
         lines.append(f"  angular-momentum drift: max |H - H0| / |H0| = {float(a['momentum_drift']):.3e}")
     last = ds.isel(time=-1)
     lines.append(f"  at the last saved time, t = {float(last['time']):.6g} s:")
-    lines.append(f"    gamma  = {np.array2string(last['gamma'].values, **opts)}")
-    lines.append(f"    omega0 = {np.array2string(last['omega0'].values, **opts)}")
+    lines.append(f"    gamma  = {fmt(last['gamma'].values)}")
+    lines.append(f"    omega0 = {fmt(last['omega0'].values)}")
     lines.append(f"  wrote {', '.join(written)}")
     t = f"  wall time {wall:.1f} s"
     if compile_time is not None:

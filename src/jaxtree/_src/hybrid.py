@@ -76,6 +76,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike
 
 from . import _checks
 from . import substructure as _sub
@@ -1327,9 +1328,9 @@ def simulate_hybrid(
     hybrid: HybridModel,
     t1,
     *,
-    t0=0.0,
+    t0: float | jax.Array = 0.0,
     y0: State | jax.Array | None = None,
-    saveat=101,
+    saveat: int | ArrayLike = 101,
     solver: dfx.AbstractSolver | None = None,
     stepsize_controller: dfx.AbstractStepSizeController | None = None,
     rtol: float | None = None,

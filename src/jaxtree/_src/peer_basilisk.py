@@ -38,7 +38,7 @@ INTEGRATORS = ("rk4", "rkf45", "rkf78")
 def basilisk_available() -> bool:
     """Whether Basilisk (pip package ``bsk``) can be imported."""
     try:
-        import Basilisk.simulation.spinningBodyNDOFStateEffector  # noqa: F401
+        import Basilisk.simulation.spinningBodyNDOFStateEffector  # noqa: F401  # pyright: ignore[reportMissingImports]  (optional: bsk)
     except ImportError:
         return False
     return True
@@ -86,7 +86,7 @@ def basilisk_supports(model) -> str | None:
 
 
 def _integrator(name, sc, rtol, atol):
-    from Basilisk.simulation import svIntegrators
+    from Basilisk.simulation import svIntegrators  # pyright: ignore[reportMissingImports]  (optional: bsk)
 
     if name == "rk4":
         return svIntegrators.svIntegratorRK4(sc)
@@ -153,8 +153,8 @@ def basilisk_run(
     dt_ns, save_ns, nsteps = _steps(float(t1), ts, dt)
 
     t_setup = _time.perf_counter()
-    from Basilisk.simulation import spacecraft, spinningBodyNDOFStateEffector
-    from Basilisk.utilities import RigidBodyKinematics, SimulationBaseClass
+    from Basilisk.simulation import spacecraft, spinningBodyNDOFStateEffector  # pyright: ignore[reportMissingImports]  (optional: bsk)
+    from Basilisk.utilities import RigidBodyKinematics, SimulationBaseClass  # pyright: ignore[reportMissingImports]  (optional: bsk)
 
     mass = np.asarray(model.mass, float)
     inertia = np.asarray(model.inertia, float)

@@ -15,10 +15,19 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import Any
 
 import numpy as np
 
 MUJOCO_TINY_MASS, MUJOCO_TINY_INERTIA = 1e-9, 1e-12  # MuJoCo refuses massless bodies
+
+
+def _pinocchio() -> Any:
+    """The ``pinocchio`` module (optional: the peers extra), typed Any: its names come from a
+    compiled extension, which pyright cannot read."""
+    import pinocchio  # pyright: ignore[reportMissingImports]
+
+    return pinocchio
 
 
 def peer_support(model) -> str | None:
@@ -64,7 +73,7 @@ def base_velocity(model, state=None) -> np.ndarray:
 
 def pinocchio_model(model):
     """``(pin_model, joint ids (n+1), q indices of the hinges, v indices of the hinges, com)``."""
-    import pinocchio as pin
+    pin = _pinocchio()
 
     axis, offsets, com = tree_frames(model)
     mass, inertia = np.asarray(model.mass, float), np.asarray(model.inertia, float)
@@ -88,8 +97,9 @@ def pinocchio_runner(model, ts):
     """``run(method, rtol, atol) -> (omega0 (T, 3), gamma (T, n), wall seconds, right sides)``:
     Pinocchio's ABA integrated by ``scipy.integrate.solve_ivp`` (``"DOP853"``, ``"RK45"``,
     ``"Radau"`` ...) over the save times `ts`. The time is that of ``solve_ivp`` alone."""
-    import pinocchio as pin
     from scipy.integrate import solve_ivp
+
+    pin = _pinocchio()
 
     pm, _, iq, iv, _ = pinocchio_model(model)
     data = pm.createData()
@@ -166,8 +176,9 @@ def mujoco_runner(model, ts):
     sides)``: MuJoCo (``"RK4"``, ``"implicitfast"``, ``"Euler"``) at a fixed step of the save
     interval over `steps_per_save`, `ts` evenly spaced. Massless bodies get
     ``MUJOCO_TINY_MASS`` / ``MUJOCO_TINY_INERTIA``. The time is that of the stepping loop."""
-    import mujoco
+    import mujoco as _mujoco  # pyright: ignore[reportMissingImports]  (optional: the peers extra)
 
+    mujoco: Any = _mujoco  # (its names come from compiled extensions, which pyright cannot read)
     ts = np.asarray(ts, float)
     interval = float(ts[1] - ts[0])
     s = model.initial

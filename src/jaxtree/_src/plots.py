@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -57,7 +58,7 @@ def _series(result) -> dict:
         ds = result
         get = lambda k: ds[k].values if k in ds else None  # noqa: E731
         names = [str(s) for s in ds["hinge_name"].values] if "hinge_name" in ds.coords else None
-        out = dict(
+        out: dict[str, Any] = dict(
             t=ds["time"].values,
             gamma=get("gamma"),
             gamma_dot=get("gamma_dot"),
@@ -269,7 +270,7 @@ def plot_mode_shapes(
 
 
 def plot_work_precision(
-    methods: Mapping[str, object],
+    methods: Mapping[str, Any],
     path=None,
     *,
     title: str = "work-precision",

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import diffrax as dfx
 import equinox as eqx
@@ -284,7 +284,9 @@ class _Singularity(eqx.Module):
     """Boolean: the attitude variables are within tolerance of their singularity."""
 
     def __call__(self, t, y, args: Problem, **kwargs):
-        return args.attitude.margin(args.unpack(y)[0]) < 0
+        margin = args.attitude.margin(args.unpack(y)[0])
+        assert margin is not None  # the guard is installed only when attitude.has_singularity
+        return margin < 0
 
 
 class _Crossing(eqx.Module):
@@ -370,7 +372,7 @@ class Solution(eqx.Module):
     margin: jax.Array
     failure: jax.Array
     stats: dict
-    raw: dfx.Solution
+    raw: dfx.Solution | None  # None in a Solution read back from a file (jaxtree.results)
     problem: Problem
 
     @property
@@ -380,6 +382,8 @@ class Solution(eqx.Module):
 
     def evaluate(self, t) -> State:
         """State at time t from the dense output (needs ``saveat=diffrax.SaveAt(..., dense=True)``)."""
+        if self.raw is None:
+            raise ValueError("evaluate: this Solution has no dense output (it was read back from a file)")
         if self.raw.interpolation is None:
             raise ValueError("evaluate: run simulate with saveat=diffrax.SaveAt(..., dense=True)")
         return self.problem.state(t, self.raw.evaluate(t))
@@ -418,7 +422,7 @@ def _nonzero(x):
 def _history(problem: Problem, ts, ys):
     """The saved flat states decoded: all hinges, C, attitude variables, controller states, X."""
 
-    def row(t, y):
+    def row(t, y) -> dict[str, Any]:
         state = problem.state(t, y)
         att, _, _, _, _, X, Xd = problem.unpack(y)
         return dict(
@@ -507,6 +511,11 @@ def _initial_step(problem: Problem, y0, t0, t1):
     rate = jnp.where(jnp.isfinite(rate), rate, 0.0)  # a non-finite state fails on the first steps
     h = jnp.minimum(1e-2 / (1.0 + rate), jnp.abs(t1 - t0))
     return jnp.where(t1 >= t0, h, -h)
+
+
+# The fields of a Solution that simulate fills in from _diagnostics, compiled apart from the
+# solve: None until then (typed as the arrays they become; no Solution is returned with them None).
+_FILLED_BY_SIMULATE = cast(jax.Array, None)
 
 
 class _Options(NamedTuple):
@@ -608,9 +617,9 @@ def _solve(
         control_state=hist["control_state"],
         X=hist["X"],
         X_dot=hist["X_dot"],
-        hold_torque=None,
-        energy=None,
-        angular_momentum=None,
+        hold_torque=_FILLED_BY_SIMULATE,
+        energy=_FILLED_BY_SIMULATE,
+        angular_momentum=_FILLED_BY_SIMULATE,
         orthogonality=hist["orthogonality"],
         t_final=t_final,
         final=final_state,
@@ -734,7 +743,7 @@ def simulate(
     model: Model,
     t1,
     *,
-    t0=0.0,
+    t0: float | jax.Array = 0.0,
     y0: State | None = None,
     saveat=None,
     solver: dfx.AbstractSolver | str | None = "auto",
@@ -813,14 +822,7 @@ def simulate(
     (through the diffrax adjoint).
     """
     _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw)
-    try:
-        att = get_attitude(attitude)
-    except ValueError as e:
-        raise SceneError(f"simulate: {e}") from None
-    if controller is not None and not isinstance(controller, AbstractController):
-        raise SceneTypeError(f"simulate: controller must be an AbstractController, got {short(controller)}")
-    if law is not None and not callable(law):
-        raise SceneTypeError(f"simulate: law must be a callable tau(t, state, params), got {short(law)}")
+    att = _check_attitude_and_laws(attitude, controller, law)
     dtype = jnp.result_type(model.mass)
     if rtol is None:
         rtol = default_tolerance(dtype)
@@ -831,6 +833,54 @@ def simulate(
         warn_below_roundoff(rtol, dtype, stacklevel=3)  # the caller of full_precision's wrapper
     y0 = model.initial if y0 is None else y0
     check_state("simulate", model, y0)
+    saveat, grid, user_saveat = _check_saveat(saveat, t0, t1)
+    ev, has_guard, user_event = _combine_events(event, att)
+    meter = progress_meter(progress)
+    # every argument is checked: from here on JAX may trace
+    if not (grid is not None or user_saveat):
+        saveat = jnp.asarray(saveat, dtype)
+    X0 = Xd0 = None
+    if isinstance(translation, tuple):
+        X0, Xd0 = translation
+        translation = True
+    problem = _problem(model, att, law, controller, params, bool(translation))
+    if solver is None or isinstance(solver, str):
+        solver, choice = choose_solver(model, t1, t0=t0, y0=y0, rtol=rtol, law=law, params=params)
+    else:
+        choice = given(solver)
+    if adjoint is None:
+        adjoint = dfx.RecursiveCheckpointAdjoint()
+    inputs = (model, y0, t0, t1, params, controller, law, saveat, ev, translation, X0, Xd0)
+    traced = is_traced((*inputs, rtol, atol, dt0, solver, stepsize_controller, adjoint))
+    if not traced and throw:
+        _check_finite_start(y0, X0, Xd0, t0, att)
+    opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced))
+    as_array = lambda x: None if x is None else jnp.asarray(x, dtype)
+    arrays = (as_array(X0), as_array(Xd0), as_array(t0), as_array(t1), as_array(rtol), as_array(atol), as_array(dt0))
+    sol = _solve(problem, y0, *arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, opts)
+    sol = _with_diagnostics(sol, model, law, controller, params)
+    sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
+    if throw and not traced:
+        check_solution(sol)
+    return sol
+
+
+def _check_attitude_and_laws(attitude, controller, law) -> AbstractAttitude:
+    """The attitude variables of `attitude`, once `controller` and `law` are checked too."""
+    try:
+        att = get_attitude(attitude)
+    except ValueError as e:
+        raise SceneError(f"simulate: {e}") from None
+    if controller is not None and not isinstance(controller, AbstractController):
+        raise SceneTypeError(f"simulate: controller must be an AbstractController, got {short(controller)}")
+    if law is not None and not callable(law):
+        raise SceneTypeError(f"simulate: law must be a callable tau(t, state, params), got {short(law)}")
+    return att
+
+
+def _check_saveat(saveat, t0, t1):
+    """``(saveat, grid, user_saveat)``: a SaveAt (used as is), a number of evenly spaced save
+    times (`grid`; saveat None) or an array of times, checked with `t0` and `t1`."""
     grid, user_saveat = None, False
     if isinstance(saveat, dfx.SaveAt):
         if saveat.subs is None:
@@ -848,72 +898,28 @@ def simulate(
                 f"simulate: saveat: expected a number of save points or a 1-D array of times, got shape {shape}"
             )
     check_times("simulate", t0, t1, None if grid is not None or user_saveat else saveat)
-    ev, has_guard, user_event = _combine_events(event, att)
-    meter = progress_meter(progress)
-    # every argument is checked: from here on JAX may trace
-    if not (grid is not None or user_saveat):
-        saveat = jnp.asarray(saveat, dtype)
-    X0 = Xd0 = None
-    if isinstance(translation, tuple):
-        X0, Xd0 = translation
-        translation = True
+    return saveat, grid, user_saveat
+
+
+def _problem(model: Model, att: AbstractAttitude, law, controller, params, translation: bool) -> Problem:
+    """The ODE: `model` with its attitude variables, laws, controller states and, if
+    `translation`, the mass center's position and velocity."""
     control_size = 0
     if controller is not None:
         control_size = sum(int(np.prod(x.shape)) for x in jax.tree_util.tree_leaves(jax.eval_shape(controller.initial)))
-    problem = Problem(model, att, law, controller, params, bool(translation), control_size)
-    if solver is None or isinstance(solver, str):
-        solver, choice = choose_solver(model, t1, t0=t0, y0=y0, rtol=rtol, law=law, params=params)
-    else:
-        choice = given(solver)
-    if adjoint is None:
-        adjoint = dfx.RecursiveCheckpointAdjoint()
-    traced = is_traced(
-        (
-            model,
-            y0,
-            t0,
-            t1,
-            params,
-            controller,
-            law,
-            saveat,
-            ev,
-            translation,
-            X0,
-            Xd0,
-            rtol,
-            atol,
-            dt0,
-            solver,
-            stepsize_controller,
-            adjoint,
-        )
-    )
-    if not traced and throw:
-        start = [np.asarray(x, float) for x in (*y0, *(() if X0 is None else (X0, Xd0)))]
-        if not all(np.all(np.isfinite(x)) for x in start):
-            # (under jit the solver would reject every step until max_steps: NaN step sizes)
-            raise SimulationError(_format_failure("nonfinite_start", t0, y0, np.nan, np.nan, att.name))
-    opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced))
-    as_array = lambda x: None if x is None else jnp.asarray(x, dtype)
-    sol = _solve(
-        problem,
-        y0,
-        as_array(X0),
-        as_array(Xd0),
-        as_array(t0),
-        as_array(t1),
-        as_array(rtol),
-        as_array(atol),
-        as_array(dt0),
-        solver,
-        stepsize_controller,
-        saveat,
-        adjoint,
-        ev,
-        meter,
-        opts,
-    )
+    return Problem(model, att, law, controller, params, translation, control_size)
+
+
+def _check_finite_start(y0: State, X0, Xd0, t0, att: AbstractAttitude) -> None:
+    """Raise SimulationError for a concrete start that is not finite."""
+    start = [np.asarray(x, float) for x in (*y0, *(() if X0 is None else (X0, Xd0)))]
+    if not all(np.all(np.isfinite(x)) for x in start):
+        # (under jit the solver would reject every step until max_steps: NaN step sizes)
+        raise SimulationError(_format_failure("nonfinite_start", t0, y0, np.nan, np.nan, att.name))
+
+
+def _with_diagnostics(sol: Solution, model: Model, law, controller, params) -> Solution:
+    """`sol` with its energy, angular momentum and hold torques (see :func:`_diagnostics`)."""
     needs_law = model.prescription is not None
     diag = _diagnostics(
         model,
@@ -924,8 +930,4 @@ def simulate(
         State(sol.dcm, sol.omega0, sol.gamma, sol.gamma_dot),
         sol.control_state if needs_law else None,
     )
-    sol = eqx.tree_at(lambda s: (s.energy, s.angular_momentum, s.hold_torque), sol, diag, is_leaf=lambda x: x is None)
-    sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
-    if throw and not traced:
-        check_solution(sol)
-    return sol
+    return eqx.tree_at(lambda s: (s.energy, s.angular_momentum, s.hold_torque), sol, diag, is_leaf=lambda x: x is None)
