@@ -434,6 +434,98 @@ class BenchReport:
             lines.append(f"- to {target:g}: {part}{ratio}")
         return lines
 
+    def _fastest(self, case: str, target: float, engine: str | None, formulation: str | None = "full"):
+        """The cheapest row of `case` reaching `target`: jaxtree's (`engine` "jaxtree"), the
+        peers' (`engine` None) or any; `formulation` None admits every formulation."""
+        best = [
+            r
+            for r in self.best(case, target).values()
+            if (engine is None and r["engine"] != "jaxtree") or engine in (r["engine"], "any")
+            if formulation is None or r["formulation"] == formulation
+        ]
+        return min(best, key=lambda r: r["time_s"]) if best else None
+
+    def findings(self) -> list[str]:
+        """Markdown lines drawn from the rows: the fastest settings per case and target, where
+        explicit solvers stall, what float32 and the modal formulations give, and the solver
+        that the data recommends per group of cases. Regenerated with the report."""
+        out = [
+            "## Findings (drawn from the rows below)",
+            "",
+            "| case | group | `auto` picks | jaxtree fastest to 1e-6 | to 1e-9 | fastest peer to 1e-6 | to 1e-9 |",
+            "|---|---|---|---|---|---|---|",
+        ]
+
+        def cell(r):
+            return "-" if r is None else f"{r['method'].removeprefix('jaxtree ')} {_ms(r['time_s'])}"
+
+        wins: dict[str, dict[str, int]] = {}
+        for case in self.cases():
+            group = next(r["group"] for r in self.rows if r["case"] == case)
+            ours = [self._fastest(case, t, "jaxtree") for t in TARGETS]
+            peers = [self._fastest(case, t, None) for t in TARGETS]
+            auto = self.auto.get(case, "-").split(" (")[0]
+            out.append(
+                f"| {case} | {group} | {auto} | {cell(ours[0])} | {cell(ours[1])} | {cell(peers[0])} | {cell(peers[1])} |"
+            )
+            for r in ours:
+                if r is not None:
+                    tally = wins.setdefault(group, {})
+                    tally[r["solver"]] = tally.get(r["solver"], 0) + 1
+        out.append("")
+        stalls = [r for r in self.rows if r["engine"] == "jaxtree" and r["status"] in ("stalled", "unstable")]
+        if stalls:
+            out.append(
+                f"Runs held at the step cap ({STEP_CAP} explicit, {IMPLICIT_STEP_CAP} implicit steps: *stalled*) or "
+                "beyond RK4's stability region (*unstable*, not run):"
+            )
+            by_case: dict[str, list[str]] = {}
+            for r in stalls:
+                kind = "implicit" if r["solver"] in IMPLICIT else "explicit"
+                by_case.setdefault(r["case"], []).append(f"{r['solver']} ({kind}) {_setting(r)} {r['status']}")
+            out += [f"- {c}: " + ", ".join(v) for c, v in by_case.items()]
+            out.append("")
+        f32 = [r for r in self.rows if r["formulation"] == "float32" and r["status"] == "ok"]
+        if f32:
+            parts = []
+            for case in dict.fromkeys(r["case"] for r in f32):
+                rs = [r for r in f32 if r["case"] == case]
+                best = min(rs, key=lambda r: r["error"])
+                parts.append(f"{case} {best['error']:.1e} ({_setting(best)}, {_ms(best['time_s'])})")
+            out += [
+                "Float32 (the model cast; error against the float64 reference, smallest reached): "
+                + ", ".join(parts)
+                + ".",
+                "",
+            ]
+        modal = [r for r in self.rows if r["formulation"] not in ("full", "float32") and r["status"] == "ok"]
+        if modal:
+            out.append(
+                "Modal formulations (their error is the model's, against the full Eq. 1: it stays as the tolerance "
+                "tightens), cheapest run of each against the full Eq. (1) by the same solver at the same tolerance:"
+            )
+            for case in dict.fromkeys(r["case"] for r in modal):
+                parts = []
+                for form in dict.fromkeys(r["formulation"] for r in modal if r["case"] == case):
+                    rs = [r for r in modal if r["case"] == case and r["formulation"] == form]
+                    r = min(rs, key=lambda r: r["time_s"])
+                    full = [
+                        x for x in self.rows
+                        if x["case"] == case and x["formulation"] == "full" and x["solver"] == r["solver"]
+                        and x["setting"] == r["setting"] and x["status"] == "ok"
+                    ]  # fmt: skip
+                    vs = f" (full: {_ms(full[0]['time_s'])}, {full[0].get('steps', '')} steps)" if full else ""
+                    parts.append(f"{form} error {r['error']:.1e}, {_ms(r['time_s'])}, {r.get('steps', '')} steps{vs}")
+                out.append(f"- {case}: " + "; ".join(parts))
+            out.append("")
+        if wins:
+            out.append("The solver of jaxtree's fastest run to 1e-6 and 1e-9, counted per group of cases:")
+            for group, tally in wins.items():
+                ranked = sorted(tally.items(), key=lambda kv: -kv[1])
+                out.append(f"- {group}: " + ", ".join(f"{k} {v}" for k, v in ranked))
+            out.append("")
+        return out
+
     def to_markdown(self, plots: dict[str, str] | None = None) -> str:
         s = self.settings
         out = [
@@ -450,6 +542,7 @@ class BenchReport:
             f"A run stopped at the step cap ({STEP_CAP} steps) is *stalled*; its note says how far it got.",
             "",
         ]
+        out += self.findings()
         for case in self.cases():
             rows = [r for r in self.rows if r["case"] == case]
             ref = self.references.get(case, {})
