@@ -699,6 +699,19 @@ def _real_pairs(md, picked, tol):
 DEGENERATE_RTOL = 1e-6
 
 
+def _time_scale(md, sigma: np.ndarray) -> np.ndarray:
+    """Per mode, the rate that truncation ranks it by: its frequency, or for damped (complex) modes
+    the largest ``|lambda|`` of its pair of eigenvalues. A damped mode's frequency ``|Im lambda|``
+    alone would rank an overdamped pair (two real eigenvalues, frequency 0) first however fast it
+    decays: a near-rigid, damped hinge's ``lambda = -1.5e5`` kept as the "lowest" mode made the
+    truncated equations as stiff as the full ones (benchmarks/results/work_precision.md, stiff_1e6)."""
+    lam = np.asarray(md.eigenvalues)
+    nu = len(sigma)
+    if md.kind != "general" or lam.shape != (2 * nu,):
+        return sigma
+    return np.maximum(np.abs(lam[:nu]), np.abs(lam[nu:]))
+
+
 def _select(sigma, candidates, n, cutoff, where):
     """Indices of the retained modes among `candidates` (ascending frequency): those up to
     `cutoff`, the first `n` of them, and the rest of a repeated frequency the n-th belongs to."""
@@ -1062,7 +1075,8 @@ def _retained_modes(model: Model, groups, systems, mds, n_modes, cutoff, form: s
         where = "" if basis == "set" else f" for substructure {gi} (from hinge {model.names[groups[gi].hinges[0]]!r})"
         if form == "first_order" and rigid.any():
             where += " (rigid modes left out of the first-order form)"
-        cand = _select(sigma, cands, n, cutoff, where)
+        rank = _time_scale(md, sigma)
+        cand = sorted(_select(rank, sorted(cands, key=lambda j: rank[j]), n, cutoff, where))
         if not cand:
             continue
         picked.append((gi, cand))
