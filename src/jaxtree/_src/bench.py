@@ -923,7 +923,12 @@ def work_precision(
             refs_info[case.name] = dict(primary=pair[0], secondary=pair[1], floor=floor, description=case.description)
             choice = choose_solver(case.model, case.t1)[1]
             auto[case.name] = str(choice)
-            conservative = not np.any(np.asarray(case.model.damping) != 0.0) and case.model.loads is None
+            # energy is conserved without dampers, loads and prescribed hinges (whose motors do work)
+            conservative = (
+                not np.any(np.asarray(case.model.damping) != 0.0)
+                and case.model.loads is None
+                and case.model.prescription is None
+            )
             for form, solver, settings in plans[case.name]:
                 runner = _Runner(case, form)
                 ref = refs[pair[1] if solver == pair[0] else pair[0]]
