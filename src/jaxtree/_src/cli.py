@@ -419,6 +419,13 @@ def _parser():
     b.add_argument("--no-plots", action="store_true", help="CSV and Markdown only")
     b.add_argument("--repeats", type=_count(1), default=None, help="timed calls after the first (default 3)")
     b.add_argument("--no-progress", action="store_true", help="no progress bar")
+    b.add_argument(
+        "--merge",
+        nargs="+",
+        metavar="DIR",
+        default=None,
+        help="merge the reports saved in these folders (runs of parts of the cases) into --out; runs nothing",
+    )
 
     sub.add_parser("sample", help="the seed's sample problem (the default without a subcommand)", add_help=False)
     return p
@@ -493,6 +500,19 @@ def cmd_bench(args) -> int:
     if not args.no_plots:
         _matplotlib()
     command = "jaxtree " + " ".join(getattr(args, "argv", ["bench"]))
+    if args.merge:
+        from .bench import BenchReport
+
+        parts = []
+        for d in args.merge:
+            try:
+                parts.append(BenchReport.load(d))
+            except (OSError, ValueError, TypeError) as e:
+                raise UserError(f"--merge: no report in {d!r} ({e})") from None
+        report = BenchReport.merge(parts, command=command.strip())
+        paths = report.save(args.out, plots=not args.no_plots)
+        _say(f"wrote {paths['csv']}, {paths['md']} ({len(report.rows)} runs from {len(parts)} reports)")
+        return 0
     t = time.perf_counter()
     report = work_precision(
         cases or None,
