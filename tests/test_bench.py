@@ -152,3 +152,30 @@ def test_bench_command_mistakes_print_one_line(capsys):
     with pytest.raises(SystemExit) as e:
         cli.main(["bench", "--help"])
     assert e.value.code == 0 and "stiff_1e8" in capsys.readouterr().out
+
+
+def test_reports_run_in_parts_merge_in_case_order(tmp_path):
+    """Two parts saved apart (JSON beside CSV and Markdown) load back and merge: rows in the order
+    of jaxtree's case list, references and the solver choices of both parts, both commands named."""
+    from jaxtree._src.bench import BenchReport
+
+    def part(case, command):
+        row = dict(case=case, group="reference", formulation="full", engine="jaxtree", solver="Dopri8",
+                   method="jaxtree Dopri8", setting=1e-6, status="ok", error=2e-7, time_s=0.01, compile_s=1.0,
+                   steps=10, rejected=0, rhs=130, energy_drift=math.nan, momentum_drift=1e-12, note="")  # fmt: skip
+        ref = dict(primary="Dopri8", secondary="Tsit5", floor=1e-11, description=case)
+        return BenchReport([row], "machine", "2026-11-24 17:00 UTC", {case: ref}, {case: "Dopri8 (auto)"}, {},
+                           dict(command=command))  # fmt: skip
+
+    part("wings", "jaxtree bench wings").save(tmp_path / "b", plots=False)
+    part("fig4", "jaxtree bench fig4").save(tmp_path / "a", plots=False)
+    loaded = [BenchReport.load(tmp_path / d) for d in ("b", "a")]
+    assert math.isnan(loaded[0].rows[0]["energy_drift"]) and loaded[0].rows[0]["steps"] == 10
+    merged = BenchReport.merge(loaded, command="jaxtree bench --merge b a")
+    assert merged.cases() == ["fig4", "wings"] and set(merged.auto) == {"fig4", "wings"}
+    text = merged.to_markdown()
+    assert "`jaxtree bench wings`" in text and "`jaxtree bench fig4`" in text and "## fig4 (reference)" in text
+    rc = cli.main(
+        ["bench", "--merge", str(tmp_path / "a"), str(tmp_path / "b"), "--no-plots", "--out", str(tmp_path / "m")]
+    )
+    assert rc == 0 and BenchReport.load(tmp_path / "m").cases() == ["fig4", "wings"]
