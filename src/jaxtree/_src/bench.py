@@ -315,7 +315,10 @@ def _drifts(sol) -> tuple[float, float]:
         return math.nan, math.nan
     e, h = e[ok], h[ok]
     de = float(np.abs(e - e[0]).max() / max(abs(e[0]), 1e-300))
-    dh = float(np.linalg.norm(h - h[0], axis=1).max() / max(np.linalg.norm(h[0]), 1e-300))
+    # relative to the initial momentum, or to the momentum scale of the run when it starts with none
+    # (chain50, the stiff chains): max |h - h0| / max(|h0|, max |h|, tiny)
+    scale = max(float(np.linalg.norm(h[0])), float(np.linalg.norm(h, axis=1).max()), 1e-300)
+    dh = float(np.linalg.norm(h - h[0], axis=1).max() / scale)
     return de, dh
 
 
