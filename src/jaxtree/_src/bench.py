@@ -307,7 +307,7 @@ def _stats_row(sol, span):
     return steps, int(st["num_rejected_steps"]), rhs, t_final
 
 
-def _drifts(sol) -> tuple[float, float]:
+def _drifts(sol, model: Model) -> tuple[float, float]:
     e = np.asarray(sol.energy, float)
     h = np.asarray(sol.angular_momentum, float)
     ok = np.isfinite(e) & np.all(np.isfinite(h), 1)
@@ -315,9 +315,14 @@ def _drifts(sol) -> tuple[float, float]:
         return math.nan, math.nan
     e, h = e[ok], h[ok]
     de = float(np.abs(e - e[0]).max() / max(abs(e[0]), 1e-300))
-    # relative to the initial momentum, or to the momentum scale of the run when it starts with none
-    # (chain50, the stiff chains): max |h - h0| / max(|h0|, max |h|, tiny)
-    scale = max(float(np.linalg.norm(h[0])), float(np.linalg.norm(h, axis=1).max()), 1e-300)
+    # relative to the initial momentum, or, for a run that starts with little or none (chain50, the
+    # stiff chains), to sqrt(2 E J_max): the momentum of the whole vehicle turning rigidly with the
+    # run's initial energy about its axis of largest inertia
+    from .dynamics import mass_matrix
+
+    J = np.asarray(mass_matrix(model, model.initial.gamma), float)[:3, :3]
+    rigid = math.sqrt(2.0 * abs(float(e[0])) * float(np.linalg.eigvalsh(J).max()))
+    scale = max(float(np.linalg.norm(h[0])), rigid, 1e-300)
     dh = float(np.linalg.norm(h - h[0], axis=1).max() / scale)
     return de, dh
 
@@ -336,7 +341,7 @@ def _jaxtree_row(case, form, solver, setting, call, ref, repeats, budget, cap, c
         stalled = steps + rejected >= cap
         status = "stalled" if stalled else ("unstable" if solver == "RK4" else "failed")
         note = f"stopped at t = {t_final:.4g} of {case.t1:g} s" + (f" after {cap} steps" if stalled else "")
-    de, dh = _drifts(sol) if ok and form in ("full", "float32") else (math.nan, math.nan)
+    de, dh = _drifts(sol, case.model) if ok and form in ("full", "float32") else (math.nan, math.nan)
     if not conservative:
         de = math.nan  # damped hinges: the energy is not conserved
     return _row_of(
