@@ -713,7 +713,7 @@ def _time_scale(md, sigma: np.ndarray) -> np.ndarray:
 
 
 def _select(sigma, candidates, n, cutoff, where):
-    """Indices of the retained modes among `candidates` (ascending frequency): those up to
+    """Indices of the retained modes among `candidates` (ascending rate, :func:`_time_scale`): those up to
     `cutoff`, the first `n` of them, and the rest of a repeated frequency the n-th belongs to."""
     cand = [j for j in candidates if cutoff is None or sigma[j] <= float(cutoff)]
     if n is not None:
