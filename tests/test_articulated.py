@@ -3,6 +3,8 @@ references: the Lagrange oracle of tests/oracle.py (kinetic energy by autodiff),
 differences for gradients, and the dense solve only where that is itself checked against the
 oracle (test_dynamics.py). Small block sizes force several block levels, ports and padding."""
 
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -205,3 +207,39 @@ def test_float32(scenes):
     acc = accelerations(m32, s32, 0.0, None)
     assert acc.gamma_ddot.dtype == jnp.float32
     assert rel(acc.gamma_ddot, ref.gamma_ddot) < 1e-3
+
+
+def test_eliminate_against_numpy():
+    """_math.eliminate (the block recursion's LAPACK-free factorization): A11^{-1} A12, the Schur
+    complement and the LDL^T pivots of a stack of SPD matrices, against numpy's solve and
+    Cholesky."""
+    from jaxtree._src._math import eliminate
+
+    rng = np.random.default_rng(5)
+    X = rng.normal(size=(4, 11, 11))
+    A = X @ np.swapaxes(X, -1, -2) + 0.5 * np.eye(11)
+    G, S, piv = eliminate(jnp.asarray(A), 7)
+    A11, A12, A21, A22 = A[:, :7, :7], A[:, :7, 7:], A[:, 7:, :7], A[:, 7:, 7:]
+    assert rel(G, np.linalg.solve(A11, A12)) < 1e-12
+    assert rel(S, A22 - A21 @ np.linalg.solve(A11, A12)) < 1e-12
+    assert rel(piv, np.diagonal(np.linalg.cholesky(A11), axis1=-2, axis2=-1) ** 2) < 1e-12
+
+
+def test_no_lapack_calls_in_the_articulated_recursion(scenes):
+    """jaxlib 0.10's batched CPU LAPACK kernels can deadlock XLA's thread pool when two run at
+    once (simulate on chain50 hung that way): the recursion, its vmap and its Jacobian (what
+    an implicit solver evaluates) compile to no LAPACK call."""
+    model = scenes["chain50"].with_method("articulated")
+    s = model.initial
+    y = jnp.concatenate([s.omega0, s.gamma, s.gamma_dot])
+
+    def rhs(y):
+        acc = jaxtree.solve_accelerations(model, s._replace(omega0=y[:3], gamma=y[3 : 3 + model.n]), 0.0, None)
+        return jnp.concatenate([acc.omega0_dot, acc.gamma_ddot])
+
+    for f, x in [(rhs, y), (jax.jacfwd(rhs), y), (jax.vmap(rhs), jnp.stack([y, y]))]:
+        text = jax.jit(f).lower(x).compile().as_text()
+        assert "custom_call_target" not in text, re.findall(r'custom_call_target="([^"]+)"', text)
+    # the check sees LAPACK where it is: the dense solve's factorization is one
+    dense = jax.jit(lambda m: jaxtree.solve_accelerations(m, m.initial)).lower(model.with_method("dense"))
+    assert "lapack" in " ".join(re.findall(r'custom_call_target="([^"]+)"', dense.compile().as_text()))

@@ -179,3 +179,26 @@ def test_reports_run_in_parts_merge_in_case_order(tmp_path):
         ["bench", "--merge", str(tmp_path / "a"), str(tmp_path / "b"), "--no-plots", "--out", str(tmp_path / "m")]
     )
     assert rc == 0 and BenchReport.load(tmp_path / "m").cases() == ["fig4", "wings"]
+
+
+def test_a_reference_that_cannot_meet_its_tolerance_runs_looser_and_a_singular_start_is_refused(monkeypatch):
+    """A reference solver whose steps collapse at the reference tolerance (Kvaerno5 at 1e-12 on
+    the 1e8-stiff chain; here every solver at an impossible 1e-30) runs at the fallback, and the
+    report names it; a float32 run from a start that is singular in float32 (gimbal frames 1e-3
+    rad from lock) is *refused*, not *failed*, and the findings say there were no failed runs."""
+    from jaxtree._src import bench
+
+    monkeypatch.setattr(bench, "REFERENCE_TOL", 1e-30)
+    monkeypatch.setattr(bench, "REFERENCE_FALLBACK", (1e-9,))
+    base = jaxtree.bench_case("gimbal_lock")
+    case = bench.BenchCase("gimbal_lock", "extreme", base.description, base.model, 0.5, n_save=6)
+    report = jaxtree.work_precision(
+        [case], solvers=["Dopri8"], formulations=["float32"], peers=False, repeats=1, progress=False
+    )
+    ref = report.references["gimbal_lock"]
+    assert ref["primary_tol"] == ref["secondary_tol"] == 1e-9 and ref["floor"] < 1e-7
+    text = report.to_markdown()
+    assert "References Dopri8 (rtol 1e-09) / Tsit5 (rtol 1e-09)" in text
+    first = report.rows[0]
+    assert first["status"] == "refused" and "singular" in first["note"], first
+    assert "Failed runs: none." in text and "Refused by `simulate`'s checks" in text

@@ -16,9 +16,49 @@ import numpy as np
 SINGULAR_PIVOT = 20.0
 
 
+def regular_pivots(pivots, A):
+    """False when one of the k `pivots` of the LDL^T factorization of `A` (..., m, m; its first
+    k rows, see :func:`eliminate`) is at round-off level: the test of :func:`regular`."""
+    k = pivots.shape[-1]
+    scaled = pivots / jnp.diagonal(A, axis1=-2, axis2=-1)[..., :k]
+    tol = SINGULAR_PIVOT * float(np.sqrt(k)) * float(jnp.finfo(A.dtype).eps)
+    return jnp.all(scaled > tol)  # NaN pivots fail too
+
+
 def regular(L, A):
     """False when a pivot of the factor `L` of `A` (m x m, batched) is at round-off level."""
     m = A.shape[-1]
     pivot = jnp.diagonal(L, axis1=-2, axis2=-1) ** 2 / jnp.diagonal(A, axis1=-2, axis2=-1)
     tol = SINGULAR_PIVOT * float(np.sqrt(m)) * float(jnp.finfo(A.dtype).eps)
     return jnp.min(pivot) > tol  # a failed factorization (NaN) is singular too
+
+
+# ----------------------------------------------------------------------------- small batched eliminations
+# jaxlib 0.10's CPU LAPACK kernels (potrf, trsm) split a batch over XLA:CPU's intra-op thread pool
+# and block one pool thread until the parts are done (``ParallelBatchMap``). Two such kernels that
+# XLA runs concurrently (independent thunks of one program, e.g. a primal and a tangent solve under
+# ``jax.jacfwd``) can hold every thread of a small pool while waiting for work queued behind each
+# other: the articulated recursion of Eq. (1) hung that way on chain50 on a 2-core machine
+# (benchmarks/FINDINGS.md). The stacks of small matrices of the block recursion are therefore
+# eliminated here by unrolled rank-one updates vectorized over the stack: no library call, no
+# thread pool.
+
+
+def eliminate(A, k: int):
+    """Gauss-Jordan elimination of the first `k` pivots of the symmetric positive definite stack
+    `A` (..., m, m) = ``[[A11, A12], [A21, A22]]`` (A11: k x k), without pivoting (SPD: the
+    pivots are positive). Returns ``(G, S, pivots)``: ``G = A11^{-1} A12`` (..., k, m - k), the
+    Schur complement ``S = A22 - A21 A11^{-1} A12`` (..., m - k, m - k) and the k pivots
+    (..., k), those of A's LDL^T factorization (``d_i^2`` of its Cholesky factor)."""
+    m = A.shape[-1]
+    eye = np.eye(m)
+    pivots = []
+    for j in range(k):
+        d = A[..., j, j]
+        # row j / d, and every other row minus its multiple of it: one rank-one update
+        A = (
+            A
+            - (A[..., :, j] - jnp.asarray(eye[j], A.dtype))[..., :, None] * (A[..., j, :] / d[..., None])[..., None, :]
+        )
+        pivots.append(d)
+    return A[..., :k, k:], A[..., k:, k:], jnp.stack(pivots, -1)

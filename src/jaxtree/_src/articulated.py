@@ -62,7 +62,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._math import regular as _regular
+from ._math import eliminate
+from ._math import regular_pivots as _regular_pivots
 from .kinematics import ancestor_sum, cross, dot, mv
 
 METHODS = ("auto", "dense", "articulated")
@@ -333,23 +334,22 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
     dport = cbar[np.where(bp.port >= 0, bp.port, 0)] - cpar  # bias of the port relative to the parent
     Xh = _homogeneous(jnp.broadcast_to(jnp.eye(6, dtype=dtype), Cm.shape), dport, corner=1.0, lower=False)
     N = jnp.concatenate([jnp.swapaxes(Lmat, -1, -2), Xh], -1)  # (m, 7, b + 7)
-    # Minimizing Z over gamma_ddot is a Schur complement: a Cholesky factorization of M (with a
-    # huge corner, which does not change the first b columns of the factor) gives L21, and the
-    # articulated inertia of the block is P = M[corner] - L21 L21^T (see _bordered).
-    corner = jnp.asarray(np.finfo(np.dtype(dtype)).max / 64 * np.diag(np.r_[np.zeros(b), np.ones(7)]), dtype)
+    # Minimizing Z over gamma_ddot is a Schur complement: eliminating the block's b hinge
+    # accelerations from M = [[A, K], [K^T, C]] leaves the articulated inertia of the block,
+    # P = C - K^T A^{-1} K, and G = A^{-1} K for the outward pass (_math.eliminate: no LAPACK
+    # call, whose batched CPU kernels can deadlock XLA's thread pool).
 
     # ------------------------------------------------------------------ inward over block levels
     m = len(bp.parent)
     P = [None] * m
-    factors: list = [None] * m  # every slot is filled level by level below
+    gains: list = [None] * m  # G of every block, filled level by level below
     ok = jnp.asarray(True)  # no pivot at round-off level (see jaxtree.dynamics.SINGULAR_PIVOT)
     leaves = np.asarray([j for j in range(m) if not bp.children[j]], np.int64)
     if len(leaves):
-        Lf = jax.lax.linalg.cholesky(M0[leaves] + corner, symmetrize_input=False)
-        ok = _regular(Lf[..., :b, :b], M0[leaves][..., :b, :b])
-        Pl = C[leaves] - _gram(Lf[..., b:, :b])
+        Gl, Pl, piv = eliminate(M0[leaves], b)
+        ok = _regular_pivots(piv, M0[leaves])
         for i, j in enumerate(leaves):
-            P[j], factors[j] = Pl[i], Lf[i]
+            P[j], gains[j] = Pl[i], Gl[i]
     for level in reversed(bp.levels):
         ported = np.asarray([j for j in level if bp.children[j]], np.int64)
         if not len(ported):
@@ -357,27 +357,24 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
         Pout = jnp.stack([sum(P[c] for c in bp.children[j]) for j in ported])
         Nl = N[ported]
         Mp = M0[ported] + jnp.einsum("jia,jik,jkb->jab", Nl, Pout, Nl)
-        Lf = jax.lax.linalg.cholesky(Mp + corner, symmetrize_input=False)
-        ok = ok & _regular(Lf[..., :b, :b], Mp[..., :b, :b])
-        Pp = Mp[..., b:, b:] - _gram(Lf[..., b:, :b])
+        Gp, Pp, piv = eliminate(Mp, b)
+        ok = ok & _regular_pivots(piv, Mp)
         for i, j in enumerate(ported):
-            P[j], factors[j] = Pp[i], Lf[i]
+            P[j], gains[j] = Pp[i], Gp[i]
     # body 0: its own inertia and bias, and the articulated inertias of the blocks on it
     P0 = _homogeneous(_inertia_matrix(J[0], h[0], mass[0]), W[0]) + sum(P[c] for c in bp.root_children)
-    L0 = jax.lax.linalg.cholesky(P0[:6, :6], symmetrize_input=False)
-    ok = ok & _regular(L0, P0[:6, :6])
-    a0 = -_cho_solve(L0, P0[:6, 6][:, None])[:, 0]
+    G0, _, piv0 = eliminate(P0, 6)
+    ok = ok & _regular_pivots(piv0, P0)
+    a0 = -G0[:, 0]
 
     # ------------------------------------------------------------------ outward
-    # gamma_ddot = -M11^{-1} M12 a~ = -L11^{-T} L21^T a~, and the port's acceleration is N (gamma_ddot, a~)
-    F = jnp.stack(factors)  # (m, b + 7, b + 7)
-    L11, L21 = F[..., :b, :b], F[..., b:, :b]
+    # gamma_ddot = -M11^{-1} M12 a~ = -G a~, and the port's acceleration is N (gamma_ddot, a~)
+    G = jnp.stack(gains)  # (m, b, 7)
     ported = [j for j in range(m) if bp.children[j]]
     T = {}
     if ported:
         pa = np.asarray(ported, np.int64)
-        Z = _tri(L11[pa], jnp.swapaxes(L21[pa], -1, -2), transpose=True)  # M11^{-1} M12 (b x 7)
-        Tp = Xh[pa] - jnp.einsum("jai,jak->jik", Lmat[pa], Z)  # port acceleration = T a~
+        Tp = Xh[pa] - jnp.einsum("jai,jak->jik", Lmat[pa], G[pa])  # port acceleration = T a~
         T = {j: Tp[i] for i, j in enumerate(ported)}
     base = jnp.concatenate([a0, jnp.ones((1,), dtype)])
     at: list = [None] * m  # homogeneous acceleration of each block's parent
@@ -392,7 +389,7 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
             if bp.parent_block[j] < 0:
                 at[j] = base
     atp = jnp.stack(at)
-    qdd = -_tri(L11, jnp.einsum("jka,jk->ja", L21, atp)[..., None], transpose=True)[..., 0] * unk
+    qdd = -jnp.einsum("jak,jk->ja", G, atp) * unk
     # the block slots back in hinge order (a static permutation; padding slots dropped)
     flat = bp.hinge.reshape(-1)
     order = np.full(n, flat.size, np.int64)
@@ -423,21 +420,6 @@ def _homogeneous(M, v, corner=0.0, lower=True):
     return jnp.concatenate([jnp.concatenate([M, col], -1), jnp.concatenate([row, c], -1)], -2)
 
 
-def _tri(L, B, transpose=False):
-    """Solve ``L x = B`` (or ``L^T x = B``) for lower-triangular stacks L."""
-    return jax.lax.linalg.triangular_solve(L, B, left_side=True, lower=True, transpose_a=transpose)
-
-
 def _gram(X):
     """``X X^T`` for stacks."""
     return jnp.einsum("...ik,...jk->...ij", X, X)
-
-
-def _cho_solve(L, B):
-    y = jax.lax.linalg.triangular_solve(L, B, left_side=True, lower=True)
-    return jax.lax.linalg.triangular_solve(L, y, left_side=True, lower=True, transpose_a=True)
-
-
-def _spd_solve(A, b):
-    L = jax.lax.linalg.cholesky(A, symmetrize_input=False)
-    return _cho_solve(L, b[:, None])[:, 0]
