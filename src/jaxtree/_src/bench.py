@@ -327,10 +327,10 @@ def _jaxtree_row(case, form, solver, setting, call, ref, repeats, budget, cap, c
     median = first
     if ok:
         _, _, median = _timed(call, repeats, budget, first_done=(sol, first))
-    elif _failure_kind(sol) in REFUSALS:
+    elif (kind := _failure_kind(sol)) in REFUSALS:
         # simulate's checks refused the initial state (in float32, gimbal frames 1e-3 rad from lock
         # leave a pivot of Eq. 1 at round-off level): the verdict is the state's, not the solver's
-        status, note = "refused", REFUSALS[_failure_kind(sol)]
+        status, note = "refused", REFUSALS[kind]
     else:
         stalled = steps + rejected >= cap
         status = "stalled" if stalled else ("unstable" if solver == "RK4" else "failed")

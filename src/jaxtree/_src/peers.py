@@ -140,6 +140,7 @@ def pinocchio_runner(model, ts):
 
     def run(method, rtol, atol):
         implicit = method in ("Radau", "BDF", "LSODA")
+        options: dict[str, Any] = {"jac": jac} if implicit else {}
         t = time.perf_counter()
         r = solve_ivp(
             rhs,
@@ -149,7 +150,7 @@ def pinocchio_runner(model, ts):
             rtol=rtol,
             atol=atol,
             t_eval=ts,
-            **({"jac": jac} if implicit else {}),
+            **options,
         )
         wall = time.perf_counter() - t
         if r.status != 0 or r.y.shape[1] != ts.size:
