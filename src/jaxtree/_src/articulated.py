@@ -35,19 +35,20 @@ from one parent body, whose child blocks all hang from one body of it, its *port
 over a block's accelerations for a given acceleration ``a`` of its parent leaves a quadratic
 ``(a, 1) . P (a, 1) / 2`` (P: 7 x 7, its articulated inertia and bias force, homogeneous in the
 last coordinate). With the block's joint-space matrix ``A`` (dense, its own hinges only), the
-coupling ``K`` to the parent's acceleration, the map ``L`` from its accelerations to the port's
-and ``X`` the port's bias, and the articulated inertia ``P_out`` of its child blocks (summed at
-the port), Woodbury's identity gives
+coupling ``K`` to the parent's acceleration, its composite inertia and bias ``C``, the map
+``N = [L, X]`` from its accelerations and the parent's to the port's acceleration, and the
+articulated inertia ``P_out`` of its child blocks (summed at the port), Z restricted to the block
+and everything outboard of it is the quadratic form of
 
-    P = C0 + (X - G)^T P_out (U + W P_out)^{-1} (X - G),
-    G = L A^{-1} K,  W = L A^{-1} L^T,  C0 = C - K^T A^{-1} K,
+    M = [[A, K], [K^T, C]] + N^T P_out N
 
-so the inward pass over the levels of the block tree needs one 7 x 7 solve per block; ``A`` is
-factored once per block, all blocks at once. The accelerations follow outward:
-``a_port = (U + W P_out)^{-1} (X - G) a`` and
-``gamma_ddot = -A^{-1} (K + L^T P_out (U + W P_out)^{-1} (X - G)) a``.
+in ``(gamma_ddot, a, 1)``. Eliminating the b hinge accelerations (:func:`jaxtree._src._math.eliminate`:
+b Gauss-Jordan rank-one updates, the blocks of one level at once, no LAPACK call) leaves the
+Schur complement ``P = M22 - M21 M11^{-1} M12`` for the block's parent and ``G = M11^{-1} M12``
+for the way out: ``gamma_ddot = -G (a, 1)``, and the port's acceleration is
+``N (gamma_ddot, a, 1)``.
 
-The cost is O(n b^2) for the blocks (b their size) plus a few 7 x 7 operations per block level:
+The cost is O(n (b + 7)^2) for the blocks (b their size) plus a few 7 x 7 operations per block level:
 linear in n for chains cut into blocks of fixed size, and one level for a hub with appendages.
 :func:`jaxtree.dynamics.solve_accelerations` uses it when ``model.method`` says so
 (:func:`resolve_method`).
