@@ -334,7 +334,13 @@ def _jaxtree_row(case, form, solver, setting, call, ref, repeats, budget, cap, c
     else:
         stalled = steps + rejected >= cap
         status = "stalled" if stalled else ("unstable" if solver == "RK4" else "failed")
+        if not stalled and kind == "dt_min" and solver != "RK4":
+            # the controller rejected steps down to the minimum step: the solver's verdict on the
+            # case, like a stall (KenCarp4 with the whole right side implicit on the stiffest chain)
+            status = "collapsed"
         note = f"stopped at t = {t_final:.4g} of {case.t1:g} s" + (f" after {cap} steps" if stalled else "")
+        if status == "collapsed":
+            note += ": the step size collapsed"
     de, dh = _drifts(sol, case.model) if ok and form in ("full", "float32") else (math.nan, math.nan)
     if not conservative:
         de = math.nan  # damped hinges: the energy is not conserved
@@ -511,11 +517,14 @@ class BenchReport:
                     tally = wins.setdefault(group, {})
                     tally[r["solver"]] = tally.get(r["solver"], 0) + 1
         out.append("")
-        stalls = [r for r in self.rows if r["engine"] == "jaxtree" and r["status"] in ("stalled", "unstable")]
+        stalls = [
+            r for r in self.rows if r["engine"] == "jaxtree" and r["status"] in ("stalled", "collapsed", "unstable")
+        ]
         if stalls:
             out.append(
-                f"Runs held at the step cap ({STEP_CAP} explicit, {IMPLICIT_STEP_CAP} implicit steps: *stalled*) or "
-                "beyond RK4's stability region (*unstable*, not run):"
+                f"Runs held at the step cap ({STEP_CAP} explicit, {IMPLICIT_STEP_CAP} implicit steps: *stalled*), "
+                "whose step size collapsed below the minimum step (*collapsed*) or beyond RK4's stability region "
+                "(*unstable*, not run):"
             )
             by_case: dict[str, list[str]] = {}
             for r in stalls:
