@@ -529,7 +529,8 @@ class BenchReport:
             by_case: dict[str, list[str]] = {}
             for r in stalls:
                 kind = "implicit" if r["solver"] in IMPLICIT else "explicit"
-                by_case.setdefault(r["case"], []).append(f"{r['solver']} ({kind}) {_setting(r)} {r['status']}")
+                form = "" if r["formulation"] == "full" else f" [{r['formulation']}]"
+                by_case.setdefault(r["case"], []).append(f"{r['solver']}{form} ({kind}) {_setting(r)} {r['status']}")
             out += [f"- {c}: " + ", ".join(v) for c, v in by_case.items()]
             out.append("")
         failed = [r for r in self.rows if r["status"] == "failed"]
