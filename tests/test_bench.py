@@ -185,7 +185,8 @@ def test_a_reference_that_cannot_meet_its_tolerance_runs_looser_and_a_singular_s
     """A reference solver whose steps collapse at the reference tolerance (Kvaerno5 at 1e-12 on
     the 1e8-stiff chain; here every solver at an impossible 1e-30) runs at the fallback, and the
     report names it; a float32 run from a start that is singular in float32 (gimbal frames 1e-3
-    rad from lock) is *refused*, not *failed*, and the findings say there were no failed runs."""
+    rad from lock) is *refused* and a run whose step size collapses is *collapsed*, not *failed*,
+    and the findings say there were no failed runs."""
     from jaxtree._src import bench
 
     monkeypatch.setattr(bench, "REFERENCE_TOL", 1e-30)
@@ -193,12 +194,15 @@ def test_a_reference_that_cannot_meet_its_tolerance_runs_looser_and_a_singular_s
     base = jaxtree.bench_case("gimbal_lock")
     case = bench.BenchCase("gimbal_lock", "extreme", base.description, base.model, 0.5, n_save=6)
     report = jaxtree.work_precision(
-        [case], solvers=["Dopri8"], formulations=["float32"], peers=False, repeats=1, progress=False
-    )
+        [case], solvers=["Dopri8"], tolerances=[1e-30], formulations=["full", "float32"], peers=False, repeats=1,
+        progress=False,
+    )  # fmt: skip
     ref = report.references["gimbal_lock"]
     assert ref["primary_tol"] == ref["secondary_tol"] == 1e-9 and ref["floor"] < 1e-7
     text = report.to_markdown()
     assert "References Dopri8 (rtol 1e-09) / Tsit5 (rtol 1e-09)" in text
-    first = report.rows[0]
-    assert first["status"] == "refused" and "singular" in first["note"], first
-    assert "Failed runs: none." in text and "Refused by `simulate`'s checks" in text
+    rows = {r["formulation"]: r for r in report.rows}
+    # Dopri8 cannot meet 1e-30: its controller rejects steps down to the minimum step
+    assert rows["full"]["status"] == "collapsed" and "collapsed" in rows["full"]["note"], rows["full"]
+    assert rows["float32"]["status"] == "refused" and "singular" in rows["float32"]["note"], rows["float32"]
+    assert "Failed runs: none." in text and "Refused by `simulate`'s checks" in text and "(*collapsed*)" in text
