@@ -419,8 +419,3 @@ def _homogeneous(M, v, corner=0.0, lower=True):
     row = v[..., None, :] if lower else jnp.zeros_like(v)[..., None, :]
     c = jnp.full(v.shape[:-1] + (1, 1), corner, v.dtype)
     return jnp.concatenate([jnp.concatenate([M, col], -1), jnp.concatenate([row, c], -1)], -2)
-
-
-def _gram(X):
-    """``X X^T`` for stacks."""
-    return jnp.einsum("...ik,...jk->...ij", X, X)
