@@ -36,6 +36,7 @@ from __future__ import annotations
 
 from typing import NamedTuple, Protocol, overload
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -274,17 +275,27 @@ def external_loads(model: Model, t, state: State, cfg: _Rotations):
     return bodies, mv(R, F.astype(dtype)), mv(R, T.astype(dtype))
 
 
-def _wrenches(model, cfg, omega, gamma_dot, loads):
+def _wrenches(model, cfg, omega, gamma_dot, loads, accelerations=None):
     """Def. 41 per massive body: the moment about the system mass center and the force of the
     velocity-product (gyroscopic, centripetal) inertia loads, with the mass-center share of the
-    external force (massive bodies x 6). Their outboard sums make the right side of Eq. (1)."""
+    external force (massive bodies x 6). Their outboard sums make the right side of Eq. (1).
+
+    With `accelerations` ``(omega0_dot (3,), gamma_ddot (n,))`` the inertia loads of those
+    accelerations are included: the outboard sums then make ``rhs - A x`` (the unbalanced
+    generalized force of :func:`_unbalanced`), without assembling A."""
     topo = model.topology
     par = _parents(model)
     dtype = cfg.rho.dtype
     G = cfg.axis
-    zero = jnp.zeros((1, 3), dtype)
     # velocity-product parts of the angular accelerations: sum_r epsilon_{rk} gamma_dot_r (omega^r x g^r)
-    alpha = ancestor_sum(topo, jnp.concatenate([zero, cross(omega[par], G) * gamma_dot[:, None]], 0))
+    rates = cross(omega[par], G) * gamma_dot[:, None]
+    if accelerations is None:
+        root = jnp.zeros((1, 3), dtype)
+    else:
+        root = accelerations[0].astype(dtype)[None, :]
+        rates = rates + G * accelerations[1].astype(dtype)[:, None]
+    zero = jnp.zeros((1, 3), dtype)
+    alpha = ancestor_sum(topo, jnp.concatenate([root, rates], 0))
     wp, ap, wk, ak = omega[par], alpha[par], omega[1:], alpha[1:]
     inc = (
         cross(ap, cfg.to_hinge)
@@ -390,6 +401,20 @@ def _solve_accelerations(model, state, t, tau, completed=None):
         state, gdd_p = _complete_state(model, t, state)
     else:
         gdd_p = completed if model.prescription is not None else None
+    dtype = _dtype(model, state.gamma, state.gamma_dot, state.omega0)
+    state = State(*(jnp.asarray(x, dtype) for x in state))
+    return _solve_completed(model, state, jnp.asarray(t, dtype), tau, gdd_p)
+
+
+@eqx.filter_custom_jvp
+def _solve_completed(model, state, t, tau, gdd_p):
+    """Eq. (1) for a state completed with its prescribed hinges (their accelerations `gdd_p`), by
+    the model's method; its derivatives follow the implicit-function rule of
+    :func:`_solve_completed_jvp` instead of the operations of the solve."""
+    return _solve_plain(model, state, t, tau, gdd_p)
+
+
+def _solve_plain(model, state, t, tau, gdd_p):
     if articulated.resolve_method(model) == "articulated":
         return _solve_articulated(model, state, t, tau, gdd_p)
     A, rhs = rotational_equations(model, state, t, tau)
@@ -406,6 +431,119 @@ def _solve_accelerations(model, state, t, tau, completed=None):
     x = jnp.concatenate([xu[:3], gdd])
     hold = A[p] @ x - rhs[p]
     return Accelerations(x[:3], gdd, hold)
+
+
+def _full_accelerations(model, x_u, gdd_p):
+    """``(omega0_dot, gamma_ddot)`` from the unknowns `x_u` (omega0_dot, then the unknown hinges)
+    and the prescribed accelerations (inert hinges: zero)."""
+    _, _, inverse = _hinges.split(model)
+    parts = [x_u[3:]] + ([] if gdd_p is None else [gdd_p]) + [jnp.zeros((len(model.inert),), x_u.dtype)]
+    return x_u[:3], jnp.concatenate(parts)[inverse]
+
+
+def _unbalanced(model, state, t, tau, omega0_dot, gamma_ddot):
+    """The unbalanced generalized force ``rhs - A x`` of Eq. (1) at accelerations ``x =
+    (omega0_dot, gamma_ddot)`` (n + 3,), by one pass of inverse dynamics: the inertia loads of
+    the accelerations join the velocity-product loads of Def. 41 (:func:`_wrenches`), so A is
+    never assembled. Zero in the rows of the unknowns at the solution; minus the holding torques
+    in the rows of prescribed hinges."""
+    cfg, omega = _configuration(model, state.gamma, state.omega0, state.gamma_dot)
+    torque = hinge_torques(model, state.gamma, state.gamma_dot)
+    if tau is not None:
+        torque = torque + tau
+    loads = external_loads(model, t, state, cfg)
+    wrenches = _wrenches(model, cfg, omega, state.gamma_dot, loads, (omega0_dot, gamma_ddot))
+    sums = subtree_sum(model.topology, wrenches, model.massive)
+    return _rhs_from_sums(model, cfg, sums, torque, loads)
+
+
+def _differentiated(primals, tangents):
+    """The leaves of `primals` that carry a tangent, their tangents, and a function that puts new
+    values of those leaves back into `primals` (the others stay constants)."""
+    leaves, tree = jax.tree_util.tree_flatten(primals)
+    tleaves = tree.flatten_up_to(tangents)
+    idx = [i for i, tl in enumerate(tleaves) if tl is not None]
+
+    def rebuild(values):
+        out = list(leaves)
+        for i, v in zip(idx, values):
+            out[i] = v
+        return jax.tree_util.tree_unflatten(tree, out)
+
+    return [leaves[i] for i in idx], [tleaves[i] for i in idx], rebuild
+
+
+@_solve_completed.def_jvp
+def _solve_completed_jvp(primals, tangents):
+    """Derivatives of the solution of Eq. (1) by the implicit-function theorem.
+
+    Eq. (1) is ``A(p) x = b(p)``, p everything the accelerations depend on (state, parameters,
+    time, torques, prescribed accelerations). With the unbalanced force ``F(p, x) = b - A x``
+    (:func:`_unbalanced`, zero at the solution in the unknowns' rows u):
+
+        x_u' = A_uu^{-1} (dF/dp p')   and   hold' = -(dF_p/dp p') + A_pu x_u',
+
+    where ``dF/dp p'`` is one JVP of F at *fixed* x (no solve inside) and ``A_uu^{-1}`` is
+    applied to every tangent at once (``jax.jacfwd``: one solve with many right sides): with the
+    dense method's Cholesky factor, or by the articulated recursion run as a linear solver
+    (:func:`jaxtree._src.articulated.solve_linear`, no LAPACK call). Reverse mode transposes this: one solve with the same factor and one VJP
+    of F. The rule is written in JAX, so it can be differentiated again (the linearization's
+    second derivatives)."""
+    model, state, t, tau, gdd_p = primals
+    u, p, _ = _hinges.split(model)
+    rows_u = np.concatenate([np.arange(3), u + 3])
+    rows_p = p + 3
+    if articulated.resolve_method(model) == "articulated":
+        acc = _solve_articulated(model, state, t, tau, gdd_p)
+        cfg = configuration(model, state.gamma)
+        A = _mass_matrix(model, cfg)  # for the derivatives of the solve itself and A_pu only
+        Auu = A[np.ix_(rows_u, rows_u)]
+
+        def solve_u(r):
+            # declared a symmetric linear solve: reverse mode reuses the recursion (A^{-T} = A^{-1}),
+            # derivatives of A^{-1} itself (second derivatives) go through A's product
+            return jax.lax.custom_linear_solve(
+                lambda v: Auu @ v, r, lambda _, b: articulated.solve_linear(model, cfg, b), symmetric=True
+            )
+
+        A_pu = A[np.ix_(rows_p, rows_u)] if len(p) else None
+    else:
+        A, rhs = rotational_equations(model, state, t, tau)
+        Auu = A[np.ix_(rows_u, rows_u)]
+        L = jax.lax.linalg.cholesky(Auu, symmetrize_input=False)
+        rhs_u = rhs[rows_u]
+        if gdd_p is not None:
+            rhs_u = rhs_u - A[np.ix_(rows_u, rows_p)] @ gdd_p
+        x_u = jnp.where(_regular(L, Auu), _cho_apply(L, rhs_u), jnp.nan)
+        w_dot, gdd = _full_accelerations(model, x_u, gdd_p)
+        hold = A[rows_p] @ jnp.concatenate([w_dot, gdd]) - rhs[rows_p] if len(p) else jnp.zeros((0,), A.dtype)
+        acc = Accelerations(w_dot, gdd, hold)
+        solve_u = lambda r: _cho_apply(L, r)  # noqa: E731
+        A_pu = A[np.ix_(rows_p, rows_u)]
+    x_u = jnp.concatenate([acc.omega0_dot, acc.gamma_ddot[u]])
+    values, dots, rebuild = _differentiated(primals, tangents)
+
+    def unbalanced(values):
+        m, s, tt, ta, gp = rebuild(values)
+        return _unbalanced(m, s, tt, ta, *_full_accelerations(m, x_u, gp))
+
+    if values:
+        _, F_dot = jax.jvp(unbalanced, (values,), (dots,))
+    else:
+        F_dot = jnp.zeros((model.n + 3,), x_u.dtype)
+    x_dot = solve_u(F_dot[rows_u])
+    gdd_p_dot = None if gdd_p is None else (jnp.zeros_like(gdd_p) if tangents[4] is None else tangents[4])
+    w_dot_dot, gdd_dot = _full_accelerations(model, x_dot, gdd_p_dot)
+    hold_dot = -F_dot[rows_p]
+    if A_pu is not None:
+        hold_dot = hold_dot + A_pu @ x_dot
+    return acc, Accelerations(w_dot_dot, gdd_dot, hold_dot)
+
+
+def _cho_apply(L, b):
+    """``A^{-1} b`` from the lower Cholesky factor L of A (b: a vector)."""
+    y = jax.lax.linalg.triangular_solve(L, b[:, None], left_side=True, lower=True)
+    return jax.lax.linalg.triangular_solve(L, y, left_side=True, lower=True, transpose_a=True)[:, 0]
 
 
 def _solve_articulated(model, state, t, tau, gdd_p):
