@@ -599,6 +599,12 @@ def test_implicit_solver_passes_through_on_a_stiff_hinge(scenes):
     assert maxdiff(implicit.gamma, ref.gamma) < 1e-5 and maxdiff(explicit.gamma, ref.gamma) < 1e-5
     steps = lambda sol: int(sol.stats["num_steps"])
     assert steps(implicit) * 5 < steps(explicit)
+    # jaxtree's Radau IIA keeps its Jacobian (of Eq. 1 by the implicit-function rule) over steps
+    radau = simulate(model, 1.0, saveat=11, rtol=1e-6, atol=1e-6, solver=jaxtree.Radau5())
+    assert maxdiff(radau.gamma, ref.gamma) < 1e-5 and steps(radau) * 5 < steps(explicit)
+    st = radau.stats
+    assert int(st["jacobians"]) * 3 < int(st["num_accepted_steps"]) and int(st["factorizations"]) > 0, st
+    assert int(st["newton_iterations"]) >= int(st["num_accepted_steps"])
 
 
 # ----------------------------------------------------------------------------- command line

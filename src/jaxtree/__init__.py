@@ -322,6 +322,7 @@ from ._src.plots import (
 from ._src.plots import (
     plot_work_precision as plot_work_precision,
 )
+from ._src.radau import Radau5 as Radau5
 from ._src.results import (
     load_result as load_result,
 )
@@ -451,6 +452,7 @@ __all__ = [
     "choose_solver",
     "SolverChoice",
     "RK4",
+    "Radau5",
     "default_tolerance",
     "DEFAULT_RTOL",
     "DEFAULT_ATOL",

@@ -16,12 +16,14 @@ from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import diffrax as dfx
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ._checks import SceneError, SceneTypeError, as_float, as_int, is_traced, short
 from .model import Model, State
+from .radau import Radau5
 
 # Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
 DEFAULT_RTOL = 1e-9
@@ -173,6 +175,9 @@ def integrate(
             saveat = dfx.SaveAt(ts=jnp.concatenate([ts, jnp.reshape(t1, (1,)).astype(ts.dtype)]))
         else:
             saveat = dfx.SaveAt(subs=(dfx.SubSaveAt(ts=ts), dfx.SubSaveAt(t1=True)))
+    if keeps_statistics(solver):
+        saveat = eqx.tree_at(lambda s: s.solver_state, saveat, True)  # its counters (Radau5)
+    assert saveat is not None
     sol = dfx.diffeqsolve(
         terms(solver, vector_field),
         solver,
@@ -207,6 +212,28 @@ def integrate(
         y_final = jnp.where(start_ok, y_final, y_start)
         ys_h = jnp.where(start_ok, ys_h, jnp.nan)
     return Run(ts_h, ys_h, t_final, y_final, sol)
+
+
+def keeps_statistics(solver) -> bool:
+    """Whether `solver` counts its Jacobians, factorizations and Newton iterations in its state
+    (:class:`jaxtree.Radau5`): then the final solver state is saved and the counts reported."""
+    return isinstance(solver, Radau5)
+
+
+def solver_statistics(solver, sol) -> dict:
+    """The counts of a solver that keeps them (:func:`keeps_statistics`), for ``sol.stats``:
+    ``jacobians``, ``factorizations``, ``newton_iterations`` and ``rhs_evaluations`` (right sides
+    outside the Jacobians plus one per Jacobian; accepted step attempts only: diffrax discards
+    a rejected attempt's state); empty for other solvers."""
+    if not keeps_statistics(solver) or sol.solver_state is None:
+        return {}
+    st = sol.solver_state
+    return {
+        "jacobians": st.num_jac,
+        "factorizations": st.num_lu,
+        "newton_iterations": st.num_newton,
+        "rhs_evaluations": st.num_rhs + st.num_jac,
+    }
 
 
 def default_tolerance(dtype) -> float:

@@ -413,25 +413,6 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
     return a0[:3], gdd, hold
 
 
-def solve_linear(model, cfg, rhs):
-    """``A_uu^{-1} rhs`` for the matrix of Eq. (1) at the configuration `cfg`, restricted to its
-    unknowns u (``omega0`` and the unknown hinges; `rhs` (len(u),) in that order), by the
-    recursion of :func:`solve` at rest: with no velocities, a generalized force is a hinge torque
-    in the hinges' rows and a torque on body 0 (about the system mass center, {b^0} components)
-    in the rows of ``omega0``; prescribed hinges held at zero acceleration. No LAPACK call; under
-    ``jax.vmap`` over `rhs` (the implicit-function rule's tangents) the configuration's
-    quantities are shared. Returns the solution in the same order as `rhs`."""
-    n = model.n
-    dtype = cfg.rho.dtype
-    u = np.asarray(model.unknown_hinges, np.int64) - 1
-    tau = jnp.zeros((n,), dtype).at[u].set(rhs[3:]) if len(u) < n else rhs[3:]
-    zero = jnp.zeros((n + 1, 3), dtype)
-    loads = (np.zeros(1, np.int64), jnp.zeros((1, 3), dtype), rhs[None, :3])
-    prescribed = jnp.zeros((len(model.prescribed),), dtype) if model.prescribed else None
-    w_dot, gdd, _ = solve(model, cfg, zero, zero, jnp.zeros((n,), dtype), tau, loads, prescribed)
-    return jnp.concatenate([w_dot, gdd[u]])
-
-
 def _homogeneous(M, v, corner=0.0, lower=True):
     """``[[M, v], [v^T, corner]]`` (lower=True) or ``[[M, v], [0, corner]]`` for stacks."""
     col = v[..., :, None]

@@ -13,8 +13,10 @@ user's hinge law) have eigenvalues that
 2. die out: every such eigenvalue decays below the tolerance within the first tenth of the
    span (``0.1 span |Re lambda| >= ln(1 / rtol)``).
 
-Then an L-stable implicit method (Kvaerno5) steps over the decayed modes at the step size
-the slow motion needs. A fast mode that does *not* decay (an undamped hinge spring, a
+Then an L-stable implicit method (:class:`jaxtree.Radau5`, Radau IIA of order 5, which keeps its
+Jacobian and factorizations over many steps; diffrax's Kvaerno5 forms and factors a new Jacobian
+every step: 2.5-7x slower on the stiff chains) steps over the decayed modes at the step size the
+slow motion needs. A fast mode that does *not* decay (an undamped hinge spring, a
 rotor's nutation) must be resolved by any method, and an explicit one does it at a fraction
 of an implicit step's cost: Dopri8 again. (Measured in ``benchmarks/results/work_precision``:
 the stiff chains, the fast rotor.)
@@ -41,6 +43,7 @@ import numpy as np
 
 from ._checks import is_traced
 from .model import Model, State
+from .radau import Radau5
 
 # Dopri8's stability region reaches |h lambda| of about 3 on the directions that matter here
 # (the stiff-hinge study of benchmarks/bench_stability.py: 29k steps over 1 s at 8.2e4 rad/s).
@@ -131,7 +134,7 @@ def choose_solver(
 ) -> tuple[dfx.AbstractSolver, SolverChoice]:
     """The solver for a run of `model` from `t0` to `t1` at `rtol` (see the module's text):
     ``(diffrax solver, SolverChoice)``. Dopri8 unless the linearized equations at `y0` (default
-    ``model.initial``) are stiff, then Kvaerno5."""
+    ``model.initial``) are stiff, then :class:`jaxtree.Radau5`."""
     from ._integrate import default_tolerance
 
     y0 = model.initial if y0 is None else y0
@@ -168,7 +171,7 @@ def choose_solver(
             f"stiff: modes up to {fastest:.3g} rad/s would hold an explicit method to {steps:.3g} steps, "
             "and they decay early in the run"
         )
-        return dfx.Kvaerno5(), SolverChoice("Kvaerno5", True, why, fastest, steps)
+        return Radau5(), SolverChoice("Radau5", True, why, fastest, steps)
     slow = float(mag[fast & ~decays].max())
     why = (
         f"a fast mode that does not decay ({slow:.3g} rad/s) must be resolved by any method; explicit steps "

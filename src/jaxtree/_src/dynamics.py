@@ -43,7 +43,10 @@ import numpy as np
 
 from . import _hinges, articulated
 from ._checks import is_traced
-from ._math import SINGULAR_PIVOT  # noqa: F401 (SINGULAR_PIVOT is public here)
+from ._math import (
+    SINGULAR_PIVOT,  # noqa: F401 (SINGULAR_PIVOT is public here)
+    spd_inverse,
+)
 from ._math import regular as _regular
 from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum
 from .model import Model, State
@@ -485,8 +488,9 @@ def _solve_completed_jvp(primals, tangents):
 
     where ``dF/dp p'`` is one JVP of F at *fixed* x (no solve inside) and ``A_uu^{-1}`` is
     applied to every tangent at once (``jax.jacfwd``: one solve with many right sides): with the
-    dense method's Cholesky factor, or by the articulated recursion run as a linear solver
-    (:func:`jaxtree._src.articulated.solve_linear`, no LAPACK call). Reverse mode transposes this: one solve with the same factor and one VJP
+    dense method's Cholesky factor, or for the articulated method (which calls no LAPACK routine)
+    as an inverse by Gauss-Jordan elimination in a loop (:func:`jaxtree._src._math.spd_inverse`),
+    computed once from the primal configuration and applied to all tangents by one product. Reverse mode transposes this: one solve with the same factor and one VJP
     of F. The rule is written in JAX, so it can be differentiated again (the linearization's
     second derivatives)."""
     model, state, t, tau, gdd_p = primals
@@ -496,16 +500,11 @@ def _solve_completed_jvp(primals, tangents):
     if articulated.resolve_method(model) == "articulated":
         acc = _solve_articulated(model, state, t, tau, gdd_p)
         cfg = configuration(model, state.gamma)
-        A = _mass_matrix(model, cfg)  # for the derivatives of the solve itself and A_pu only
-        Auu = A[np.ix_(rows_u, rows_u)]
-
-        def solve_u(r):
-            # declared a symmetric linear solve: reverse mode reuses the recursion (A^{-T} = A^{-1}),
-            # derivatives of A^{-1} itself (second derivatives) go through A's product
-            return jax.lax.custom_linear_solve(
-                lambda v: Auu @ v, r, lambda _, b: articulated.solve_linear(model, cfg, b), symmetric=True
-            )
-
+        A = _mass_matrix(model, cfg)
+        # the inverse of A_uu by Gauss-Jordan in a loop (no LAPACK: the articulated method's
+        # promise, see _math), shared by all tangents: one matrix product applies it to them all
+        Ainv = spd_inverse(A[np.ix_(rows_u, rows_u)])
+        solve_u = lambda r: Ainv @ r  # noqa: E731
         A_pu = A[np.ix_(rows_p, rows_u)] if len(p) else None
     else:
         A, rhs = rotational_equations(model, state, t, tau)

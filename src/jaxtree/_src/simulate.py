@@ -51,6 +51,7 @@ from ._integrate import (
     progress_meter,
     report_failures,
     result_code,
+    solver_statistics,
     warn_below_roundoff,
 )
 from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
@@ -600,6 +601,7 @@ def _solve(
         singular = _guard_any(guard_mask)
     stats = dict(sol.stats)
     stats["rhs_evaluations"] = _rhs_evaluations(solver, sol.stats, dt0 is not None)
+    stats.update(solver_statistics(solver, sol))
     R = dfx.RESULTS
     ok = (sol.result == R.successful) | ((sol.result == R.event_occurred) & ~singular)
     failure = jnp.where(
@@ -785,11 +787,13 @@ def simulate(
       the save times let the steps land on them, ``stepsize_controller=
       diffrax.PIDController(rtol=..., atol=..., step_ts=ts)``, at 2-3 more steps per save time.
     - `solver`: a diffrax solver, used as is; or ``"auto"`` (the default; None too):
-      :func:`jaxtree.choose_solver` picks Dopri8, or Kvaerno5 when the linearized equations at
-      `y0` are stiff (fast modes that decay early; a screen of the hinge laws skips the
-      linearization when nothing is close to stiff), and Dopri8 whenever the inputs are traced.
-      ``sol.stats["solver"]`` (a :class:`~jaxtree.SolverChoice`) says what ran and why. IMEX
-      solvers (``diffrax.KenCarp4`` ...) get the whole right side as their implicit part.
+      :func:`jaxtree.choose_solver` picks Dopri8, or :class:`jaxtree.Radau5` when the linearized
+      equations at `y0` are stiff (fast modes that decay early; a screen of the hinge laws skips
+      the linearization when nothing is close to stiff), and Dopri8 whenever the inputs are
+      traced. ``sol.stats["solver"]`` (a :class:`~jaxtree.SolverChoice`) says what ran and why;
+      with Radau5, ``sol.stats`` also counts its ``jacobians``, ``factorizations`` and
+      ``newton_iterations``. IMEX solvers (``diffrax.KenCarp4`` ...) get the whole right side as
+      their implicit part.
     - `stepsize_controller`: a diffrax step-size controller (used as is); default a
       :class:`diffrax.PIDController` with `rtol`, `atol`, PI coefficients 0.3 / 0.3 and a
       minimum step of 1e-12 |t1 - t0| (and an initial step from the largest rate in `y0`).
