@@ -22,6 +22,7 @@ def test_bundled_scenes_are_the_shared_reference_scenes():
         "chain50",
         "chain200",
         "panels95",
+        "flex95",
         "wings",
     } <= bundled
     if SHARED_SCENES.exists():  # in a checkout beside ../shared the copies must be identical

@@ -1,0 +1,189 @@
+#!/usr/bin/env python3
+"""Benchmark: stiff hinges and stiff appendages, jaxtree's implicit integrators against Pinocchio +
+scipy's Radau in the same run (a benchmark, not a test; issue 23's goals).
+
+Cases:
+- ``stiff``: ``jaxtree.stiff_chain(1e6)`` (chain10 with a near-rigid, damped tip hinge) over 2 s;
+  error: the largest difference of omega0 and gamma from a tight Kvaerno5 run (rtol 1e-11) at 101
+  save times; target 1e-6.
+- ``flex95``: the slew of issue 24 on the bundled ``flex95`` vehicle (rotor at 10 pi rad/s, the
+  scene's spin, a bus torque of (15, 9, 0) N m on at 1 s and off at 3 s with 0.2 s tanh edges,
+  10 s); errors: the hub rate relative to its peak and the wing angles relative to theirs,
+  against a tight Dopri8 run (rtol 1e-11) at 201 save times; targets hub 1e-3, wings 1e-2.
+
+Each method runs over a ladder of tolerances; the figure is the fastest run that meets the
+target (median of repeats, compile time apart). Pinocchio's right side is ``pin.aba`` with the
+torque on the free flyer, its Jacobian by forward differences (as ``jaxtree bench``'s peer).
+
+Run:  python benchmarks/bench_stiff.py [--cases stiff flex95] [--json PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+
+
+def _args():
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--cases", nargs="+", default=["stiff", "flex95"])
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--json")
+    return p.parse_args()
+
+
+ARGS = _args()
+if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
+
+import diffrax as dfx  # noqa: E402
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import jaxtree  # noqa: E402
+from jaxtree._src.peers import _laws, base_velocity  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _common import machine, write_json  # noqa: E402
+from _peers import pinocchio_model  # noqa: E402
+
+TORQUE = np.array([15.0, 9.0, 0.0])
+
+
+def say(*a):
+    print(*a, flush=True)
+
+
+def profile(t):
+    return jaxtree.thruster_pulse(t, 1.0, 2.0, 0.2)
+
+
+def case(name):
+    """(model, span, save times, error function from (omega0, gamma), targets, ladder of rtol)."""
+    if name == "stiff":
+        model, span = jaxtree.stiff_chain(1e6), 2.0
+        ts = np.linspace(0.0, span, 101)
+        ref = jaxtree.simulate(model, span, saveat=jnp.asarray(ts), solver=dfx.Kvaerno5(), rtol=1e-11, atol=1e-11)
+        W, G = np.asarray(ref.omega0), np.asarray(ref.gamma)
+
+        def errors(w, g):
+            return (max(np.abs(w - W).max(), np.abs(g - G).max()),)
+
+        return model, span, ts, errors, (1e-6,), (1e-4, 3e-5, 1e-5, 3e-6, 1e-6, 3e-7, 1e-7)
+    base = jaxtree.load_scene("flex95")
+    model = base.with_loads(jaxtree.BodyTorque(0, jnp.asarray(TORQUE), profile))
+    span = 10.0
+    ts = np.linspace(0.0, span, 201)
+    ref = jaxtree.simulate(model, span, saveat=jnp.asarray(ts), solver=dfx.Dopri8(), rtol=1e-11, atol=1e-11)
+    wings = np.asarray([k for k in range(1, model.n + 1) if model.names[k].startswith("wing")]) - 1
+    W, G = np.asarray(ref.omega0), np.asarray(ref.gamma)[:, wings]
+
+    def errors(w, g):
+        return np.abs(w - W).max() / np.abs(W).max(), np.abs(np.asarray(g)[:, wings] - G).max() / np.abs(G).max()
+
+    return model, span, ts, errors, (1e-3, 1e-2), (1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 3e-6, 1e-6)
+
+
+def jaxtree_run(model, span, ts, solver, rtol):
+    def call():
+        return jaxtree.simulate(model, span, saveat=jnp.asarray(ts), solver=solver, rtol=rtol, atol=rtol)
+
+    t = time.perf_counter()
+    sol = call()
+    jax.block_until_ready(sol.gamma)
+    first = time.perf_counter() - t
+    runs = []
+    for _ in range(ARGS.repeats):
+        t = time.perf_counter()
+        sol = call()
+        jax.block_until_ready(sol.gamma)
+        runs.append(time.perf_counter() - t)
+    st = sol.stats
+    work = f"{int(st['num_accepted_steps'])} steps"
+    if "jacobians" in st:
+        work += f", {int(st['jacobians'])} Jacobians, {int(st['factorizations'])} LU"
+    return np.asarray(sol.omega0), np.asarray(sol.gamma), statistics.median(runs), first, work
+
+
+def pinocchio_run(model, ts, rtol):
+    import pinocchio as pin  # pyright: ignore[reportMissingImports]
+    from scipy.integrate import solve_ivp
+
+    pm, _, iq, iv, _ = pinocchio_model(model)
+    data = pm.createData()
+    stiffness, damping = _laws(model)
+    n = model.n
+    q, v, tau = pin.neutral(pm), np.zeros(pm.nv), np.zeros(pm.nv)
+    loaded = model.loads is not None
+
+    def rhs(t, x):
+        w, g, gd, lin = x[:3], x[3 : 3 + n], x[3 + n : 3 + 2 * n], x[3 + 2 * n :]
+        q[iq] = g
+        v[:3], v[3:6], v[iv] = lin, w, gd
+        tau[iv] = -stiffness * g - damping * gd
+        if loaded:
+            tau[3:6] = TORQUE * float(profile(t))  # the free flyer's angular part: body 0's frame
+        a = pin.aba(pm, data, q, v, tau)
+        return np.concatenate([a[3:6], gd, a[iv], a[:3]])
+
+    def jac(t, x):
+        f0 = rhs(t, x)
+        cols = np.empty((x.size, x.size))
+        for i in range(x.size):
+            dx = 1.5e-8 * max(1.0, abs(x[i]))
+            xp = x.copy()
+            xp[i] += dx
+            cols[:, i] = (rhs(t, xp) - f0) / dx
+        return cols
+
+    s = model.initial
+    x0 = np.concatenate([np.asarray(s.omega0), np.asarray(s.gamma), np.asarray(s.gamma_dot), base_velocity(model)])
+    runs = []
+    for _ in range(ARGS.repeats):
+        t = time.perf_counter()
+        r = solve_ivp(rhs, (ts[0], ts[-1]), x0, method="Radau", rtol=rtol, atol=rtol, t_eval=ts, jac=jac)
+        runs.append(time.perf_counter() - t)
+    Y = r.y.T
+    return Y[:, :3], Y[:, 3 : 3 + n], statistics.median(runs), 0.0, f"{r.nfev} right sides, {r.njev} Jacobians"
+
+
+def main():
+    say(f"# bench_stiff: {machine()}")
+    results = {"machine": machine(), "cases": {}}
+    for name in ARGS.cases:
+        model, span, ts, errors, targets, ladder = case(name)
+        say(f"\n## {name}: targets {targets}")
+        methods = {
+            "jaxtree Radau5": lambda r: jaxtree_run(model, span, ts, jaxtree.Radau5(), r),
+            "jaxtree Kvaerno5": lambda r: jaxtree_run(model, span, ts, dfx.Kvaerno5(), r),
+            "Pinocchio + scipy Radau": lambda r: pinocchio_run(model, ts, r),
+        }
+        best = {}
+        rows = []
+        for label, fn in methods.items():
+            for rtol in ladder:
+                w, g, wall, first, work = fn(rtol)
+                err = errors(w, g)
+                ok = all(e <= t for e, t in zip(err, targets))
+                rows.append(dict(method=label, rtol=rtol, errors=err, wall=wall, first=first, work=work, ok=ok))
+                say(
+                    f"{label:24s} rtol {rtol:7.0e} errors {' '.join(f'{e:.2e}' for e in err)} "
+                    f"{'meets' if ok else '     '} {wall * 1e3:8.1f} ms (first {first:5.1f} s) {work}"
+                )
+                if ok:
+                    best[label] = min(best.get(label, np.inf), wall)
+                    break
+        peer = best.get("Pinocchio + scipy Radau", np.nan)
+        for label, wall in best.items():
+            say(f"best {label:24s} {wall * 1e3:8.1f} ms  ({wall / peer:.2f}x Pinocchio + Radau)")
+        results["cases"][name] = {"rows": rows, "best_s": best}
+    if ARGS.json:
+        write_json(ARGS.json, results)
+
+
+if __name__ == "__main__":
+    main()
