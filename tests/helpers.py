@@ -202,3 +202,11 @@ class ConstantLoads(jaxtree.BodyLoads):
 
     def __call__(self, t, state):
         return self.force, self.torque
+
+
+def count_equations(jaxpr) -> int:
+    """Equations of a jaxpr, those of nested jaxprs included (the solve of Eq. 1 sits inside a
+    custom_jvp call, its derivative rule)."""
+    import jax.extend.core
+
+    return sum(1 + sum(count_equations(sub) for sub in jax.extend.core.jaxprs_in_params(e.params)) for e in jaxpr.eqns)

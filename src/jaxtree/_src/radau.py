@@ -256,6 +256,8 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
     - `max_newton`: the most Newton iterations per step (RADAU5's NIT, 7).
     - `jac_refresh`: evaluate J again at the next step when the contraction rate θ exceeded this
       (RADAU5's THET, 0.001). A negative value refreshes J every step.
+    - `jac_iterations`: ... and only when the Newton iteration took at least this many steps
+      (2: RADAU5, where θ exists from the second iteration on; 3: scipy's Radau, lazier).
     - `factor_window`: (quot1, quot2); the Newton matrices are factored again only when J was
       refreshed or h/h_LU leaves this interval (RADAU5's QUOT1, QUOT2: 1.0, 1.2).
     - `jacobian`: optional `(t, y, args) -> J`, J the (n, n) derivative of the raveled vector field
@@ -275,6 +277,7 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
     newton_tol: float | None = eqx.field(default=None, static=True)
     max_newton: int = eqx.field(default=7, static=True)
     jac_refresh: float = eqx.field(default=0.001, static=True)
+    jac_iterations: int = eqx.field(default=2, static=True)
     factor_window: tuple[float, float] = eqx.field(default=(1.0, 1.2), static=True)
     jacobian: Callable[..., Array] | None = None
     root_finder: optx.AbstractRootFinder = eqx.field(default_factory=_with_tols)
@@ -532,7 +535,7 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
             h_last=h_t,
             zs=z,
             started=jnp.asarray(True),
-            refresh_jac=(theta > self.jac_refresh) | ~ok,
+            refresh_jac=((theta > self.jac_refresh) & (k >= self.jac_iterations)) | ~ok,
             theta=theta,
             faccon=faccon,
             num_jac=st.num_jac + new_jac.astype(jnp.int32),

@@ -71,6 +71,7 @@ from .dynamics import (
 )
 from .kinematics import full_precision
 from .model import Model, State
+from .radau import Radau5
 
 
 def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw):
@@ -202,21 +203,55 @@ class Problem(eqx.Module):
 
     def vector_field(self, t, y, args=None):
         """Right side of the first-order equations (Eqs. 25-27; Eq. 2 when enabled)."""
-        state, z, _, acc = self.accelerations(t, y)
-        att, w, _, gd_u, _, _, Xd = self.unpack(y)
+        return self._field(t, *self.unpack(y))
+
+    def _field(self, t, att, w, g_u, gd_u, z_flat, X, Xd):
+        """:meth:`vector_field` of the parts of a flat state (:meth:`unpack`)."""
+        dtype = w.dtype
+        gamma, gamma_dot, gdd_p = _hinges.from_free(self.model, t, g_u, gd_u)
+        state = State(self.attitude.to_dcm(att), w, gamma, gamma_dot)
+        z = self._unravel_control(z_flat)
+        tau = self.torque(t, state, z)
+        if tau is not None:
+            tau = jnp.asarray(tau, gamma.dtype)
+        acc = _solve_accelerations(self.model, state, t, tau, completed=gdd_p)
         u = np.asarray(self.free_hinges, dtype=np.int64) - 1
         parts = [self.attitude.rate(att, w), acc.omega0_dot, gd_u, acc.gamma_ddot[u]]
         if self.controller is not None:
             dz, _ = ravel_pytree(self.controller.rate(t, state, z, self.params))
-            parts.append(dz.astype(y.dtype))
+            parts.append(dz.astype(dtype))
         if self.translation:
-            parts += [Xd, mass_center_acceleration(self.model, state, t).astype(y.dtype)]
+            parts += [Xd, mass_center_acceleration(self.model, state, t).astype(dtype)]
         dy = jnp.concatenate(parts)
         # A singular Eq. (1) matrix gives NaN accelerations. diffrax's step-size control turns a
         # NaN error estimate into a NaN step; a huge finite rate instead makes it reject and shrink
         # the step until it reports dt_min_reached (or max_steps), with time and state.
-        big = jnp.asarray(np.sqrt(np.finfo(np.dtype(y.dtype)).max), y.dtype)
+        big = jnp.asarray(np.sqrt(np.finfo(np.dtype(dtype)).max), dtype)
         return jnp.where(jnp.isfinite(dy), dy, big)
+
+    def jacobian(self, t, y):
+        """``d vector_field / d y`` (size x size) in two forward-mode passes: the configuration
+        (attitude, hinge angles, mass-center position), then the rates (omega0, hinge rates,
+        controller states, mass-center velocity). In the second pass the configuration carries no
+        tangent, so the implicit-function rule of Eq. (1) differentiates only the velocity terms
+        (the geometry is computed once, not once per tangent); one pass over all columns would
+        push every rate's tangent through the geometry as well. For :class:`jaxtree.Radau5`."""
+        parts = list(self.unpack(y))
+        columns = {}
+        for group in ((0, 2, 5), (1, 3, 4, 6)):
+            idx = tuple(i for i in group if parts[i] is not None and parts[i].size > 0)
+            if not idx:
+                continue
+
+            def field(*chosen, idx=idx):
+                p = list(parts)
+                for i, v in zip(idx, chosen):
+                    p[i] = v
+                return self._field(t, *p)
+
+            blocks = jax.jacfwd(field, argnums=tuple(range(len(idx))))(*(parts[i] for i in idx))
+            columns.update(zip(idx, blocks))
+        return jnp.concatenate([columns[i] for i in sorted(columns)], axis=1)
 
     def pack(self, state: State, z=None, X=None, X_dot=None):
         """Flat state from a :class:`~jaxtree.State` (prescribed entries dropped), controller
@@ -236,6 +271,19 @@ class Problem(eqx.Module):
             parts.append(jnp.zeros(3, dtype) if X is None else jnp.asarray(X, dtype))
             parts.append(jnp.zeros(3, dtype) if X_dot is None else jnp.asarray(X_dot, dtype))
         return jnp.concatenate([jnp.reshape(p, (-1,)) for p in parts])
+
+
+def _problem_jacobian(t, y, args: Problem):
+    """The Jacobian that :func:`simulate` gives :class:`jaxtree.Radau5` (:meth:`Problem.jacobian`)."""
+    return args.jacobian(t, y)
+
+
+def _with_jacobian(solver):
+    """`solver`, and for a :class:`jaxtree.Radau5` without a Jacobian of its own the problem's
+    structured one (:meth:`Problem.jacobian`)."""
+    if isinstance(solver, Radau5) and solver.jacobian is None:
+        return eqx.tree_at(lambda s: s.jacobian, solver, _problem_jacobian, is_leaf=lambda x: x is None)
+    return solver
 
 
 @eqx.filter_jit
@@ -570,6 +618,7 @@ def _solve(
     ts = None
     if not opts.user_saveat:
         ts = jnp.linspace(t0, t1, opts.grid, dtype=dtype) if opts.grid is not None else saveat
+    solver = _with_jacobian(solver)
     ts_h, ys_h, t_final, y_final, sol = integrate(
         _vector_field,
         solver,
