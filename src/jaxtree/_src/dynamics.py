@@ -48,6 +48,7 @@ from ._math import (
     spd_inverse,
 )
 from ._math import regular as _regular
+from ._math import regular_pivots as _regular_pivots
 from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum
 from .model import Model, State
 
@@ -490,36 +491,37 @@ def _solve_completed_jvp(primals, tangents):
     applied to every tangent at once (``jax.jacfwd``: one solve with many right sides): with the
     dense method's Cholesky factor, or for the articulated method (which calls no LAPACK routine)
     as an inverse by Gauss-Jordan elimination in a loop (:func:`jaxtree._src._math.spd_inverse`),
-    computed once from the primal configuration and applied to all tangents by one product. Reverse mode transposes this: one solve with the same factor and one VJP
+    computed once from the primal configuration and applied to all tangents by one product. The
+    rule's primal solves with the same factor (the dense matrix is assembled anyway), so the
+    articulated recursion is not traced into derivatives. Reverse mode transposes this: one solve with the same factor and one VJP
     of F. The rule is written in JAX, so it can be differentiated again (the linearization's
     second derivatives)."""
     model, state, t, tau, gdd_p = primals
     u, p, _ = _hinges.split(model)
     rows_u = np.concatenate([np.arange(3), u + 3])
     rows_p = p + 3
+    A, rhs = rotational_equations(model, state, t, tau)
+    Auu = A[np.ix_(rows_u, rows_u)]
+    rhs_u = rhs[rows_u]
+    if gdd_p is not None:
+        rhs_u = rhs_u - A[np.ix_(rows_u, rows_p)] @ gdd_p
     if articulated.resolve_method(model) == "articulated":
-        acc = _solve_articulated(model, state, t, tau, gdd_p)
-        cfg = configuration(model, state.gamma)
-        A = _mass_matrix(model, cfg)
         # the inverse of A_uu by Gauss-Jordan in a loop (no LAPACK: the articulated method's
-        # promise, see _math), shared by all tangents: one matrix product applies it to them all
-        Ainv = spd_inverse(A[np.ix_(rows_u, rows_u)])
+        # promise, see _math), shared by the primal and all tangents: one product applies it
+        # to them all. The primal is the same solution as the recursion's to round-off, and the
+        # recursion itself is not compiled a second time into every derivative.
+        Ainv, pivots = spd_inverse(Auu)
         solve_u = lambda r: Ainv @ r  # noqa: E731
-        A_pu = A[np.ix_(rows_p, rows_u)] if len(p) else None
+        ok = _regular_pivots(pivots, Auu)
     else:
-        A, rhs = rotational_equations(model, state, t, tau)
-        Auu = A[np.ix_(rows_u, rows_u)]
         L = jax.lax.linalg.cholesky(Auu, symmetrize_input=False)
-        rhs_u = rhs[rows_u]
-        if gdd_p is not None:
-            rhs_u = rhs_u - A[np.ix_(rows_u, rows_p)] @ gdd_p
-        x_u = jnp.where(_regular(L, Auu), _cho_apply(L, rhs_u), jnp.nan)
-        w_dot, gdd = _full_accelerations(model, x_u, gdd_p)
-        hold = A[rows_p] @ jnp.concatenate([w_dot, gdd]) - rhs[rows_p] if len(p) else jnp.zeros((0,), A.dtype)
-        acc = Accelerations(w_dot, gdd, hold)
         solve_u = lambda r: _cho_apply(L, r)  # noqa: E731
-        A_pu = A[np.ix_(rows_p, rows_u)]
-    x_u = jnp.concatenate([acc.omega0_dot, acc.gamma_ddot[u]])
+        ok = _regular(L, Auu)
+    x_u = jnp.where(ok, solve_u(rhs_u), jnp.nan)
+    w_dot, gdd = _full_accelerations(model, x_u, gdd_p)
+    hold = A[rows_p] @ jnp.concatenate([w_dot, gdd]) - rhs[rows_p] if len(p) else jnp.zeros((0,), A.dtype)
+    acc = Accelerations(w_dot, gdd, hold)
+    A_pu = A[np.ix_(rows_p, rows_u)] if len(p) else None
     values, dots, rebuild = _differentiated(primals, tangents)
 
     def unbalanced(values):

@@ -56,7 +56,7 @@ factored for, and the time J was evaluated at. As in RADAU5:
 
 * J is evaluated (by `jax.jacfwd` of the vector field, or the `jacobian` option) at the start of
   a step only when the previous step's Newton iteration converged slowly (θ > `jac_refresh`,
-  RADAU5's THET), after a jump (`made_jump`), or when the step looks like a retry (below). J is
+  RADAU5's THET; 0.1 here, its advice for costly Jacobians), after a jump (`made_jump`), or when the step looks like a retry (below). J is
   evaluated once in `init`, at (t0, y0).
 * The two matrices are factored again only when J was refreshed or the step size left the window
   `factor_window` = [quot1, quot2] around h_LU (h/h_LU < quot1 or > quot2, with a relative slack
@@ -255,7 +255,10 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
       RADAU5's max(10 ε/rtol, min(0.03, √rtol)).
     - `max_newton`: the most Newton iterations per step (RADAU5's NIT, 7).
     - `jac_refresh`: evaluate J again at the next step when the contraction rate θ exceeded this
-      (RADAU5's THET, 0.001). A negative value refreshes J every step.
+      (RADAU5's THET). Default 0.1, the value Hairer and Wanner advise when a Jacobian is costly
+      (RADAU5's own default, 0.001, suits cheap ones): a Jacobian of Eq. (1) costs tens of right
+      sides (flex95's slew: 5 Jacobians instead of 9, to the same accuracy at 0.8x the time,
+      benchmarks/FINDINGS.md). A negative value refreshes J every step.
     - `jac_iterations`: ... and only when the Newton iteration took at least this many steps
       (2: RADAU5, where θ exists from the second iteration on; 3: scipy's Radau, lazier).
     - `factor_window`: (quot1, quot2); the Newton matrices are factored again only when J was
@@ -276,7 +279,7 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
 
     newton_tol: float | None = eqx.field(default=None, static=True)
     max_newton: int = eqx.field(default=7, static=True)
-    jac_refresh: float = eqx.field(default=0.001, static=True)
+    jac_refresh: float = eqx.field(default=0.1, static=True)
     jac_iterations: int = eqx.field(default=2, static=True)
     factor_window: tuple[float, float] = eqx.field(default=(1.0, 1.2), static=True)
     jacobian: Callable[..., Array] | None = None
