@@ -422,19 +422,30 @@ def _solve_plain(model, state, t, tau, gdd_p):
     if articulated.resolve_method(model) == "articulated":
         return _solve_articulated(model, state, t, tau, gdd_p)
     A, rhs = rotational_equations(model, state, t, tau)
-    u, p, inverse = _hinges.split(model)
-    if gdd_p is None and not model.inert:
-        x = _cholesky_solve(A, rhs)
-        return Accelerations(x[:3], x[3:], jnp.zeros((0,), x.dtype))
-    u = np.concatenate([np.arange(3), u + 3])
-    p = p + 3
-    gdd_p = jnp.zeros((0,), A.dtype) if gdd_p is None else gdd_p
-    rhs_u = rhs[u] - A[np.ix_(u, p)] @ gdd_p
-    xu = _cholesky_solve(A[np.ix_(u, u)], rhs_u)
-    gdd = jnp.concatenate([xu[3:], gdd_p, jnp.zeros((len(model.inert),), xu.dtype)])[inverse]
-    x = jnp.concatenate([xu[:3], gdd])
-    hold = A[p] @ x - rhs[p]
-    return Accelerations(x[:3], gdd, hold)
+    return _from_matrix(model, A, rhs, gdd_p, _cholesky_solve)
+
+
+def _unknown_rows_and_prescribed(model):
+    """Rows of Eq. (1) of its unknowns (omega0, then the unknown hinges) and of the prescribed hinges."""
+    u, p, _ = _hinges.split(model)
+    return np.concatenate([np.arange(3), u + 3]), p + 3
+
+
+def _from_matrix(model, A, rhs, gdd_p, solve):
+    """The accelerations and holding torques of Eq. (1) from its matrix and right side, with
+    ``solve(A_uu, b_u)`` solving the block of the unknowns (the prescribed accelerations moved to
+    the right side, Sec. II B)."""
+    rows_u, rows_p = _unknown_rows_and_prescribed(model)
+    if len(rows_u) == A.shape[0]:
+        x_u = solve(A, rhs)  # every row an unknown: no gathers
+    else:
+        rhs_u = rhs[rows_u]
+        if gdd_p is not None:
+            rhs_u = rhs_u - A[np.ix_(rows_u, rows_p)] @ gdd_p
+        x_u = solve(A[np.ix_(rows_u, rows_u)], rhs_u)
+    w_dot, gdd = _full_accelerations(model, x_u, gdd_p)
+    hold = A[rows_p] @ jnp.concatenate([w_dot, gdd]) - rhs[rows_p] if len(rows_p) else jnp.zeros((0,), A.dtype)
+    return Accelerations(w_dot, gdd, hold)
 
 
 def _full_accelerations(model, x_u, gdd_p):
@@ -493,18 +504,13 @@ def _solve_completed_jvp(primals, tangents):
     as an inverse by Gauss-Jordan elimination in a loop (:func:`jaxtree._src._math.spd_inverse`),
     computed once from the primal configuration and applied to all tangents by one product. The
     rule's primal solves with the same factor (the dense matrix is assembled anyway), so the
-    articulated recursion is not traced into derivatives. Reverse mode transposes this: one solve with the same factor and one VJP
-    of F. The rule is written in JAX, so it can be differentiated again (the linearization's
-    second derivatives)."""
+    articulated recursion is not traced into derivatives. Reverse mode transposes this: one
+    solve with the same factor and one VJP of F. The rule is written in JAX, so it can be
+    differentiated again (the linearization's second derivatives)."""
     model, state, t, tau, gdd_p = primals
-    u, p, _ = _hinges.split(model)
-    rows_u = np.concatenate([np.arange(3), u + 3])
-    rows_p = p + 3
+    rows_u, rows_p = _unknown_rows_and_prescribed(model)
     A, rhs = rotational_equations(model, state, t, tau)
     Auu = A[np.ix_(rows_u, rows_u)]
-    rhs_u = rhs[rows_u]
-    if gdd_p is not None:
-        rhs_u = rhs_u - A[np.ix_(rows_u, rows_p)] @ gdd_p
     if articulated.resolve_method(model) == "articulated":
         # the inverse of A_uu by Gauss-Jordan in a loop (no LAPACK: the articulated method's
         # promise, see _math), shared by the primal and all tangents: one product applies it
@@ -517,11 +523,9 @@ def _solve_completed_jvp(primals, tangents):
         L = jax.lax.linalg.cholesky(Auu, symmetrize_input=False)
         solve_u = lambda r: _cho_apply(L, r)  # noqa: E731
         ok = _regular(L, Auu)
-    x_u = jnp.where(ok, solve_u(rhs_u), jnp.nan)
-    w_dot, gdd = _full_accelerations(model, x_u, gdd_p)
-    hold = A[rows_p] @ jnp.concatenate([w_dot, gdd]) - rhs[rows_p] if len(p) else jnp.zeros((0,), A.dtype)
-    acc = Accelerations(w_dot, gdd, hold)
-    A_pu = A[np.ix_(rows_p, rows_u)] if len(p) else None
+    acc = _from_matrix(model, A, rhs, gdd_p, lambda _, b: jnp.where(ok, solve_u(b), jnp.nan))
+    x_u = jnp.concatenate([acc.omega0_dot, acc.gamma_ddot[rows_u[3:] - 3]])
+    A_pu = A[np.ix_(rows_p, rows_u)] if len(rows_p) else None
     values, dots, rebuild = _differentiated(primals, tangents)
 
     def unbalanced(values):
