@@ -354,3 +354,14 @@ def test_hybrid_simulation_follows_the_full_equations_at_small_amplitude(tmp_pat
     assert np.abs(ds["gamma"].values - np.asarray(ref.gamma)).max() < 0.5 * amplitude**2
     assert np.abs(ds["omega0"].values - np.asarray(ref.omega0)).max() < 0.5 * amplitude**2
     capsys.readouterr()
+
+
+def test_every_solver_name_builds_a_solver():
+    """`--solver` and "auto"'s choice (Radau5 on stiff scenes) name a solver the runner can build."""
+    import diffrax as dfx
+
+    from jaxtree._src.cli import SOLVERS, solver_named
+
+    for name in set(SOLVERS.values()) - {"auto"}:
+        assert isinstance(solver_named(name), dfx.AbstractSolver), name
+    assert isinstance(solver_named("Radau5"), jaxtree.Radau5)

@@ -50,6 +50,7 @@ import numpy as np
 
 from ._integrate import RK4
 from .model import Model
+from .radau import Radau5
 
 # ----------------------------------------------------------------------------- solvers
 SOLVERS: dict[str, Callable[[], dfx.AbstractSolver]] = {
@@ -59,10 +60,11 @@ SOLVERS: dict[str, Callable[[], dfx.AbstractSolver]] = {
     "Kvaerno3": dfx.Kvaerno3,
     "Kvaerno5": dfx.Kvaerno5,
     "KenCarp4": dfx.KenCarp4,
+    "Radau5": Radau5,
     "RK4": RK4,
 }
 EXPLICIT = ("Tsit5", "Dopri5", "Dopri8")
-IMPLICIT = ("Kvaerno3", "Kvaerno5", "KenCarp4")
+IMPLICIT = ("Kvaerno3", "Kvaerno5", "KenCarp4", "Radau5")
 # On the large trees one implicit solver shows the point (each implicit step evaluates a Jacobian
 # of 100-200 states by forward differentiation of Eq. 1; compiling it takes minutes here).
 LARGE_SOLVERS = ("Tsit5", "Dopri5", "Dopri8", "Kvaerno5", "RK4")

@@ -51,8 +51,19 @@ SOLVERS = {
     "kvaerno4": "Kvaerno4",
     "kvaerno5": "Kvaerno5",
     "kencarp4": "KenCarp4",
+    "radau5": "Radau5",
 }
 ATTITUDES = ("quaternion", "dcm", "euler123")
+
+
+def solver_named(name: str):
+    """A new solver of the class `name` (a value of :data:`SOLVERS` other than "auto"): jaxtree's
+    :class:`~jaxtree.Radau5` or a diffrax solver."""
+    import diffrax
+
+    from .radau import Radau5
+
+    return Radau5() if name == "Radau5" else getattr(diffrax, name)()
 
 
 class UserError(Exception):
@@ -603,11 +614,10 @@ class _Runner:
     """Runs the parts of one configuration: the full equations or the hybrid ones."""
 
     def __init__(self, args, model, cfg):
-        import diffrax
         import jax.numpy as jnp
 
         self.model, self.cfg = model, cfg
-        self.solver = getattr(diffrax, cfg["solver"])()
+        self.solver = solver_named(cfg["solver"])
         self.hybrid = None
         self.dtype = jnp.result_type(model.mass)
         if "hybrid_small" in cfg:
