@@ -56,8 +56,9 @@ factored for, and the time J was evaluated at. As in RADAU5:
 
 * J is evaluated (by `jax.jacfwd` of the vector field, or the `jacobian` option) at the start of
   a step only when the previous step's Newton iteration converged slowly (θ > `jac_refresh`,
-  RADAU5's THET; 0.1 here, its advice for costly Jacobians), after a jump (`made_jump`), or when the step looks like a retry (below). J is
-  evaluated once in `init`, at (t0, y0).
+  RADAU5's THET; 0.1 here, its advice for costly Jacobians), after a jump (`made_jump`), or when
+  the step looks like a retry (below). The first step evaluates it at (t0, y0) (not `init`: the
+  compiled program then holds one Jacobian).
 * The two matrices are factored again only when J was refreshed or the step size left the window
   `factor_window` = [quot1, quot2] around h_LU (h/h_LU < quot1 or > quot2, with a relative slack
   of 64 ε of the time dtype, since t1 - t0 reproduces h_LU only up to rounding). Inside the
@@ -99,7 +100,7 @@ Dense output
 
 Statistics
 ----------
-`Radau5State` counts Jacobian evaluations (`num_jac`, including the one in `init`), factorization
+`Radau5State` counts Jacobian evaluations (`num_jac`, including the first step's), factorization
 events (`num_lu`, each factoring both matrices), Newton iterations (`num_newton`) and evaluations
 of the vector field outside the Jacobian (`num_rhs`; three per Newton iteration). Read them from
 ``diffeqsolve(..., saveat=diffrax.SaveAt(..., solver_state=True)).solver_state.stats``. Because
@@ -350,20 +351,19 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
     # ---------------------------------------------------------------------------------------
 
     def init(self, terms, t0, t1, y0, args) -> Radau5State:
-        y_flat, unravel = ravel_pytree(y0)
+        y_flat, _ = ravel_pytree(y0)
         dtype = y_flat.dtype
         if not jnp.issubdtype(dtype, jnp.floating):
             raise TypeError(f"Radau5 needs a floating-point state, got {dtype}")
         n = y_flat.size
-        unit = self._unit(terms, dtype)
-        fun = self._rhs(terms, args, unravel, dtype, unit)
         tdtype = jnp.result_type(t0, t1)
-        jac, _, _ = self._jacobian(fun, jnp.asarray(t0, dtype=tdtype), y_flat, y0, args, unit)
         cdtype = jnp.promote_types(dtype, jnp.complex64)
         i32 = lambda v: jnp.asarray(v, dtype=jnp.int32)
+        # no Jacobian here: the first step evaluates it (refresh_jac), so that the compiled
+        # program holds the Jacobian once (it is the largest part of the compile time)
         return Radau5State(
-            jac=jac,
-            t_jac=jnp.asarray(t0, dtype=tdtype),
+            jac=jnp.zeros((n, n), dtype),
+            t_jac=jnp.asarray(jnp.nan, dtype=tdtype),
             lu_real=jnp.zeros((n, n), dtype),
             piv_real=jnp.zeros((n,), jnp.int32),
             lu_complex=jnp.zeros((n, n), cdtype),
@@ -372,10 +372,10 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
             h_last=jnp.asarray(t1, dtype=tdtype) - jnp.asarray(t0, dtype=tdtype),
             zs=jnp.zeros((3, n), dtype),
             started=jnp.asarray(False),
-            refresh_jac=jnp.asarray(False),
+            refresh_jac=jnp.asarray(True),
             theta=jnp.asarray(self.jac_refresh, dtype=dtype),
             faccon=jnp.asarray(1.0, dtype=dtype),
-            num_jac=i32(1),
+            num_jac=i32(0),
             num_lu=i32(0),
             num_newton=i32(0),
             num_rhs=i32(0),
