@@ -122,8 +122,8 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 import numpy as np
 import optimistix as optx
+from jax import Array
 from jax.flatten_util import ravel_pytree
-from jaxtyping import Array, PyTree
 
 __all__ = ["Radau5", "Radau5Interpolation", "Radau5State"]
 
@@ -221,10 +221,10 @@ class Radau5Interpolation(dfx.AbstractLocalInterpolation):
 
     t0: Any
     t1: Any
-    y0: PyTree[Array]
-    zs: PyTree[Array]  # like y0, each leaf with a leading axis of 3: Z_1, Z_2, Z_3
+    y0: Any
+    zs: Any  # like y0, each leaf with a leading axis of 3: Z_1, Z_2, Z_3
 
-    def evaluate(self, t0: Any, t1: Any = None, left: bool = True) -> PyTree[Array]:
+    def evaluate(self, t0: Any, t1: Any = None, left: bool = True) -> Any:
         del left
         if t1 is not None:
             return jax.tree_util.tree_map(lambda a, b: a - b, self.evaluate(t1), self.evaluate(t0))
