@@ -13,7 +13,8 @@ Cases:
 
 Each method runs over a ladder of tolerances; the figure is the fastest run that meets the
 target (median of repeats, compile time apart). Pinocchio's right side is ``pin.aba`` with the
-torque on the free flyer, its Jacobian by forward differences (as ``jaxtree bench``'s peer).
+torque on the free flyer, its Jacobian by forward differences (``jaxtree bench``'s peer,
+``jaxtree._src.peers.pinocchio_runner``).
 
 Run:  python benchmarks/bench_stiff.py [--cases stiff flex95] [--json PATH]
 """
@@ -45,11 +46,10 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxtree  # noqa: E402
-from jaxtree._src.peers import _laws, base_velocity  # noqa: E402
+from jaxtree._src.peers import pinocchio_runner  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _common import machine, write_json  # noqa: E402
-from _peers import pinocchio_model  # noqa: E402
 
 TORQUE = np.array([15.0, 9.0, 0.0])
 
@@ -110,45 +110,13 @@ def jaxtree_run(model, span, ts, solver, rtol):
 
 
 def pinocchio_run(model, ts, rtol):
-    import pinocchio as pin  # pyright: ignore[reportMissingImports]
-    from scipy.integrate import solve_ivp
-
-    pm, _, iq, iv, _ = pinocchio_model(model)
-    data = pm.createData()
-    stiffness, damping = _laws(model)
-    n = model.n
-    q, v, tau = pin.neutral(pm), np.zeros(pm.nv), np.zeros(pm.nv)
     loaded = model.loads is not None
-
-    def rhs(t, x):
-        w, g, gd, lin = x[:3], x[3 : 3 + n], x[3 + n : 3 + 2 * n], x[3 + 2 * n :]
-        q[iq] = g
-        v[:3], v[3:6], v[iv] = lin, w, gd
-        tau[iv] = -stiffness * g - damping * gd
-        if loaded:
-            tau[3:6] = TORQUE * float(profile(t))  # the free flyer's angular part: body 0's frame
-        a = pin.aba(pm, data, q, v, tau)
-        return np.concatenate([a[3:6], gd, a[iv], a[:3]])
-
-    def jac(t, x):
-        f0 = rhs(t, x)
-        cols = np.empty((x.size, x.size))
-        for i in range(x.size):
-            dx = 1.5e-8 * max(1.0, abs(x[i]))
-            xp = x.copy()
-            xp[i] += dx
-            cols[:, i] = (rhs(t, xp) - f0) / dx
-        return cols
-
-    s = model.initial
-    x0 = np.concatenate([np.asarray(s.omega0), np.asarray(s.gamma), np.asarray(s.gamma_dot), base_velocity(model)])
-    runs = []
+    run = pinocchio_runner(model, ts, base_torque=(lambda t: TORQUE * float(profile(t))) if loaded else None)
+    walls = []
     for _ in range(ARGS.repeats):
-        t = time.perf_counter()
-        r = solve_ivp(rhs, (ts[0], ts[-1]), x0, method="Radau", rtol=rtol, atol=rtol, t_eval=ts, jac=jac)
-        runs.append(time.perf_counter() - t)
-    Y = r.y.T
-    return Y[:, :3], Y[:, 3 : 3 + n], statistics.median(runs), 0.0, f"{r.nfev} right sides, {r.njev} Jacobians"
+        w, g, wall, rhs = run("Radau", rtol, rtol)
+        walls.append(wall)
+    return w, g, statistics.median(walls), 0.0, f"{rhs} right sides (Jacobians by forward differences included)"
 
 
 def main():

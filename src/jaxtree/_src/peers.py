@@ -93,10 +93,12 @@ def pinocchio_model(model):
     return pm, jid, iq, iv, com
 
 
-def pinocchio_runner(model, ts):
+def pinocchio_runner(model, ts, base_torque=None):
     """``run(method, rtol, atol) -> (omega0 (T, 3), gamma (T, n), wall seconds, right sides)``:
     Pinocchio's ABA integrated by ``scipy.integrate.solve_ivp`` (``"DOP853"``, ``"RK45"``,
-    ``"Radau"`` ...) over the save times `ts`. The time is that of ``solve_ivp`` alone."""
+    ``"Radau"`` ...) over the save times `ts`. The time is that of ``solve_ivp`` alone.
+    `base_torque`: optional ``t -> (3,)``, a torque on body 0 in its own axes (the free flyer's
+    generalized force), for a slew; the model's own loads are not translated."""
     from scipy.integrate import solve_ivp
 
     pin = _pinocchio()
@@ -118,6 +120,8 @@ def pinocchio_runner(model, ts):
         q[iq] = g
         v[:3], v[3:6], v[iv] = lin, w, gd
         tau[iv] = -stiffness * g - damping * gd
+        if base_torque is not None:
+            tau[3:6] = base_torque(t)
         a = aba(pm, data, q, v, tau)
         return np.concatenate([a[3:6], gd, a[iv], a[:3]])
 
