@@ -194,11 +194,17 @@ class Problem(eqx.Module):
 
     def accelerations(self, t, y):
         """``(state, z, tau, Accelerations)`` at (t, y)."""
-        state, gdd_p = self._complete(t, y)
-        z = self.control_state(y)
+        att, w, g_u, gd_u, z_flat, _, _ = self.unpack(y)
+        return self._accelerations(t, att, w, g_u, gd_u, z_flat)
+
+    def _accelerations(self, t, att, w, g_u, gd_u, z_flat):
+        """:meth:`accelerations` from the parts of a flat state (:meth:`unpack`)."""
+        gamma, gamma_dot, gdd_p = _hinges.from_free(self.model, t, g_u, gd_u)
+        state = State(self.attitude.to_dcm(att), w, gamma, gamma_dot)
+        z = self._unravel_control(z_flat)
         tau = self.torque(t, state, z)
         if tau is not None:
-            tau = jnp.asarray(tau, state.gamma.dtype)
+            tau = jnp.asarray(tau, gamma.dtype)
         return state, z, tau, _solve_accelerations(self.model, state, t, tau, completed=gdd_p)
 
     def vector_field(self, t, y, args=None):
@@ -208,13 +214,7 @@ class Problem(eqx.Module):
     def _field(self, t, att, w, g_u, gd_u, z_flat, X, Xd):
         """:meth:`vector_field` of the parts of a flat state (:meth:`unpack`)."""
         dtype = w.dtype
-        gamma, gamma_dot, gdd_p = _hinges.from_free(self.model, t, g_u, gd_u)
-        state = State(self.attitude.to_dcm(att), w, gamma, gamma_dot)
-        z = self._unravel_control(z_flat)
-        tau = self.torque(t, state, z)
-        if tau is not None:
-            tau = jnp.asarray(tau, gamma.dtype)
-        acc = _solve_accelerations(self.model, state, t, tau, completed=gdd_p)
+        state, z, _, acc = self._accelerations(t, att, w, g_u, gd_u, z_flat)
         u = np.asarray(self.free_hinges, dtype=np.int64) - 1
         parts = [self.attitude.rate(att, w), acc.omega0_dot, gd_u, acc.gamma_ddot[u]]
         if self.controller is not None:
