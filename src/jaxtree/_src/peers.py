@@ -93,6 +93,67 @@ def pinocchio_model(model):
     return pm, jid, iq, iv, com
 
 
+_PIN_AXES = {"RX": (1.0, 0.0, 0.0), "RY": (0.0, 1.0, 0.0), "RZ": (0.0, 0.0, 1.0)}
+
+
+def from_pinocchio(pin_model, *, initial=None, name: str = "", method: str = "auto"):
+    """A jaxtree :class:`~jaxtree.Model` of a Pinocchio model of a tree of revolute joints on a
+    free flyer (e.g. ``pinocchio.buildSampleModelHumanoid()`` or a URDF loaded with a
+    ``JointModelFreeFlyer`` root): body 0 is the free flyer's body, hinge k the k-th revolute
+    joint (``JointModelRX/RY/RZ`` or ``JointModelRevoluteUnaligned``) in Pinocchio's order.
+    Gravity is left out (jaxtree has none). Other joint kinds raise ValueError naming the joint.
+
+    jaxtree's body axes are parallel at gamma = 0 (Def. 4), so every body's axes are taken
+    parallel to the world at Pinocchio's neutral configuration: axes and inertias are rotated
+    by the joint frames' orientation there, and the hinge vectors run between the mass centers
+    and the joint origins in those axes. `initial` as for :func:`jaxtree.build_model`.
+    """
+    from .scene import build_model
+
+    joints = [pin_model.joints[j].shortname() for j in range(pin_model.njoints)]
+    if pin_model.njoints < 2 or joints[1] != "JointModelFreeFlyer" or pin_model.parents[1] != 0:
+        raise ValueError("from_pinocchio: joint 1 must be a JointModelFreeFlyer on the universe (body 0)")
+    rot, pos = [np.eye(3)] * pin_model.njoints, [np.zeros(3)] * pin_model.njoints
+    bodies = []
+    for j in range(1, pin_model.njoints):
+        kind, parent = joints[j], int(pin_model.parents[j])
+        if j > 1 and parent < 1:
+            raise ValueError(f"from_pinocchio: joint {j} ({pin_model.names[j]!r}) hangs from the universe")
+        placement = pin_model.jointPlacements[j]
+        rot[j] = rot[parent] @ np.asarray(placement.rotation)
+        pos[j] = pos[parent] + rot[parent] @ np.asarray(placement.translation)
+        inertia = pin_model.inertias[j]
+        R = rot[j]
+        body = {
+            "name": str(pin_model.names[j]),
+            "mass": float(inertia.mass),
+            "inertia": R @ np.asarray(inertia.inertia) @ R.T,
+        }
+        com = pos[j] + R @ np.asarray(inertia.lever)
+        if j > 1:
+            if kind in ("JointModelRX", "JointModelRY", "JointModelRZ"):
+                axis = np.asarray(_PIN_AXES[kind[-2:]])
+            elif kind == "JointModelRevoluteUnaligned":
+                axis = np.asarray(pin_model.joints[j].extract().axis, float)
+            else:
+                raise ValueError(
+                    f"from_pinocchio: joint {j} ({pin_model.names[j]!r}) is a {kind}; jaxtree takes revolute "
+                    "joints on a free flyer"
+                )
+            parent_com = bodies[parent - 1]["_com"]
+            body.update(
+                parent=parent - 1,
+                axis=R @ axis,
+                hinge_on_parent=pos[j] - parent_com,
+                hinge_on_body=pos[j] - com,
+            )
+        body["_com"] = com
+        bodies.append(body)
+    for b in bodies:
+        b.pop("_com")
+    return build_model(bodies, initial, name=name, method=method)
+
+
 def pinocchio_runner(model, ts, base_torque=None):
     """``run(method, rtol, atol) -> (omega0 (T, 3), gamma (T, n), wall seconds, right sides)``:
     Pinocchio's ABA integrated by ``scipy.integrate.solve_ivp`` (``"DOP853"``, ``"RK45"``,
