@@ -74,21 +74,45 @@ METHODS = ("auto", "dense", "articulated")
 # n b^2 + (n / b) per-level costs, least near this size on CPUs (benchmarks/README.md).
 DEFAULT_BLOCK = 16
 
-# With fewer unknown hinges than this the dense solve of Eq. (1) is faster on CPUs (one
-# factorization of a small matrix costs less than the articulated passes' many small kernels).
-DENSE_LIMIT = 24
+# A cost model of one evaluation of Eq. (1) on a CPU, in microseconds, fitted to in-loop timings
+# on this project's 2-core machine (benchmarks/bench_methods.py; chains of 25-200 segments, panels95,
+# Pinocchio's humanoid, stars and deep-and-wide random trees of 40-100 bodies; 2026-11-25, FINDINGS).
+# Dense: assembling the n_u x n_u matrix of Eq. (1) over the path-element masks (n_u^2) and its
+# Cholesky factor (n_u^3, steeper once the matrices leave the cache: chain200 9x chain100).
+# Articulated: per unknown hinge the spatial passes, per block level `size` unrolled elimination
+# steps that run one after another (a level's blocks at once). Only the comparison decides; it
+# picks the faster method on all ten trees measured, the closest calls being panels95 (articulated 0.89x
+# dense) and chain200 (0.72x).
+DENSE_COST = (12.0, 0.0125, 6.6e-5)  # us: constant, per n_u^2, per n_u^3
+ARTICULATED_COST = (0.6, 2.5)  # us: per unknown hinge, per unrolled elimination step
+
+
+def method_costs(model) -> dict[str, float]:
+    """The modelled cost (microseconds on a CPU) of one evaluation of Eq. (1) by each method:
+    ``{"dense": ..., "articulated": ...}`` (see :data:`DENSE_COST`, :data:`ARTICULATED_COST`)."""
+    n = len(model.unknown_hinges)
+    c0, c2, c3 = DENSE_COST
+    per_hinge, per_step = ARTICULATED_COST
+    bp = plan(model)
+    return {
+        "dense": c0 + c2 * n**2 + c3 * n**3,
+        "articulated": per_hinge * n + per_step * bp.size * len(bp.levels),
+    }
 
 
 def resolve_method(model) -> str:
     """The method that solves Eq. (1) for `model`: its ``method`` field, or for ``"auto"`` a static
-    rule: ``"dense"`` for small trees and on GPUs (batches of small dense factorizations run well
-    there), ``"articulated"`` for trees with at least :data:`DENSE_LIMIT` unknown hinges on CPUs."""
+    rule: ``"dense"`` on GPUs (batches of small dense factorizations run well there), and on CPUs
+    the cheaper of the two by :func:`method_costs` (dense for small trees and for deep ones cut
+    into many block levels, articulated for wide trees such as a hub with appendages and for very
+    long chains)."""
     method = getattr(model, "method", "auto")
     if method != "auto":
         return method
-    if len(model.unknown_hinges) < DENSE_LIMIT or jax.default_backend() != "cpu":
+    if not model.unknown_hinges or jax.default_backend() != "cpu":
         return "dense"
-    return "articulated"
+    cost = method_costs(model)
+    return "articulated" if cost["articulated"] < cost["dense"] else "dense"
 
 
 # ----------------------------------------------------------------------------- static plan
