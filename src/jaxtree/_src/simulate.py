@@ -273,8 +273,10 @@ class Problem(eqx.Module):
         return jnp.concatenate([jnp.reshape(p, (-1,)) for p in parts])
 
 
+@eqx.filter_jit
 def _problem_jacobian(t, y, args: Problem):
-    """The Jacobian that :func:`simulate` gives :class:`jaxtree.Radau5` (:meth:`Problem.jacobian`)."""
+    """The Jacobian that :func:`simulate` gives :class:`jaxtree.Radau5` (:meth:`Problem.jacobian`);
+    jitted, as :func:`_vector_field`, so that the solver's several traces reuse one jaxpr."""
     return args.jacobian(t, y)
 
 
