@@ -320,6 +320,7 @@ def hybrid_model_args(
     attitude: object = "quaternion",
     rtol=1e-9,
     basis=None,
+    tol=1e-2,
 ):
     """Arguments of :func:`jaxtree.hybrid_model`, checked before the linearization is traced."""
     from .attitude import _BY_NAME, AbstractAttitude
@@ -328,7 +329,15 @@ def hybrid_model_args(
     linearize_args(name, model, small, omega0=omega0, gamma=gamma, dcm=dcm)
     if basis is not None and basis not in ("substructure", "set"):
         raise SceneError(f"{name}: basis must be 'substructure', 'set' or None, got {short(basis)}")
-    if n_modes is not None:
+    t = float(as_float(tol, f"{name}: tol", ()))
+    if not t > 0.0:
+        raise SceneError(f"{name}: tol must be positive (the neglected share of the quasi-static response), got {t}")
+    if isinstance(n_modes, str):
+        if n_modes != "auto":
+            raise SceneError(
+                f"{name}: n_modes must be an integer, a sequence of integers, 'auto' or None, got {short(n_modes)}"
+            )
+    elif n_modes is not None:
         if isinstance(n_modes, (list, tuple)):  # one number per substructure
             if not n_modes:
                 raise SceneError(f"{name}: n_modes is an empty sequence")
