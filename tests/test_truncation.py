@@ -171,3 +171,29 @@ def test_unknown_n_modes_word_is_refused():
     model = jaxtree.load_scene("wings")
     with pytest.raises(SceneError, match="'auto'"):
         jaxtree.hybrid_model(model, (1, 2, 3, 4), "all")
+
+
+def test_command_line_prints_the_truncation_beside_the_integration_error(tmp_path, capsys):
+    """``jaxtree simulate wings --hybrid-small 1-8 --modes 1``: the summary says the modes count per
+    substructure and prints the truncation estimate beside the integration error estimate; wings
+    starts deflected outside the retained modes, so the estimate is the neglected modes' free
+    motion, equal to the error against the full Eq. (1) (to 1e-3 here: the run's own error), also
+    across the run's two parts (the neglected modes' state carried from one to the next)."""
+    from jaxtree._src import cli
+
+    out = tmp_path / "h.nc"
+    args = ["simulate", "wings", "--t1", "2", "--points", "21", "--chunks", "2", "--hybrid-small", "1-8"]
+    rc = cli.main(args + ["--modes", "1", "--out", str(out), "--no-plot", "--no-progress"])
+    text = capsys.readouterr().out
+    assert rc == 0
+    assert "1 per substructure, 2 substructures" in text
+    assert "integration error estimate" in text and "truncation error estimate" in text
+    ds = jaxtree.load_result(out, as_dataset=True)
+    ref = jaxtree.simulate(jaxtree.load_scene("wings"), 2.0, saveat=21, rtol=TOL, atol=TOL)
+    true = np.abs(ds["gamma"].values[:, :8] - np.asarray(ref.gamma)[:, :8]).max()
+    est = float(ds.attrs["truncation_error"])
+    print(f"wings, 1 mode per wing: estimate {est:.4e}, true {true:.4e}")
+    assert abs(est - true) <= 1e-3 * true
+    assert float(ds.attrs["error_estimate_gamma"]) < 1e-6 < est
+    assert cli.main(args + ["--modes", "2", "--modes-tol", "0.1", "--out", str(tmp_path / "x.nc")]) != 0
+    assert "--modes-tol needs --modes auto" in capsys.readouterr().err

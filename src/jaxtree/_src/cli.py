@@ -120,6 +120,13 @@ def _finite():
     return parse
 
 
+def _modes_arg(text):
+    """``--modes``: a count (at least 1) or 'auto'."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    return _count()(text)
+
+
 def _count(least=1):
     def parse(text):
         try:
@@ -289,10 +296,20 @@ def _parser():
     )
     s.add_argument(
         "--modes",
-        type=_count(),
+        type=_modes_arg,
         default=None,
         metavar="K",
-        help="with --hybrid-small: number of retained modes (default all)",
+        help="with --hybrid-small: modes retained per substructure (each connected group of small "
+        "hinges, e.g. one wing; the lowest first, a repeated frequency kept whole), or 'auto': per "
+        "substructure the fewest whose neglected share of the quasi-static response to the base's "
+        "motion is at most --modes-tol (default all)",
+    )
+    s.add_argument(
+        "--modes-tol",
+        type=_positive(),
+        default=None,
+        metavar="TOL",
+        help="with --modes auto: the neglected share allowed (default 0.01)",
     )
     s.add_argument(
         "--cutoff",
@@ -594,11 +611,13 @@ def _config(args, model):
     if args.hybrid_small is not None:
         cfg.update(
             hybrid_small=args.hybrid_small,
-            n_modes=-1 if args.modes is None else int(args.modes),
+            n_modes=-1 if args.modes is None else -2 if args.modes == "auto" else int(args.modes),
             cutoff=-1.0 if args.cutoff is None else float(args.cutoff),
             modal_damping=-1.0 if args.modal_damping is None else float(args.modal_damping),
             spin=list(map(float, args.spin if args.spin is not None else model.initial.omega0)),
         )
+        if args.modes == "auto":
+            cfg["modes_tol"] = 1e-2 if args.modes_tol is None else float(args.modes_tol)
     return cfg
 
 
@@ -629,7 +648,8 @@ class _Runner:
                 self.hybrid = hybrid_model(
                     model,
                     small,
-                    None if cfg["n_modes"] < 0 else cfg["n_modes"],
+                    None if cfg["n_modes"] == -1 else "auto" if cfg["n_modes"] == -2 else cfg["n_modes"],
+                    tol=cfg.get("modes_tol", 1e-2),
                     cutoff=None if cfg["cutoff"] < 0 else cfg["cutoff"],
                     omega0=jnp.asarray(cfg["spin"], self.dtype),
                     damping=None if cfg["modal_damping"] < 0 else cfg["modal_damping"],
@@ -640,9 +660,11 @@ class _Runner:
             except ValueError as e:
                 raise UserError(f"--hybrid-small/--modes: {str(e).removeprefix('hybrid_model: ')}") from None
             self._diag = _hybrid_diagnostics()
+        self.truncation_state = None  # the neglected modes' state where the last hybrid part ended
 
     def initial(self):
-        return self.model.initial if self.hybrid is None else self.hybrid.pack(self.model.initial)
+        # the hybrid runs pack the physical start themselves, and see its neglected modes' content
+        return self.model.initial
 
     def run(self, ts, y0, rtol, atol):
         """One part: integrate from ts[0] to ts[-1] saving at `ts` (padded: repeated end time)."""
@@ -679,7 +701,9 @@ class _Runner:
             atol=atol,
             max_steps=self.cfg["max_steps"],
             throw=False,
+            truncation_start=self.truncation_state,
         )
+        self.truncation_state = sol.truncation_state
         return _HybridPart(sol, self.hybrid, self._diag)
 
 
@@ -788,6 +812,13 @@ class _HybridPart:
         self.steps = (acc, rej, -1)
         states = State(sol.dcm, sol.omega0, sol.gamma, sol.gamma_dot)
         self.energy, self.H = diag(hybrid.model, states)
+        S = np.asarray(hybrid.small, int) - 1
+        ok = np.isfinite(np.asarray(sol.ts))
+        self.truncation = (
+            float(np.max(np.asarray(sol.truncation_error)[ok], initial=0.0)),
+            float(np.max(np.abs(np.asarray(sol.truncation_static)[ok]), initial=0.0)),
+            float(np.max(np.abs(np.asarray(sol.gamma)[ok][:, S] - np.asarray(hybrid.gamma_nominal)[S]), initial=0.0)),
+        )
 
     def rows(self, count):
         import numpy as np
@@ -811,7 +842,10 @@ class _HybridPart:
     def end_state(self):
         import numpy as np
 
-        return {"resume_flat": (("flat_state",), np.asarray(self.sol.ys)[-1])}
+        out: dict[str, tuple[tuple[str, ...], Any]] = {"resume_flat": (("flat_state",), np.asarray(self.sol.ys)[-1])}
+        if self.sol.truncation_state is not None:
+            out["resume_truncation"] = (("truncation_coordinate", "re_im"), np.asarray(self.sol.truncation_state))
+        return out
 
 
 def _state_from_part(ds, runner):
@@ -820,6 +854,8 @@ def _state_from_part(ds, runner):
     from .model import State
 
     if runner.hybrid is not None:
+        if "resume_truncation" in ds:
+            runner.truncation_state = jnp.asarray(ds["resume_truncation"].values, runner.dtype)
         return jnp.asarray(ds["resume_flat"].values, runner.dtype)
     v = lambda k: jnp.asarray(ds[k].values, runner.dtype)  # noqa: E731
     return State(v("resume_dcm"), v("resume_omega0"), v("resume_gamma"), v("resume_gamma_dot"))
@@ -882,9 +918,12 @@ def cmd_simulate(args) -> int:
             ("--cutoff", args.cutoff),
             ("--spin", args.spin),
             ("--modal-damping", args.modal_damping),
+            ("--modes-tol", args.modes_tol),
         ):
             if val is not None:
                 raise UserError(f"{opt} needs --hybrid-small (the hinges in modal coordinates)")
+    elif args.modes_tol is not None and args.modes != "auto":
+        raise UserError("--modes-tol needs --modes auto")
     start_wall = time.perf_counter()
     model = _load_scene(args.scene)
     out = pathlib.Path(args.out if args.out else f"{model.name or pathlib.Path(args.scene).stem}.nc")
@@ -950,6 +989,7 @@ def cmd_simulate(args) -> int:
     )
     failed = None
     compile_time = None
+    truncation = [0.0, 0.0, 0.0]  # hybrid runs: estimate, its quasi-static part, peak small angle
     try:
         bar = _progress(args, abs(cfg["t1"] - cfg["t0"]), abs(grid[bounds[start - 1][1]] - cfg["t0"]) if start else 0.0)
         for c in range(start, len(bounds)):
@@ -974,6 +1014,8 @@ def cmd_simulate(args) -> int:
                 "result_code": 0 if part.kind is None else 1 + _kinds().index(part.kind),
                 "t_final": part.t_final,
             }
+            if isinstance(part, _HybridPart):
+                truncation = [max(x, y) for x, y in zip(truncation, part.truncation)]
             ds = _part_dataset(runner, part, count, c > 0, pattrs)
             writer.write_part(c, ds)
             parts.append(ds)
@@ -990,10 +1032,19 @@ def cmd_simulate(args) -> int:
         if bar is not None:
             bar.close()
             bar = None
-        extra = {}
+        extra: dict[str, Any] = {}
         if failed is None and not args.no_error_estimate:
             _say("jaxtree simulate: error estimate (the run again at 10x the tolerances)")
             extra = _error_estimate(runner, writer.merged(parts=parts), bounds, rows_per_part, grid, cfg)
+        if runner.hybrid is not None:
+            extra.update(
+                truncation_error=truncation[0],
+                truncation_error_static=truncation[1],
+                truncation_peak_small_angle=truncation[2],
+                truncation_error_meaning="estimated largest error of the small angles from the neglected modes "
+                "(their response to the unbalanced force of the hybrid motion; rad)"
+                + (", parts before --resume not included" if start else ""),
+            )
         # complete: the command ran to its end (a failed run too: its result code says how it ended)
         ds = writer.merge(complete=True, attrs=extra, parts=parts)
     except KeyboardInterrupt:
@@ -1024,6 +1075,20 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def _per_substructure(hyb, cfg) -> str:
+    """The modes of each substructure, and how they were chosen."""
+    if hyb.basis == "set":
+        how = "modes of the whole set"
+    else:
+        per = hyb.modes_per_substructure
+        how = (
+            f"{per[0]} per substructure" if len(set(per)) == 1 else f"per substructure {list(per)}"
+        ) + f", {len(per)} substructure{'s' if len(per) > 1 else ''}"
+    if cfg.get("n_modes") == -2:
+        how += f", chosen for --modes-tol {cfg['modes_tol']:g}"
+    return how
+
+
 def _kinds():
     from ._integrate import KINDS as _KINDS
 
@@ -1037,6 +1102,7 @@ def _error_estimate(runner, ds, bounds, rows_per_part, grid, cfg):
     import numpy as np
 
     y = runner.initial()
+    runner.truncation_state = None
     rows = {"gamma": [], "gamma_dot": [], "omega0": [], "dcm": []}
     for c, (a, b) in enumerate(bounds):
         ts = np.concatenate([grid[a : b + 1], np.full(rows_per_part - (b - a + 1), grid[b])])
@@ -1093,7 +1159,8 @@ def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
     lines = [
         f"scene {model.name!r}: {model.n + 1} bodies; "
         + (
-            f"hybrid coordinates, small hinges {list(hyb.small)} in {hyb.n_modes} modes ({hyb.form} form)"
+            f"hybrid coordinates, small hinges {list(hyb.small)} in {hyb.n_modes} modes ({hyb.form} form; "
+            f"{_per_substructure(hyb, cfg)})"
             if hyb is not None
             else "Eq. (1)"
         )
@@ -1112,12 +1179,22 @@ def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
     )
     if "error_estimate_gamma" in a:
         lines.append(
-            f"  error estimate (difference from a run at 10x the tolerances): angles "
+            f"  integration error estimate (difference from a run at 10x the tolerances): angles "
             f"{float(a['error_estimate_gamma']):.2e} rad, rates {float(a['error_estimate_rates']):.2e} rad/s, "
             f"C {float(a['error_estimate_dcm']):.2e}"
         )
     elif "error_estimate" in a:
-        lines.append(f"  error estimate: {a['error_estimate']}")
+        lines.append(f"  integration error estimate: {a['error_estimate']}")
+    if "truncation_error" in a:
+        peak = float(a["truncation_peak_small_angle"])
+        est = float(a["truncation_error"])
+        lines.append(
+            f"  truncation error estimate (the neglected modes, against the full model): small angles "
+            f"{est:.2e} rad"
+            + (f" ({est / peak:.1e} of their peak {peak:.2e} rad)" if peak > 0 else "")
+            + f", quasi-static part {float(a['truncation_error_static']):.2e} rad; "
+            "the linearization of Eq. (30) is not included"
+        )
     why = []
     if model.prescribed:
         why.append("prescribed hinges do work")

@@ -1457,7 +1457,9 @@ class HybridSolution(eqx.Module):
     Truncation (:func:`simulate_hybrid`; None with ``truncation_error=False``): `truncation`
     (T, nu), the estimated contribution of the neglected modes to the small angles (full minus
     hybrid), `truncation_static` (T, nu) its quasi-static part, `truncation_error` (T,) the
-    largest entry of `truncation` in magnitude per save time (rad).
+    largest entry of `truncation` in magnitude per save time (rad); `truncation_state` (N, 2):
+    the neglected modes' coordinates at the last save time (real and imaginary parts), to
+    continue the estimate in a next run (``simulate_hybrid(..., truncation_start=...)``).
     """
 
     ts: jax.Array
@@ -1480,6 +1482,7 @@ class HybridSolution(eqx.Module):
     truncation: jax.Array | None = None
     truncation_static: jax.Array | None = None
     truncation_error: jax.Array | None = None
+    truncation_state: jax.Array | None = None
 
     @property
     def ok(self) -> bool:
@@ -1560,12 +1563,13 @@ def _small_unbalanced(hm: HybridModel, t, y):
     return f[np.asarray(hm.small, np.int64) + 2]
 
 
-def _truncation_estimate(hm: HybridModel, t0, ts, ys, x0):
-    """``(dynamic (T, nu), static (T, nu))``: the neglected modes' contribution to the small angles
-    at the save times, driven by :func:`_small_unbalanced` (see :func:`simulate_hybrid`). The
-    force is interpolated linearly between save times (held at its first value from `t0` to the
-    first save time) and each neglected mode's equation solved exactly on that interpolation,
-    from its content ``d0 x0`` of the start's small motion `x0` ``[y; y']``."""
+def _truncation_estimate(hm: HybridModel, t0, ts, ys, q_start):
+    """``(dynamic (T, nu), static (T, nu), q at the last save time (N, 2))``: the neglected modes'
+    contribution to the small angles at the save times, driven by :func:`_small_unbalanced` (see
+    :func:`simulate_hybrid`). The force is interpolated linearly between save times (held at its
+    first value from `t0` to the first save time) and each neglected mode's equation solved
+    exactly on that interpolation, from `q_start` (N, 2) (real and imaginary parts: the
+    start's content of each mode, :func:`_truncation_start`, or a previous run's end)."""
     tr = hm.truncation
     assert tr is not None, "called for a model built by hybrid_model"
     dtype = ys.dtype
@@ -1590,15 +1594,30 @@ def _truncation_estimate(hm: HybridModel, t0, ts, ys, x0):
         q = e_k * q + g0 * a_k + (g1 - g0) * b_k
         return q, q
 
-    q0 = tr.d0 @ x0.astype(lam.dtype)
-    _, qs = jax.lax.scan(step, q0, (e, p1, p2, G[:-1], G[1:]))
+    q0 = jax.lax.complex(q_start[:, 0], q_start[:, 1])
+    q_end, qs = jax.lax.scan(step, q0, (e, p1, p2, G[:-1], G[1:]))
     dynamic = jnp.real((qs * w) @ tr.c.T)
-    return dynamic, static
+    return dynamic, static, jnp.stack([jnp.real(q_end), jnp.imag(q_end)], -1)
 
 
 @eqx.filter_jit
 def _solve_hybrid(
-    hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, max_steps, report, residual, meter, x0, truncation
+    hybrid,
+    y0,
+    t0,
+    t1,
+    ts,
+    rtol,
+    atol,
+    dt0,
+    solver,
+    controller,
+    max_steps,
+    report,
+    residual,
+    meter,
+    truncation,
+    q_start,
 ):
     # A non-finite start cannot be integrated (NaN error estimates give NaN steps until max_steps):
     # integrate the vehicle at rest in its place, report "nonfinite_start" and return NaN histories.
@@ -1631,9 +1650,9 @@ def _solve_hybrid(
     states = jax.vmap(hybrid.state)(ts_h, ys_h)
     final = hybrid.state(t_final, y_final)
     energy, momentum = jax.vmap(lambda st: _energy_and_momentum(hybrid.model, st))(states)
-    dyn = stat = None
+    dyn = stat = q_end = None
     if truncation and hybrid.truncation is not None:
-        dyn, stat = _truncation_estimate(hybrid, t0, ts_h, ys_h, x0)
+        dyn, stat, q_end = _truncation_estimate(hybrid, t0, ts_h, ys_h, q_start)
     out = HybridSolution(
         ts=ts_h,
         omega0=states.omega0,
@@ -1655,6 +1674,7 @@ def _solve_hybrid(
         truncation=dyn,
         truncation_static=stat,
         truncation_error=None if dyn is None else jnp.max(jnp.abs(dyn), -1),
+        truncation_state=q_end,
     )
     if report:
         # Under a caller's jit/vmap: report failures from one host callback (for a whole batch).
@@ -1675,7 +1695,16 @@ def _pack_with_residual(hybrid: HybridModel, y0: State):
     S = np.asarray(hybrid.small, np.int64) - 1
     y = jnp.asarray(y0.gamma, dtype)[S] - hybrid.gamma_nominal.astype(dtype)[S]
     x0 = jnp.concatenate([y, jnp.asarray(y0.gamma_dot, dtype)[S]])
-    return hybrid.pack(y0), hybrid.projection_residual(y0), x0
+    return hybrid.pack(y0), hybrid.projection_residual(y0), _truncation_start(hybrid, x0)
+
+
+def _truncation_start(hybrid: HybridModel, x0):
+    """Every mode's content ``d0 x0`` of a small motion ``x0 = [y; y']`` (real and imaginary
+    parts, (N, 2)), or None for a model without truncation terms."""
+    if hybrid.truncation is None:
+        return None
+    q = hybrid.truncation.d0 @ x0.astype(hybrid.truncation.lam.dtype)
+    return jnp.stack([jnp.real(q), jnp.imag(q)], -1)
 
 
 @full_precision
@@ -1695,6 +1724,7 @@ def simulate_hybrid(
     throw: bool = True,
     progress: bool | dfx.AbstractProgressMeter = False,
     truncation_error: bool = True,
+    truncation_start: ArrayLike | None = None,
 ) -> HybridSolution:
     """Integrate the hybrid-coordinate equations with diffrax.
 
@@ -1706,7 +1736,9 @@ def simulate_hybrid(
       of the model's dtype); `dt0`: default ``1e-3 |t1 - t0|``;
     - `progress`: diffrax's progress meter, as in :func:`jaxtree.simulate`;
     - `truncation_error`: estimate the small angles' error from the neglected modes (default;
-      ``False`` saves its cost: one evaluation of Eq. 1 per save time, and its compilation).
+      ``False`` saves its cost: one evaluation of Eq. 1 per save time, and its compilation);
+      `truncation_start`: a previous run's ``truncation_state``, for a run that continues it
+      (default: the neglected modes' content of `y0`, none for a flat state).
 
     **Truncation error.** ``sol.truncation`` (T, nu) estimates the neglected modes' part of the
     small angles at the save times, i.e. the full model's small angles minus the hybrid ones
@@ -1739,10 +1771,12 @@ def simulate_hybrid(
     if isinstance(y0, State):
         check_state("simulate_hybrid", hybrid.model, y0)
     if isinstance(y0, State):
-        y, residual, x0 = _pack_with_residual(hybrid, y0)
+        y, residual, q_start = _pack_with_residual(hybrid, y0)
     else:  # a flat state holds the retained modes only: the neglected ones start at rest
         y, residual = jnp.asarray(y0, dtype), jnp.asarray(np.nan, dtype)
-        x0 = jnp.zeros(2 * hybrid.nu, dtype)
+        q_start = None if hybrid.truncation is None else jnp.zeros(hybrid.truncation.lam_parts.shape, dtype)
+    if truncation_start is not None:
+        q_start = jnp.asarray(truncation_start, dtype)
     if y.shape != (hybrid.size,):
         raise ValueError(f"simulate_hybrid: flat state of size {hybrid.size} expected, got {y.shape}")
     if isinstance(saveat, (int, np.integer)) and not isinstance(saveat, bool):
@@ -1769,8 +1803,8 @@ def simulate_hybrid(
         bool(throw and traced),
         residual,
         progress_meter(progress),
-        x0,
         bool(truncation_error),
+        q_start,
     )
     if throw and not traced:
         message = _hybrid_failure_message(sol.failure, sol.t_final, sol.final, sol.final_modal)
