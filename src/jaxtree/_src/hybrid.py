@@ -143,35 +143,48 @@ from .topology import Topology
 # ----------------------------------------------------------------------------- the model
 class _Precomputed(eqx.Module):
     """Each substructure's share of Eq. (30), projected on the retained modes (see
-    :mod:`jaxtree.substructure`), stacked over the ``p`` substructures. Axis ``u``: the modal rows
-    and unknowns of the substructure (padded), ``m``: its modal coordinates (padded); ``a``, ``b``,
-    ``c``: the base's spatial axes (6).
+    :mod:`jaxtree.substructure`), stacked over the ``p`` substructures. Rows ``i``: the base's six
+    (rotation, translation) then the substructure's ``uS`` modal rows (padded); ``m``: its ``mS``
+    modal coordinates s (padded); ``a``: the base's spatial axes (6); ``l``: the features
+    ``psi = [v v^T (36), v (6), c (6), 1]`` of the base's velocity v and velocity-product
+    acceleration c.
 
-    - matrix: ``aa0 + aa1 . s`` (base-base), ``wa0 + wa1 . s`` (modal rows, base columns),
-      ``aw0`` (base rows, modal columns), ``ww0`` (modal-modal, all substructures, (u, u));
-    - bias: ``g0a : v v / 2 + (g1a . s) : v v / 2 + (g2a . s) . v`` (base rows), the same with
-      ``g*w`` for the modal rows, and the springs ``w0 + w1 . s`` (modal rows);
+    - bias: ``bias0 . psi`` (bar part) + ``bias1 . (psi (x) s)`` (caret part): the velocity
+      products ``g0 : v v / 2 + (g1 . s) : v v / 2 + (g2 . s) . v``, the matrix's action on c, and
+      the springs ``w0 + w1 . s`` of the modal rows, in one product each;
+    - matrix, base columns: ``mat0 + mat1 . s`` (p, 6 + uS, 6); base rows, modal columns: ``aw0``
+      (p, 6, uS); modal-modal, all substructures: ``ww0`` (u, u);
     - static: `mcols`, `ucols` (the substructure's modal coordinates and rows in the global
       ones; padding points one past the end), `bases` (the body each hangs from).
     """
 
-    aa0: jax.Array
-    aa1: jax.Array
-    wa0: jax.Array
-    wa1: jax.Array
+    bias0: jax.Array
+    bias1: jax.Array
+    mat0: jax.Array
+    mat1: jax.Array
     aw0: jax.Array
     ww0: jax.Array
-    g0a: jax.Array
-    g1a: jax.Array
-    g2a: jax.Array
-    g0w: jax.Array
-    g1w: jax.Array
-    g2w: jax.Array
-    w0: jax.Array
-    w1: jax.Array
     mcols: tuple = eqx.field(static=True)
     ucols: tuple = eqx.field(static=True)
     bases: tuple = eqx.field(static=True)
+
+
+def _stacked_terms(t: dict) -> dict:
+    """The arrays of :class:`_Precomputed` from the per-term stacks of :func:`_build_pre`
+    (numpy, leading axis p)."""
+    p, uS, mS = t["w1"].shape
+    z = lambda *shape: np.zeros((p, *shape))  # noqa: E731
+    a0 = np.concatenate([0.5 * t["g0a"].reshape(p, 6, 36), z(6, 6), t["aa0"], z(6, 1)], 2)
+    w0 = np.concatenate([0.5 * t["g0w"].reshape(p, uS, 36), z(uS, 6), t["wa0"], t["w0"][:, :, None]], 2)
+    a1 = np.concatenate([0.5 * t["g1a"].reshape(p, 6, 36, mS), t["g2a"], t["aa1"], z(6, 1, mS)], 2)
+    w1 = np.concatenate([0.5 * t["g1w"].reshape(p, uS, 36, mS), t["g2w"], t["wa1"], t["w1"][:, :, None, :]], 2)
+    return {
+        "bias0": np.concatenate([a0, w0], 1),
+        "bias1": np.concatenate([a1, w1], 1).reshape(p, 6 + uS, 49 * mS),
+        "mat0": np.concatenate([t["aa0"], t["wa0"]], 1),
+        "mat1": np.concatenate([t["aa1"], t["wa1"]], 1),
+        "aw0": t["aw0"],
+    }
 
 
 class _Truncation(eqx.Module):
@@ -570,71 +583,90 @@ def _loads_state(hm, t, dcm, w, gL, gdL):
     return State(dcm, w, gamma, gamma_dot)
 
 
-def _pre_system(hm: HybridModel, t, y):
-    """Eq. (118)/(121) from the precomputed substructure terms: ``(matrix, rhs)`` as
-    :func:`_project` returns them from the general form."""
+def _pre_blocks(hm: HybridModel, t, y, with_ww: bool = True):
+    """Eq. (30) from the precomputed substructure terms, its modal rows and columns in
+    substructure order (``P = p * uS`` of them: substructure j's rows at ``j * uS ...``, padding
+    rows zero; :func:`_substructure_order` maps them to the global ones).
+
+    Each substructure's bias is one product with the features ``psi = [v v^T, v, c, 1]`` of its
+    base's motion (velocity v, velocity-product acceleration c): the zeroth-order part
+    ``bias0 . psi``, the first-order part ``bias1 . (psi (x) s)``; its matrix ``mat0 + mat1 . s``
+    (base columns), mapped to the unknowns by the base's acceleration map Jb. Then the translation
+    of b_0 is eliminated (Eq. 1 is the Schur complement, Eq. 30 its first-order part; M, the total
+    mass, carries no caret).
+
+    **Returns:** ``(Mxx (nx, nx), Mxw (nx, P), Mwx (P, nx), Mww (P, P) or None, rx (nx,),
+    rw (P,))`` with ``nx = 3 + len(large)``: the system of ``[omega0_dot, gamma_ddot_L]`` and the
+    modal unknowns, without the constant modal block ``kin`` and the spring rows ``kin_rhs . s``
+    (added by the callers); `Mww`, the part of the modal block that the elimination adds, only
+    when `with_ww`."""
     att, w, gL, gdL, s = hm.unpack(y)
     dtype = y.dtype
     s_in = s * hm._keep_m().astype(dtype)
-    dcm = hm.attitude.to_dcm(att)
     pre = hm.pre
     assert pre is not None, "called for a model with precomputed terms only"
-    A0zz, b0z, Jb, vb, cb, gddP = _large_frame(hm, pre.bases, t, dcm, w, gL, gdL)
-    nz = A0zz.shape[0]
-    u = hm.u
-    sp = jnp.concatenate([s_in, jnp.zeros((1,), dtype)])
-    sS = sp[np.asarray(pre.mcols, np.int64)]  # (p, mS)
-    onehot = np.zeros((len(pre.bases), len(pre.ucols[0]), u + 1))
-    for g, uc in enumerate(pre.ucols):
-        onehot[g, np.arange(len(uc)), np.asarray(uc)] = 1.0
-    U = jnp.asarray(onehot[..., :u], dtype)  # (p, uS, u): substructure rows -> global rows
-    vv = vb[:, :, None] * vb[:, None, :]
-    aa1 = jnp.einsum("pabm,pm->pab", pre.aa1, sS)
-    wa1 = jnp.einsum("puam,pm->pua", pre.wa1, sS)
-    fa0 = 0.5 * jnp.einsum("pabc,pbc->pa", pre.g0a, vv) + jnp.einsum("pab,pb->pa", pre.aa0, cb)
-    fa1 = (
-        0.5 * jnp.einsum("pabcm,pbc,pm->pa", pre.g1a, vv, sS)
-        + jnp.einsum("pabm,pb,pm->pa", pre.g2a, vb, sS)
-        + jnp.einsum("pab,pb->pa", aa1, cb)
-    )
-    fw0 = 0.5 * jnp.einsum("pubc,pbc->pu", pre.g0w, vv) + jnp.einsum("pua,pa->pu", pre.wa0, cb) + pre.w0
-    fw1 = (
-        0.5 * jnp.einsum("pubcm,pbc,pm->pu", pre.g1w, vv, sS)
-        + jnp.einsum("pubm,pb,pm->pu", pre.g2w, vb, sS)
-        + jnp.einsum("pua,pa->pu", wa1, cb)
-        + jnp.einsum("pum,pm->pu", pre.w1, sS)
-    )
-    # the whole Newton-Euler system in (z, modal unknowns): bar parts and caret parts
-    A0zz = A0zz + jnp.einsum("pak,pab,pbl->kl", Jb, pre.aa0, Jb)
-    A1zz = jnp.einsum("pak,pab,pbl->kl", Jb, aa1, Jb)
-    A0wz = jnp.einsum("pvu,pva,pak->uk", U, pre.wa0, Jb)
-    A1wz = jnp.einsum("pvu,pva,pak->uk", U, wa1, Jb)
-    A0zw = jnp.einsum("pak,pav,pvu->ku", Jb, pre.aw0, U)
-    b0 = jnp.concatenate([b0z + jnp.einsum("pak,pa->k", Jb, fa0), jnp.einsum("pvu,pv->u", U, fw0)])
-    b1 = jnp.concatenate([jnp.einsum("pak,pa->k", Jb, fa1), jnp.einsum("pvu,pv->u", U, fw1)])
-    A0 = jnp.concatenate([jnp.concatenate([A0zz, A0zw], 1), jnp.concatenate([A0wz, pre.ww0], 1)], 0)
-    A1 = jnp.concatenate([A1zz, A1wz], 0)  # caret parts: the columns of z only (Eq. 30c)
-    # eliminate the translation of b_0 (rows and columns 3..5): Eq. (1) is the Schur complement,
-    # and Eq. (30) its first-order part (M, the total mass, carries no caret)
+    A, b, Jb, vb, cb, gddP = _large_frame(hm, pre.bases, t, hm.attitude.to_dcm(att), w, gL, gdL)
+    p, uS = len(pre.bases), len(pre.ucols[0])
+    sS = jnp.concatenate([s_in, jnp.zeros((1,), dtype)])[np.asarray(pre.mcols, np.int64)]  # (p, mS)
+    # the substructures' forces on their bases (rows :6) and modal rows (6:), bar and caret parts
+    psi = jnp.concatenate([(vb[:, :, None] * vb[:, None, :]).reshape(p, 36), vb, cb, jnp.ones((p, 1), dtype)], 1)
+    f0 = jnp.einsum("pil,pl->pi", pre.bias0, psi)
+    f1 = jnp.einsum("pil,pl->pi", pre.bias1, (psi[:, :, None] * sS[:, None, :]).reshape(p, -1))
+    B = jnp.stack([pre.mat0, jnp.einsum("pijm,pm->pij", pre.mat1, sS)])  # (2, p, 6 + uS, 6)
+    X = jnp.einsum("xpia,pak->xpik", B, Jb)  # (2, p, 6 + uS, nz): bar and caret, base and modal rows
+    Azz = jnp.stack([A, jnp.zeros_like(A)]) + jnp.einsum("pak,xpal->xkl", Jb, X[:, :, :6])
+    Awz = X[:, :, 6:].reshape(2, p * uS, -1)
+    Azw = jnp.einsum("pak,pau->kpu", Jb, pre.aw0).reshape(-1, p * uS)  # bar only (Eq. 30c)
+    bz = jnp.stack([b, jnp.zeros_like(b)]) + jnp.einsum("pak,xpa->xk", Jb, jnp.stack([f0[:, :6], f1[:, :6]]))
+    bw = jnp.stack([f0[:, 6:], f1[:, 6:]]).reshape(2, p * uS)
+    # rows: the kept z rows, then the modal ones; eliminate the translation of b_0 (z 3..5)
     nL, nP = len(hm.large), len(hm.model.prescribed)
+    nz = A.shape[0]
+    Rz = np.concatenate([np.arange(3), np.arange(6, 6 + nL)])
     T = np.arange(3, 6)
-    Rw = np.concatenate([np.arange(3), np.arange(6, 6 + nL), nz + np.arange(u)])
     Kc = np.concatenate([np.arange(3), np.arange(6, nz)])
-    Wc = nz + np.arange(u)
+    A0, A1 = (jnp.concatenate([Azz[x][Rz], Awz[x]], 0) for x in (0, 1))  # (rows, nz)
+    b0, b1 = (jnp.concatenate([bz[x][Rz], bw[x]]) for x in (0, 1))
     minv = 1.0 / jnp.sum(hm.model.mass.astype(dtype))
-    A0RT, A1RT = A0[np.ix_(Rw, T)], A1[np.ix_(Rw, T)]
-    A0TK, A1TK = A0[np.ix_(T, Kc)], A1[np.ix_(T, Kc)]
-    AK = A0[np.ix_(Rw, Kc)] + A1[np.ix_(Rw, Kc)] - minv * (A0RT @ A0TK + A1RT @ A0TK + A0RT @ A1TK)
-    AW = A0[np.ix_(Rw, Wc)] - minv * A0RT @ A0[np.ix_(T, Wc)]
-    rhs = -(b0[Rw] + b1[Rw] - minv * (A0RT @ b0[T] + A1RT @ b0[T] + A0RT @ b1[T]))
+    A0T, A1T = Azz[0][T], Azz[1][T]  # the translation rows (3, nz)
+    AK = A0[:, Kc] + A1[:, Kc] - minv * (A0[:, T] @ A0T[:, Kc] + A1[:, T] @ A0T[:, Kc] + A0[:, T] @ A1T[:, Kc])
+    rhs = -(b0 + b1 - minv * (A0[:, T] @ bz[0][T] + A1[:, T] @ bz[0][T] + A0[:, T] @ bz[1][T]))
     nx = 3 + nL
     if nP:
         assert gddP is not None, "_large_frame returns the prescribed accelerations when there are some"
         rhs = rhs - AK[:, nx:] @ gddP
-    mat = jnp.concatenate([AK[:, :nx], AW], 1)
-    mat = mat.at[nx:, nx:].add(hm.kin)
-    rhs = rhs.at[nx:].add(hm.kin_rhs @ s_in)
-    return mat, rhs
+    Mxw = Azw[Rz] - minv * A0[:nx, T] @ Azw[T]
+    Pww = A0[nx:, T] @ Azw[T] if with_ww else None
+    return AK[:nx, :nx], Mxw, AK[nx:, :nx], Pww, rhs[:nx], rhs[nx:]
+
+
+def _substructure_order(hm: HybridModel):
+    """Static: ``(order (P,), partition)``: the global modal row of each substructure-ordered row
+    (u, one past the end, for padding), and whether each global row belongs to one substructure
+    (the substructure basis: the order is a permutation, see :func:`_solve`); with the set basis
+    the substructures share the modes and their rows add up."""
+    pre = hm.pre
+    assert pre is not None
+    order = np.asarray(pre.ucols, np.int64).reshape(-1)
+    real = order[order < hm.u]
+    return order, len(set(real.tolist())) == len(real)
+
+
+def _pre_system(hm: HybridModel, t, y):
+    """Eq. (118)/(121) from the precomputed substructure terms (:func:`_pre_blocks`) in the
+    global order: ``(matrix, rhs)`` as :func:`_project` returns them from the general form."""
+    Mxx, Mxw, Mwx, Pww, rx, rw = _pre_blocks(hm, t, y)
+    order, _ = _substructure_order(hm)
+    dtype = y.dtype
+    U = np.zeros((len(order), hm.u + 1))
+    U[np.arange(len(order)), order] = 1.0
+    U = jnp.asarray(U[:, : hm.u], dtype)  # substructure rows -> global rows (summed)
+    minv = 1.0 / jnp.sum(hm.model.mass.astype(dtype))
+    s_in = hm.unpack(y)[4] * hm._keep_m().astype(dtype)
+    assert hm.pre is not None and Pww is not None
+    Mww = hm.pre.ww0 - minv * U.T @ Pww @ U + hm.kin
+    mat = jnp.concatenate([jnp.concatenate([Mxx, Mxw @ U], 1), jnp.concatenate([U.T @ Mwx, Mww], 1)], 0)
+    return mat, jnp.concatenate([rx, U.T @ rw + hm.kin_rhs @ s_in])
 
 
 # ----------------------------------------------------------------------------- Eq. (30) parts
@@ -717,6 +749,21 @@ def _solve(hm: HybridModel, t, y):
         x = jnp.linalg.solve(mat, rhs)
         return x[:3], x[3:nx], x[nx:]
     # constant modal block: a Schur complement on the large unknowns
+    ku = hm._keep_u().astype(y.dtype)
+    if hm.pre is not None and _substructure_order(hm)[1]:
+        # in substructure order (no scatter of the substructures' rows): permute the constant
+        # inverse and the spring rows instead, and the modal accelerations back
+        Mxx, Mxw, Mwx, _, rx, rw = _pre_blocks(hm, t, y, with_ww=False)
+        order, _ = _substructure_order(hm)
+        pos = np.zeros(hm.u, np.int64)
+        pos[order[order < hm.u]] = np.nonzero(order < hm.u)[0]
+        s_in = hm.unpack(y)[4] * hm._keep_m().astype(y.dtype)
+        pad = lambda v: jnp.concatenate([v, jnp.zeros((1,), y.dtype)])  # noqa: E731
+        kp = pad(ku)[order]
+        Hinv = jnp.pad(hm.modal_inverse, ((0, 1), (0, 1)))[np.ix_(order, order)]
+        rw = (rw + pad(hm.kin_rhs @ s_in)[order]) * kp
+        x, acc = _schur_solve(Hinv, Mxx, Mxw * kp[None, :], Mwx * kp[:, None], rx, rw)
+        return x[:3], x[3:], acc[pos]
     if hm.pre is not None:
         mat, rhs = _pre_system(hm, t, y)
     else:
@@ -724,7 +771,6 @@ def _solve(hm: HybridModel, t, y):
         s_in = s * hm._keep_m().astype(y.dtype)
         Ml, Ms, R = _eq30(hm, t, hm.attitude.to_dcm(att), w, gL, gdL, hm.positions @ s_in, hm.rates @ s_in)
         mat, rhs = _project(hm, Ml, Ms, R, s_in)
-    ku = hm._keep_u().astype(y.dtype)
     x, acc = _schur_solve(
         hm.modal_inverse,
         mat[:nx, :nx],
@@ -1078,10 +1124,9 @@ def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u,
         acc["w1"].append(pad_u(pad_m(Rw.T @ (stiff[h][:, None] * P + damp[h][:, None] * Q))))
         ww0[np.ix_(uc, uc)] += Rw.T @ A0[6:, 6:] @ Acc
     dtype = jnp.result_type(model.mass)
-    f = lambda x: jnp.asarray(np.stack(x), dtype)
     pad_idx = lambda x, n, width: tuple(tuple(int(i) for i in c) + (n,) * (width - len(c)) for c in x)
     return _Precomputed(
-        **{k: f(v) for k, v in acc.items()},
+        **{k: jnp.asarray(v, dtype) for k, v in _stacked_terms({k: np.stack(v) for k, v in acc.items()}).items()},
         ww0=jnp.asarray(ww0, dtype),
         mcols=pad_idx(mmaps, m, ms),
         ucols=pad_idx(umaps, u, us),
