@@ -702,7 +702,10 @@ class BenchReport:
             for key in merged:
                 merged[key].update(getattr(rep, key))
         machines = list(dict.fromkeys(rep.machine for rep in reports))
-        parts = "; ".join(f"`{rep.settings.get('command', '')}` ({rep.date})" for rep in reports)
+        # a merged report brings its own parts along (merges of merges keep every run's command)
+        parts = "; ".join(
+            rep.settings.get("parts") or f"`{rep.settings.get('command', '')}` ({rep.date})" for rep in reports
+        )
         settings = dict(reports[0].settings, command=command or "jaxtree bench --merge", parts=parts)
         return cls(rows, " | ".join(machines), max(rep.date for rep in reports), settings=settings, **merged)
 
