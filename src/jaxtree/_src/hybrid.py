@@ -146,8 +146,8 @@ class _Precomputed(eqx.Module):
     :mod:`jaxtree.substructure`), stacked over the ``p`` substructures. Rows ``i``: the base's six
     (rotation, translation) then the substructure's ``uS`` modal rows (padded); ``m``: its ``mS``
     modal coordinates s (padded); ``a``: the base's spatial axes (6); ``l``: the features
-    ``psi = [v v^T (36), v (6), c (6), 1]`` of the base's velocity v and velocity-product
-    acceleration c.
+    ``psi = [v_b v_c (b <= c: 21), v (6), c (6), 1]`` of the base's velocity v and
+    velocity-product acceleration c.
 
     - bias: ``bias0 . psi`` (bar part) + ``bias1 . (psi (x) s)`` (caret part): the velocity
       products ``g0 : v v / 2 + (g1 . s) : v v / 2 + (g2 . s) . v``, the matrix's action on c, and
@@ -169,18 +169,32 @@ class _Precomputed(eqx.Module):
     bases: tuple = eqx.field(static=True)
 
 
+# the products v_b v_c (b <= c) of a base's spatial velocity, then v, c and 1: the features psi
+_PAIRS = np.triu_indices(6)
+_FEATURES = len(_PAIRS[0]) + 6 + 6 + 1
+
+
 def _stacked_terms(t: dict) -> dict:
     """The arrays of :class:`_Precomputed` from the per-term stacks of :func:`_build_pre`
     (numpy, leading axis p)."""
     p, uS, mS = t["w1"].shape
     z = lambda *shape: np.zeros((p, *shape))  # noqa: E731
-    a0 = np.concatenate([0.5 * t["g0a"].reshape(p, 6, 36), z(6, 6), t["aa0"], z(6, 1)], 2)
-    w0 = np.concatenate([0.5 * t["g0w"].reshape(p, uS, 36), z(uS, 6), t["wa0"], t["w0"][:, :, None]], 2)
-    a1 = np.concatenate([0.5 * t["g1a"].reshape(p, 6, 36, mS), t["g2a"], t["aa1"], z(6, 1, mS)], 2)
-    w1 = np.concatenate([0.5 * t["g1w"].reshape(p, uS, 36, mS), t["g2w"], t["wa1"], t["w1"][:, :, None, :]], 2)
+    iu, ju = _PAIRS
+
+    def pairs(g):  # g : v v / 2 over the 21 products v_b v_c, b <= c
+        return (
+            0.5
+            * (g[:, :, iu, ju] + g[:, :, ju, iu])
+            * np.where(iu == ju, 0.5, 1.0).reshape((1, 1, -1) + (1,) * (g.ndim - 4))
+        )
+
+    a0 = np.concatenate([pairs(t["g0a"]), z(6, 6), t["aa0"], z(6, 1)], 2)
+    w0 = np.concatenate([pairs(t["g0w"]), z(uS, 6), t["wa0"], t["w0"][:, :, None]], 2)
+    a1 = np.concatenate([pairs(t["g1a"]), t["g2a"], t["aa1"], z(6, 1, mS)], 2)
+    w1 = np.concatenate([pairs(t["g1w"]), t["g2w"], t["wa1"], t["w1"][:, :, None, :]], 2)
     return {
         "bias0": np.concatenate([a0, w0], 1),
-        "bias1": np.concatenate([a1, w1], 1).reshape(p, 6 + uS, 49 * mS),
+        "bias1": np.concatenate([a1, w1], 1).reshape(p, 6 + uS, _FEATURES * mS),
         "mat0": np.concatenate([t["aa0"], t["wa0"]], 1),
         "mat1": np.concatenate([t["aa1"], t["wa1"]], 1),
         "aw0": t["aw0"],
@@ -588,7 +602,7 @@ def _pre_blocks(hm: HybridModel, t, y, with_ww: bool = True):
     substructure order (``P = p * uS`` of them: substructure j's rows at ``j * uS ...``, padding
     rows zero; :func:`_substructure_order` maps them to the global ones).
 
-    Each substructure's bias is one product with the features ``psi = [v v^T, v, c, 1]`` of its
+    Each substructure's bias is one product with the features ``psi = [v_b v_c, v, c, 1]`` of its
     base's motion (velocity v, velocity-product acceleration c): the zeroth-order part
     ``bias0 . psi``, the first-order part ``bias1 . (psi (x) s)``; its matrix ``mat0 + mat1 . s``
     (base columns), mapped to the unknowns by the base's acceleration map Jb. Then the translation
@@ -609,7 +623,8 @@ def _pre_blocks(hm: HybridModel, t, y, with_ww: bool = True):
     p, uS = len(pre.bases), len(pre.ucols[0])
     sS = jnp.concatenate([s_in, jnp.zeros((1,), dtype)])[np.asarray(pre.mcols, np.int64)]  # (p, mS)
     # the substructures' forces on their bases (rows :6) and modal rows (6:), bar and caret parts
-    psi = jnp.concatenate([(vb[:, :, None] * vb[:, None, :]).reshape(p, 36), vb, cb, jnp.ones((p, 1), dtype)], 1)
+    iu, ju = _PAIRS
+    psi = jnp.concatenate([vb[:, iu] * vb[:, ju], vb, cb, jnp.ones((p, 1), dtype)], 1)
     f0 = jnp.einsum("pil,pl->pi", pre.bias0, psi)
     f1 = jnp.einsum("pil,pl->pi", pre.bias1, (psi[:, :, None] * sS[:, None, :]).reshape(p, -1))
     B = jnp.stack([pre.mat0, jnp.einsum("pijm,pm->pij", pre.mat1, sS)])  # (2, p, 6 + uS, 6)
