@@ -3,7 +3,12 @@ and Pinocchio's ABA under scipy's DOP853, all in one run.
 
 Scenes (``--scene``):
 
-- ``panels95`` (default): the seed's 95-body vehicle (Fig. 2/3c); panels at rest, the bus
+- ``flex95`` (default): the flexible vehicle of issue 24, panels95 with stiff latched bending
+  hinges (held-wing modes 0.94-433 rad/s); the slew of the issue: the scene's bus spin, the
+  rotor at 10 pi rad/s, wings straight, (15, 9, 0) N m on the bus from 1 s to 3 s (tanh edges of
+  ~0.2 s); the 90 wing hinges small. The full Eq. (1) also with jaxtree.Radau5, the peers
+  Pinocchio + scipy DOP853 and Radau;
+- ``panels95``: the seed's 95-body vehicle (Fig. 2/3c); panels at rest, the bus
   spinning as in the scene, the rotor at 10 pi rad/s, a smooth torque pulse on the bus
   (5 N m about b_1, 3 N m about b_2, on at 1 s, off at 3 s, tanh edges of ~0.2 s); the 90
   wing hinges small (six substructures on the bus), platform, gimbals and rotor large;
@@ -11,13 +16,16 @@ Scenes (``--scene``):
   substructure), a torque pulse on the hub.
 
 For each method it prints the compile time apart from the run time (median of repeats after
-compilation), accepted steps and the errors against a tight full Eq. (1) run (rtol = atol =
+compilation), accepted steps (the peers: right sides) and the errors against a tight full Eq. (1) run (rtol = atol =
 1e-10, Dopri8): the hub rate ``max |omega0 - ref| / max |omega0_ref|`` and the small hinges'
 angles ``max |gamma_S - ref| / max |gamma_S,ref|``; for the hybrid models also the build time
-(modes and precomputation, first call and again). The summary gives the cheapest setting of each
+(modes and precomputation, first call and again), the truncation estimate of
+`simulate_hybrid` (a separate call: the timed runs pass ``truncation_error=False``) and the cost
+of one hybrid right side in a jitted loop (issue 24: <= 10 us at 3 modes per wing on flex95,
+<= 15 us at 6, <= 2x from 6 to 36 modes in all). The summary gives the cheapest setting of each
 method that reaches the goal accuracy (hub 1e-3, small angles 1e-2) and the time ratios.
 
-Run: ``python benchmarks/bench_hybrid.py [--scene panels95|chain200] [--quick] [--json PATH]``.
+Run: ``python benchmarks/bench_hybrid.py [--scene flex95|panels95|chain200] [--quick] [--json PATH]``.
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ import time
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
+import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -42,8 +51,8 @@ HUB_GOAL, SMALL_GOAL = 1e-3, 1e-2
 def scenario(name, torque_scale):
     model = jaxtree.load_scene(name)
     pulse = lambda t: jaxtree._src.loads.thruster_pulse(t, 1.0, 2.0, rise=0.1)  # noqa: E731
-    if name == "panels95":
-        torque = np.array([5.0, 3.0, 0.0])
+    if name in ("panels95", "flex95"):
+        torque = np.array([15.0, 9.0, 0.0] if name == "flex95" else [5.0, 3.0, 0.0])
         small = tuple(k for k in range(1, model.n + 1) if model.names[k].startswith("wing"))
     else:
         torque = np.array([0.0, 400.0, 150.0])
@@ -62,50 +71,46 @@ def errors(omega0, gamma, ref, S):
     return hub, small
 
 
-def pinocchio_rows(model, state, torque, t1, ts, ref, S, tols, repeats):
-    import pinocchio as pin
-    from scipy.integrate import solve_ivp
+def pinocchio_rows(model, state, torque, ts, ref, S, tols, methods, repeats):
+    """Pinocchio's ABA under scipy (``jaxtree._src.peers.pinocchio_runner``, from `state`, the
+    torque on the bus as the free flyer's generalized force)."""
+    import equinox as eqx
 
-    import _peers
+    from jaxtree._src.peers import pinocchio_runner
 
-    pm, _, iq, iv, _ = _peers.pinocchio_model(model)
-    data = pm.createData()
-    n = model.n
-    k = np.zeros(n)
-    d = np.zeros(n)
-    sp = np.asarray(model.sprung, int) - 1
-    k[sp], d[sp] = np.asarray(model.stiffness)[sp], np.asarray(model.damping)[sp]
-    q, v, tau = pin.neutral(pm), np.zeros(pm.nv), np.zeros(pm.nv)
-    fext = [pin.Force.Zero() for _ in range(pm.njoints)]
-
-    def rhs(t, x):
-        w, g, gd, lin = x[:3], x[3 : 3 + n], x[3 + n : 3 + 2 * n], x[3 + 2 * n :]
-        q[iq] = g
-        v[:3], v[3:6], v[iv] = lin, w, gd
-        tau[iv] = -k * g - d * gd
-        p = 0.5 * (np.tanh((t - 1.0) / 0.1) - np.tanh((t - 3.0) / 0.1))
-        fext[1] = pin.Force(np.zeros(3), torque * p)
-        a = pin.aba(pm, data, q, v, tau, fext)
-        return np.concatenate([a[3:6], gd, a[iv], a[:3]])
-
-    x0 = np.concatenate([np.asarray(state.omega0), np.asarray(state.gamma), np.asarray(state.gamma_dot), np.zeros(3)])
+    model = eqx.tree_at(lambda m: m.initial, model.with_loads(None), state)
+    # the scenario's pulse in numpy (a JAX call per right side would slow the peer by its dispatch)
+    pulse = lambda t: 0.5 * (np.tanh((t - 1.0) / 0.1) - np.tanh((t - 3.0) / 0.1))  # noqa: E731
+    run = pinocchio_runner(model, np.asarray(ts), base_torque=lambda t: torque * pulse(t))
     rows = []
-    for tol in tols:
-        run = lambda tol=tol: solve_ivp(rhs, (0.0, t1), x0, method="DOP853", rtol=tol, atol=tol, t_eval=ts)  # noqa
-        r = run()
-        wall = min(_wall(run) for _ in range(repeats))
-        Y = r.y.T
-        rows.append(
-            dict(
-                method="Pinocchio + DOP853",
-                setting=f"rtol {tol:g}",
-                compile=0.0,
-                run=wall,
-                steps=int(r.nfev),
-                errors=errors(Y[:, :3], Y[:, 3 : 3 + n], ref, S),
+    for method in methods:
+        for tol in tols:
+            w, g, wall, calls = run(method, tol, tol)
+            wall = min([wall] + [run(method, tol, tol)[2] for _ in range(repeats - 1)])
+            rows.append(
+                dict(
+                    method=f"Pinocchio + {method}",
+                    setting=f"rtol {tol:g}",
+                    compile=0.0,
+                    run=wall,
+                    steps=calls,
+                    errors=errors(w, g, ref, S),
+                )
             )
-        )
+            print(rows[-1], flush=True)
     return rows
+
+
+def rhs_us(hm, calls=2000, repeats=5):
+    """One hybrid right side in a jitted ``fori_loop`` (no dispatch), microseconds."""
+    y = hm.pack(hm.model.initial)
+
+    @jax.jit
+    def loop(y):
+        return jax.lax.fori_loop(0, calls, lambda i, c: c + 1e-9 * jaxtree.hybrid_rhs(0.0, c, hm), y)
+
+    jax.block_until_ready(loop(y))
+    return 1e6 * min(_wall(lambda: jax.block_until_ready(loop(y))) for _ in range(repeats)) / calls
 
 
 def _wall(fn):
@@ -116,7 +121,7 @@ def _wall(fn):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--scene", default="panels95", choices=["panels95", "chain200"])
+    ap.add_argument("--scene", default="flex95", choices=["flex95", "panels95", "chain200"])
     ap.add_argument("--t1", type=float, default=10.0)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--torque-scale", type=float, default=1.0)
@@ -139,14 +144,18 @@ def main():
     )
     rows = []
     full_tols = (1e-5, 1e-6) if args.quick else (1e-4, 1e-5, 1e-6, 1e-7)
-    for tol in full_tols:
+    solvers = [("auto", "jaxtree full Eq. (1)")]
+    if args.scene == "flex95":
+        solvers.append((jaxtree.Radau5(), "jaxtree full, Radau5"))
+    for (solver, label), tol in ((x, tol) for x in solvers for tol in full_tols):
         sol, first, run = timed(
-            lambda: jaxtree.simulate(model, args.t1, y0=state, saveat=ts, rtol=tol, atol=tol), args.repeats
+            lambda: jaxtree.simulate(model, args.t1, y0=state, saveat=ts, rtol=tol, atol=tol, solver=solver),
+            args.repeats,
         )
         rows.append(
             dict(
-                method="jaxtree full Eq. (1)",
-                setting=f"rtol {tol:g}",
+                method=label,
+                setting=f"rtol {tol:g}" + ("" if label.endswith("Radau5") else f" ({sol.stats['solver'].name})"),
                 compile=first - run,
                 run=run,
                 steps=int(sol.stats["num_accepted_steps"]),
@@ -163,9 +172,16 @@ def main():
         t0 = time.perf_counter()
         hm = jaxtree.hybrid_model(model, small, k, omega0=state.omega0)
         build2 = time.perf_counter() - t0
+        est = jaxtree.simulate_hybrid(hm, args.t1, y0=state, saveat=ts, rtol=hyb_tols[-1], atol=hyb_tols[-1])
+        cost = rhs_us(hm)
+        truncation = float(est.max_truncation_error()) / float(np.abs(ref["gamma"][:, S]).max())
+        print(f"{k} modes per substructure: right side {cost:.1f} us; truncation estimate {truncation:.2e} of the peak")
         for tol in hyb_tols:
             sol, first, run = timed(
-                lambda: jaxtree.simulate_hybrid(hm, args.t1, y0=state, saveat=ts, rtol=tol, atol=tol), args.repeats
+                lambda: jaxtree.simulate_hybrid(
+                    hm, args.t1, y0=state, saveat=ts, rtol=tol, atol=tol, truncation_error=False
+                ),
+                args.repeats,
             )
             rows.append(
                 dict(
@@ -176,22 +192,16 @@ def main():
                     steps=int(sol.stats["num_accepted_steps"]),
                     errors=errors(sol.omega0, sol.gamma, ref, S),
                     build=(build1, build2),
+                    rhs_us=cost,
+                    truncation=truncation,
                 )
             )
             print(rows[-1], flush=True)
     if not args.no_peers:
         try:
-            rows += pinocchio_rows(
-                model,
-                state,
-                torque,
-                args.t1,
-                np.asarray(ts),
-                ref,
-                S,
-                (1e-5, 1e-6) if args.quick else (1e-4, 1e-5, 1e-6, 1e-7),
-                args.repeats,
-            )
+            methods = ("DOP853", "Radau") if args.scene == "flex95" else ("DOP853",)
+            tols = (1e-5, 1e-6) if args.quick else (1e-4, 3e-5, 1e-5, 1e-6, 1e-7)
+            rows += pinocchio_rows(model, state, torque, ts, ref, S, tols, methods, args.repeats)
         except ImportError as e:
             print(f"Pinocchio not installed ({e}): pip install -e .[peers]")
     print(
@@ -210,11 +220,22 @@ def main():
     print(f"\ncheapest setting reaching hub {HUB_GOAL:g} and small angles {SMALL_GOAL:g}:")
     for m, r in best.items():
         print(f"  {m:22s} {r['setting']:44s} {1e3 * r['run']:8.1f} ms")
-    h, f, p = best.get("jaxtree hybrid"), best.get("jaxtree full Eq. (1)"), best.get("Pinocchio + DOP853")
+    h, f = best.get("jaxtree hybrid"), best.get("jaxtree full Eq. (1)")
     if h and f:
         print(f"hybrid / full Eq. (1): {f['run'] / h['run']:.1f}x faster (goal 20x)")
-    if h and p:
-        print(f"hybrid / Pinocchio + DOP853: {p['run'] / h['run']:.1f}x faster (goal 10x)")
+    for peer in ("Pinocchio + DOP853", "Pinocchio + Radau"):
+        if h and peer in best:
+            print(f"hybrid / {peer}: {best[peer]['run'] / h['run']:.1f}x faster")
+    costs = {int(r["setting"].split()[0]): r["rhs_us"] for r in rows if "rhs_us" in r}
+    if costs:
+        print(
+            "hybrid right side in a jitted loop: "
+            + ", ".join(f"{k} per substructure {c:.1f} us" for k, c in costs.items())
+        )
+        if 1 in costs and 6 in costs:
+            print(
+                f"  from 1 to 6 modes per substructure: {costs[6] / costs[1]:.2f}x (issue 24: <= 2x from 6 to 36 in all)"
+            )
     if h:
         print(
             f"build of the chosen hybrid model: {h['build'][0]:.2f} s first call, {h['build'][1]:.2f} s again "
