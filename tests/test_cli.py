@@ -4,6 +4,8 @@ and an interrupted run that resumes to the same answer.
 Most commands run in this process (``jaxtree._src.cli.main``), sharing compiled functions; the
 interruption test runs the command in subprocesses and kills them."""
 
+import contextlib
+import io
 import json
 import os
 import signal
@@ -39,15 +41,29 @@ def _args(out, *extra):
     ]
 
 
+_PRINTED = {}  # what the module's runs printed
+
+
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     """`jaxtree simulate` of wings over 1 s in 4 parts, in this process, with the CSV export,
     the plots and the error estimate."""
     folder = tmp_path_factory.mktemp("cli")
     out = folder / "wings.nc"
-    rc = cli.main(_args(out, "--csv", str(folder / "wings.csv"), "--plot", str(folder / "wings")))
+    with contextlib.redirect_stdout(io.StringIO()) as printed:
+        rc = cli.main(_args(out, "--csv", str(folder / "wings.csv"), "--plot", str(folder / "wings")))
     assert rc == 0
+    _PRINTED["run"] = printed.getvalue()
     return out, jaxtree.load_result(out, as_dataset=True)
+
+
+def test_the_summary_names_what_the_dampers_took(run):
+    """The energy line explains the drift by what happened: the wings' dampers took a share of the
+    energy, the one the result's energy series shows (not a drift of the integrator)."""
+    _, ds = run
+    E = ds["energy"].values
+    assert E[-1] < E[0]
+    assert f"dampers dissipated {(E[0] - E[-1]) / E[0]:.1%} of it" in _PRINTED["run"]
 
 
 def test_simulate_writes_a_complete_result_within_its_error_estimate(run):
@@ -193,6 +209,16 @@ def test_help_of_every_subcommand(capsys):
         cli.main(["--help"])
     out = capsys.readouterr().out
     assert all(s in out for s in ("simulate", "modes", "animate", "check", "sample problem"))
+    # the sample problem's own help names the command it was reached by (not `python -m jaxtree`)
+    with pytest.raises(SystemExit):
+        cli.main(["sample", "--help"])
+    assert capsys.readouterr().out.startswith("usage: jaxtree sample")
+
+
+def test_a_backward_interval_is_refused_in_one_line(capsys):
+    assert cli.main(["simulate", "wings", "--t1", "-3"]) == cli.EXIT_USAGE
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--t1 -3 is before --t0 0" in err
 
 
 def test_no_subcommand_runs_the_sample_problem(monkeypatch):
@@ -301,7 +327,10 @@ def test_plot_command_writes_the_plots_of_a_result(run, modes_run, tmp_path, cap
     assert cli.main(["plot", str(modes_run), "-o", str(tmp_path / "m")]) == 0
     for name in ("r_histories.png", "r_drift.png", "m_shapes.png"):
         assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
-    capsys.readouterr()
+    assert "overwrote" not in capsys.readouterr().out
+    # again: the same files, now said to be overwritten
+    assert cli.main(["plot", str(modes_run), "-o", str(tmp_path / "m")]) == 0
+    assert f"(overwrote {tmp_path / 'm_shapes.png'})" in capsys.readouterr().out
 
 
 def test_a_failed_run_keeps_what_it_computed_and_reports_where_it_stopped(tmp_path, capsys):

@@ -31,7 +31,10 @@ def _fast_cpu_compiler():
 def _parser():
     from ._src.cli import _Parser
 
-    p = _Parser(prog="python -m jaxtree", description=(__doc__ or "").split("\n\n")[0])
+    # the name it was started by: `python -m jaxtree` runs this file, the `jaxtree` script the command line
+    started_here = os.path.abspath(sys.argv[0]) == os.path.abspath(__file__)
+    prog = "python -m jaxtree" if started_here else "jaxtree sample"
+    p = _Parser(prog=prog, description=(__doc__ or "").split("\n\n")[0])
     p.add_argument("--scene", default="fig4", help="bundled scene name or path to a scene JSON (default: fig4)")
     p.add_argument("--duration", type=float, default=100.0, help="simulated time in seconds (default: 100)")
     p.add_argument("--points", type=int, default=1001, help="number of saved times (default: 1001)")

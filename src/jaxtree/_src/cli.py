@@ -508,6 +508,16 @@ def _bench_cases():
     return CASES
 
 
+def _wrote(paths, existed) -> str:
+    """``wrote a, b`` with the files that were there before named as overwritten."""
+    over = [str(q) for q in paths if str(q) in existed]
+    return f"wrote {', '.join(str(q) for q in paths)}" + (f" (overwrote {', '.join(over)})" if over else "")
+
+
+def _existing(paths) -> set[str]:
+    return {str(q) for q in paths if pathlib.Path(q).exists()}
+
+
 def cmd_bench(args) -> int:
     from .bench import SOLVERS as BENCH_SOLVERS
     from .bench import bench_case, work_precision
@@ -912,6 +922,11 @@ def cmd_simulate(args) -> int:
 
     if args.t1 == args.t0:
         raise UserError("--t1 equals --t0: nothing to integrate")
+    if args.t1 < args.t0:
+        raise UserError(
+            f"--t1 {args.t1:g} is before --t0 {args.t0:g}: the command line integrates forward in time "
+            "(jaxtree.simulate integrates backward when t1 < t0)"
+        )
     if args.hybrid_small is None:
         for opt, val in (
             ("--modes", args.modes),
@@ -1198,8 +1213,12 @@ def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
     why = []
     if model.prescribed:
         why.append("prescribed hinges do work")
-    if np.any(np.asarray(model.damping)[np.asarray(model.sprung, int) - 1] != 0) if model.sprung else False:
-        why.append("dampers dissipate")
+    damped = bool(np.any(np.asarray(model.damping)[np.asarray(model.sprung, int) - 1] != 0)) if model.sprung else False
+    if damped and "energy" in ds:
+        e = np.asarray(ds["energy"].values, float)
+        # dampers only take energy out: say so only where it fell
+        if len(e) > 1 and e[-1] < e[0]:
+            why.append(f"dampers dissipated {(e[0] - e[-1]) / abs(e[0]):.1%} of it" if e[0] else "dampers dissipate")
     if "energy_drift" in a:
         lines.append(
             f"  energy drift: max |E - E0| / |E0| = {float(a['energy_drift']):.3e}"
@@ -1247,6 +1266,7 @@ def cmd_modes(args) -> int:
         omega0=spin,
         attrs={"command": command_line(), "damping": args.damping, "structure": st.describe()},
     )
+    existed = _existing([out, args.plot if args.plot else out.with_suffix(".png")])
     write_netcdf(ds, out)
     f = np.asarray(md.frequencies)
     z = np.asarray(md.damping_ratios)
@@ -1261,6 +1281,10 @@ def cmd_modes(args) -> int:
         period = 2 * np.pi / f[j] if f[j] > 0 else float("inf")
         label = md.labels[j] if md.labels else ""
         print(f"{j + 1:5d} {f[j]:14.6g} {f[j] / (2 * np.pi):11.5g} {period:11.5g} {z[j]:8.4f}  {label}")
+    print(
+        "  dominated by: each coordinate's share of the mode's participation sum_i |phi_i|^2 I_ii (its kinetic "
+        "energy by the diagonal of I), largest first; + / - in phase / antiphase with the first"
+    )
     wrote = [str(out)]
     if not args.no_plot:
         if _matplotlib():
@@ -1271,7 +1295,7 @@ def cmd_modes(args) -> int:
             wrote.append(png)
         else:
             _say("matplotlib is not installed: no mode-shape plot (pip install 'jaxtree[plot]')")
-    print(f"wrote {', '.join(wrote)}")
+    print(_wrote(wrote, existed))
     return 0
 
 
@@ -1287,6 +1311,7 @@ def _viewer():
 def cmd_animate(args) -> int:
     import numpy as np
 
+    existed = _existing([args.out])
     ds = _load_result(args.result)
     model = _model_of(ds, args.result)
     viewer = _viewer()
@@ -1330,7 +1355,7 @@ def cmd_animate(args) -> int:
             np.asarray(ds["gamma"].values),
             title=title,
         )
-    print(f"wrote {args.out}")
+    print(_wrote([args.out], existed))
     return 0
 
 
@@ -1345,10 +1370,12 @@ def cmd_plot(args) -> int:
     if ds.attrs.get("kind") == "modes":
         model = _model_of(ds, args.result)
         files = [f"{prefix}_shapes.png"]
+        existed = _existing(files)
         plots.plot_mode_shapes(model, ds, path=files[0])
     else:
         files = [f"{prefix}_histories.png", f"{prefix}_drift.png"]
+        existed = _existing(files)
         plots.plot_histories(ds, files[0])
         plots.plot_drift(ds, files[1])
-    print(f"wrote {', '.join(files)}")
+    print(_wrote(files, existed))
     return 0
