@@ -46,7 +46,9 @@ def _parser():
     p.add_argument("--rtol", type=float, default=1e-9, help="relative tolerance (default: 1e-9)")
     p.add_argument("--atol", type=float, default=1e-9, help="absolute tolerance (default: 1e-9)")
     p.add_argument("--out", default="results", help="output folder (default: ./results)")
-    p.add_argument("--no-progress", action="store_true", help="do not show the progress meter")
+    p.add_argument(
+        "--no-progress", action="store_true", help="do not show the progress meter (shown on a terminal only)"
+    )
     p.add_argument("--no-plot", action="store_true", help="do not write the plot")
     return p
 
@@ -73,6 +75,8 @@ def sample(argv=None) -> int:
     from ._src.cli import _load_scene
 
     model = _load_scene(args.scene)
+    # a progress bar on a terminal only: redrawn into a log it is kilobytes of noise
+    show_progress = not args.no_progress and sys.stderr.isatty()
     attitudes = [a.strip() for a in args.attitudes.split(",") if a.strip()]
     out = os.path.abspath(args.out)
     print(
@@ -85,13 +89,13 @@ def sample(argv=None) -> int:
         kw = dict(attitude=att, saveat=args.points, rtol=args.rtol, atol=args.atol)
         print(f"-- {att}: compiling and running")
         t0 = time.perf_counter()
-        sol = jaxtree.simulate(model, args.duration, progress=not args.no_progress, **kw)
+        sol = jaxtree.simulate(model, args.duration, progress=show_progress, **kw)
         jax.block_until_ready(sol.gamma)
         first = time.perf_counter() - t0
         # Again, now compiled, for the run time alone (same configuration, meter output muted).
         with contextlib.redirect_stdout(io.StringIO()):
             t0 = time.perf_counter()
-            sol = jaxtree.simulate(model, args.duration, progress=not args.no_progress, **kw)
+            sol = jaxtree.simulate(model, args.duration, progress=show_progress, **kw)
             jax.block_until_ready(sol.gamma)
             jax.effects_barrier()
             wall = time.perf_counter() - t0

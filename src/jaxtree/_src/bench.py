@@ -761,7 +761,7 @@ class _Progress:
         self.total, self.done, self.enabled = total, 0, enabled
         self.start = time.perf_counter()
         self.bar = None
-        if enabled:
+        if enabled and sys.stderr.isatty():  # a bar on a terminal; one line per run in a log
             try:
                 from tqdm.auto import tqdm
 
