@@ -623,4 +623,10 @@ def test_command_line_runs_the_sample_problem(tmp_path, monkeypatch, capsys):
     assert data["quaternion/gamma"].shape == (11, 10)
     assert maxdiff(data["quaternion/gamma"][:, 0], np.sin(0.5 * np.linspace(0.0, 1.0, 11))) < 1e-15
     header = (tmp_path / "fig4_quaternion.csv").read_text().splitlines()[0].split(",")
-    assert header[:2] == ["t", "gamma_1"] and "hold_torque_1" in header
+    assert header[:2] == ["t [s]", "gamma_1 [rad]"] and "hold_torque_1 [N m]" in header
+    assert all(h.endswith("]") for h in header)  # every column with its unit
+    assert [h for h in header if h.startswith("quaternion_")][0] == "quaternion_1 [1]"  # numbered from 1
+    # the result file of `jaxtree simulate` beside the CSV: the same run, read back by load_result
+    back = jaxtree.load_result(tmp_path / "fig4_quaternion.nc")
+    np.testing.assert_array_equal(np.asarray(back.gamma), data["quaternion/gamma"])
+    assert "fig4_quaternion.nc" in out

@@ -71,6 +71,7 @@ def sample(argv=None) -> int:
 
     import jaxtree
     from jaxtree._src import output
+    from jaxtree._src.results import command_line, save_result
 
     from ._src.cli import _load_scene
 
@@ -118,8 +119,11 @@ def sample(argv=None) -> int:
     output.save_npz(os.path.join(out, f"{stem}_histories.npz"), runs)
     written = [f"{stem}_histories.npz"]
     for att, sol in runs.items():
+        # the result file of `jaxtree simulate` (jaxtree.load_result, `jaxtree plot` and `animate`
+        # read it), and the same histories as CSV
+        save_result(os.path.join(out, f"{stem}_{att}.nc"), sol, {"command": command_line()})
         output.save_csv(os.path.join(out, f"{stem}_{att}.csv"), sol)
-        written.append(f"{stem}_{att}.csv")
+        written += [f"{stem}_{att}.nc", f"{stem}_{att}.csv"]
     if not args.no_plot:
         if output.save_plot(
             os.path.join(out, f"{stem}.png"), runs, title=f"{stem}: {args.duration:g} s, " + " vs ".join(runs)

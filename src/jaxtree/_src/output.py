@@ -70,27 +70,33 @@ def save_npz(path, runs: dict[str, Solution]) -> None:
         fh.write(buf.getvalue())
 
 
+# units of the attitude variables (Eq. 3: Euler angles; Eqs. 23-24: quaternion, direction cosines)
+_ATTITUDE_UNITS = {"euler123": "rad", "quaternion": "1", "dcm": "1"}
+
+
 def save_csv(path, sol: Solution) -> None:
     """One row per saved time: t, gamma_k, gamma_dot_k, omega0_i, C_ij, attitude variables,
-    energy, H_i, hold torques."""
+    energy, H_i, hold torques. One header line, each column as ``name [unit]``; hinges, axes and
+    attitude variables numbered from 1 as in the seed (``gamma_1`` is hinge 1)."""
     h = histories(sol)
     n = h["gamma"].shape[1]
-    cols, names = [h["t"][:, None]], ["t"]
-    for key, label in (("gamma", "gamma"), ("gamma_dot", "gamma_dot")):
+    cols, names = [h["t"][:, None]], ["t [s]"]
+    for key, unit in (("gamma", "rad"), ("gamma_dot", "rad/s")):
         cols.append(h[key])
-        names += [f"{label}_{k}" for k in range(1, n + 1)]
+        names += [f"{key}_{k} [{unit}]" for k in range(1, n + 1)]
     cols.append(h["omega0"])
-    names += ["omega0_1", "omega0_2", "omega0_3"]
+    names += [f"omega0_{i} [rad/s]" for i in (1, 2, 3)]
     cols.append(h["dcm"].reshape(-1, 9))
-    names += [f"C_{i}{j}" for i in range(1, 4) for j in range(1, 4)]
+    names += [f"C_{i}{j} [1]" for i in range(1, 4) for j in range(1, 4)]
     cols.append(h["attitude"])
-    names += [f"{sol.problem.attitude.name}_{i}" for i in range(h["attitude"].shape[1])]
+    att = sol.problem.attitude.name
+    names += [f"{att}_{i} [{_ATTITUDE_UNITS.get(att, '1')}]" for i in range(1, h["attitude"].shape[1] + 1)]
     cols.append(h["energy"][:, None])
-    names.append("energy")
+    names.append("energy [J]")
     cols.append(h["angular_momentum"])
-    names += ["H_1", "H_2", "H_3"]
+    names += [f"H_{i} [N m s]" for i in (1, 2, 3)]
     cols.append(h["hold_torque"])
-    names += [f"hold_torque_{k}" for k in sol.problem.model.prescribed]
+    names += [f"hold_torque_{k} [N m]" for k in sol.problem.model.prescribed]
     table = np.concatenate(cols, 1)
     buf = io.StringIO()
     np.savetxt(buf, table, delimiter=",", header=",".join(names), comments="", fmt="%.17g")
