@@ -268,7 +268,13 @@ def _parser():
     s.add_argument("scene", metavar="SCENE", help="scene JSON file (jaxtree-scene/1) or a bundled scene name")
     s.add_argument("--t1", type=_finite(), required=True, help="end time (s)")
     s.add_argument("--t0", type=_finite(), default=0.0, help="start time (s; default 0)")
-    s.add_argument("--points", type=_count(2), default=101, help="number of evenly spaced save times (default 101)")
+    s.add_argument(
+        "--points",
+        type=_count(2),
+        default=None,
+        help="number of evenly spaced save times (default: 20 per period of the fastest sprung hinge that "
+        "still rings, at least 101)",
+    )
     s.add_argument("--rtol", type=_positive(), default=None, help="relative tolerance (default 1e-9)")
     s.add_argument("--atol", type=_positive(), default=None, help="absolute tolerance (default 1e-9)")
     s.add_argument(
@@ -599,6 +605,7 @@ def _config(args, model):
     from .results import _scene_json
 
     tol = default_tolerance(jnp.result_type(model.mass))
+    points = _save_points(args, model)
     solver, why = SOLVERS[args.solver], "given (--solver)"
     if solver == "auto":
         from .autosolver import choose_solver
@@ -609,7 +616,7 @@ def _config(args, model):
         "scene": _scene_json(model),
         "t0": float(args.t0),
         "t1": float(args.t1),
-        "points": int(args.points),
+        "points": points,
         "chunks": int(args.chunks),
         "solver": solver,
         "solver_choice": why,
@@ -629,6 +636,27 @@ def _config(args, model):
         if args.modes == "auto":
             cfg["modes_tol"] = 1e-2 if args.modes_tol is None else float(args.modes_tol)
     return cfg
+
+
+def _save_points(args, model) -> int:
+    """--points, or by default enough for the fastest motion that rings; a note where too few."""
+    from .autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
+
+    span = float(args.t1 - args.t0)
+    default, rate = save_points(model, span)
+    points = default if args.points is None else int(args.points)
+    per = samples_per_period(points, span, rate)
+    if args.points is not None and per < SAMPLES_LEAST:
+        _say(
+            f"note: {points} save points sample the fastest hinge motion ({rate:.3g} rad/s) {per:.1f} times a "
+            f"period: its curves will look jagged (the default here is {default})"
+        )
+    elif args.points is None and per < SAMPLES_PER_PERIOD and default == MAX_SAVE_POINTS:
+        _say(
+            f"note: the default {points} save points sample the fastest hinge motion ({rate:.3g} rad/s) only "
+            f"{per:.1f} times a period; give --points for more"
+        )
+    return points
 
 
 def _chunk_bounds(points, chunks):

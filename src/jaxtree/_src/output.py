@@ -105,57 +105,18 @@ def save_csv(path, sol: Solution) -> None:
 
 
 def save_plot(path, runs: dict[str, Solution], title: str = "") -> bool:
-    """Plot hinge angles, omega0, attitude (C), energy and momentum of several runs into one PNG.
+    """The histories of several runs of one vehicle in one PNG (:func:`jaxtree.plot_histories`
+    with its drift panels): hinges by role, one colour per quantity and one line style per run.
 
     Returns False (and writes nothing) when matplotlib is not installed.
     """
     try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        import matplotlib  # noqa: F401
     except ImportError:
         return False
-    fig, axes = plt.subplots(3, 2, figsize=(13, 10), sharex=True)
-    styles = ["-", "--", ":", "-."]
-    for r, (name, sol) in enumerate(runs.items()):
-        h = histories(sol)
-        t, ls = h["t"], styles[r % len(styles)]
-        n = h["gamma"].shape[1]
-        for k in range(n):
-            if k == 3 and n == 10:  # fig4's rotor: plot its spin separately, it grows linearly
-                continue
-            axes[0, 0].plot(t, h["gamma"][:, k], ls, lw=1, label=f"$\\gamma_{{{k + 1}}}$" if r == 0 else None)
-        axes[0, 1].plot(t, h["gamma_dot"], ls, lw=1)
-        for i in range(3):
-            axes[1, 0].plot(t, h["omega0"][:, i], ls, lw=1, label=f"$\\omega^0_{i + 1}$ ({name})")
-        for i in range(3):
-            axes[1, 1].plot(t, h["dcm"][:, i, i], ls, lw=1, label=f"$C_{{{i + 1}{i + 1}}}$ ({name})")
-        axes[2, 0].plot(t, h["energy"] - h["energy"][0], ls, lw=1, label=name)
-        H = h["angular_momentum"]
-        axes[2, 1].plot(t, np.linalg.norm(H - H[0], axis=1) / np.linalg.norm(H[0]), ls, lw=1, label=name)
-    axes[0, 0].set_title("hinge angles $\\gamma_k$ (rad)")
-    axes[0, 0].legend(ncol=3, fontsize=7)
-    axes[0, 1].set_title("hinge rates $\\dot\\gamma_k$ (rad/s)")
-    axes[1, 0].set_title("$\\omega^0$ in $\\{b^0\\}$ (rad/s)")
-    axes[1, 0].legend(ncol=2, fontsize=7)
-    axes[1, 1].set_title("direction cosines $C_{ii}$ (Def. 9)")
-    axes[1, 1].legend(ncol=2, fontsize=7)
-    axes[2, 0].set_title("energy change $E(t) - E(0)$ (J)")
-    axes[2, 0].legend(fontsize=7)
-    axes[2, 1].set_title("relative angular-momentum drift $|H(t) - H(0)| / |H(0)|$")
-    axes[2, 1].set_yscale("symlog", linthresh=1e-16)
-    axes[2, 1].legend(fontsize=7)
-    for ax in axes[2]:
-        ax.set_xlabel("t (s)")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    with atomic_write(path) as fh:
-        fh.write(buf.getvalue())
+    from .plots import plot_histories
+
+    plot_histories(runs, path, title=title or None, drift=True)
     return True
 
 
