@@ -352,3 +352,53 @@ def test_mode_page_plays_in_a_browser(browser, wings_pages, tmp_path):
         page.screenshot(path=str(tmp_path / "mode_page.png"))
     finally:
         page.close()
+
+
+def test_hinges_are_hidden_behind_boxes_like_the_boxes(browser, tmp_path):
+    """A hinge point between the hub and the arm is hidden by the hub seen from the hub's side
+    (behind it) and by the arm seen from the arm's side, and shown seen from aside; a hinge
+    inside its parent's box (here at the hub's center) is not hidden by that box, only by
+    another one (the arm, seen from the arm's side)."""
+    bodies = [
+        jaxtree.Body("hub", 40.0, np.diag([20.0, 25.0, 30.0])),
+        # the hub's box reaches x = +-1.15; the hinge at x = -1.6, the arm's box from -1.84 to -3.36
+        jaxtree.Body(
+            "arm",
+            3.0,
+            np.diag([0.1, 0.6, 0.65]),
+            parent=0,
+            axis=(0, 0, 1),
+            hinge_on_parent=(-1.6, 0, 0),
+            hinge_on_body=(1.0, 0, 0),
+        ),
+        jaxtree.Body(
+            "core",
+            1.0,
+            np.diag([0.01, 0.01, 0.01]),
+            parent=0,
+            axis=(0, 0, 1),
+            hinge_on_parent=(0, 0, 0),
+            hinge_on_body=(0, 0, 0),
+        ),
+    ]
+    model = jaxtree.build_model(bodies, name="hidden_hinge")
+    ts = np.linspace(0.0, 1.0, 3)
+    viewer.write_animation(tmp_path / "h.html", model, ts, np.tile(np.eye(3), (3, 1, 1)), np.zeros((3, 2)))
+    page, log, _ = _open(browser, tmp_path / "h.html")
+    try:
+
+        def shown(az_deg, el_deg=0.0):
+            return page.evaluate(
+                "(([az, el]) => { const v = document.querySelector('.jaxtree-viewer').jaxtreeViewer;"
+                " v.camera.az = az * Math.PI / 180; v.camera.el = el * Math.PI / 180; v.draw();"
+                " return [v.hingeShown(0), v.hingeShown(1)]; })",
+                [az_deg, el_deg],
+            )
+
+        assert shown(0.0) == [False, True]  # from +x: behind the hub
+        assert shown(180.0) == [False, False]  # from -x: both behind the arm
+        assert shown(90.0) == [True, True] and shown(-90.0) == [True, True]  # from aside
+        assert shown(0.0, 89.0) == [True, True]  # from above
+        assert log["errors"] == [], log["errors"]
+    finally:
+        page.close()
