@@ -15,7 +15,6 @@ import jaxtree
 from jaxtree._src import autosolver, cli, plots
 from jaxtree._src.results import simulation_dataset
 
-
 matplotlib.use("Agg")
 
 # smallest legible sizes at plots.DPI (points)
@@ -86,7 +85,11 @@ def test_fig4_histories_group_hinges_show_the_rotor_and_style_the_runs(fig4_runs
     np.testing.assert_array_equal(rotor.lines[0].get_ydata(), np.asarray(sol.gamma_dot)[:, 3])
     # branch hinges (platform, gimbals) apart from the six sprung panels
     angles = _panel(fig, "branch: hinge angles")
-    assert [ln.get_label() for ln in angles.lines[:3]] == ["1 platform (prescribed)", "2 gimbal_outer", "3 gimbal_inner"]
+    assert [ln.get_label() for ln in angles.lines[:3]] == [
+        "1 platform (prescribed)",
+        "2 gimbal_outer",
+        "3 gimbal_inner",
+    ]
     panels = _panel(fig, "appendage")
     assert len([ln for ln in panels.lines if not ln.get_label().startswith("_")]) == 6
     # every hinge appears somewhere (nothing silently left out)
