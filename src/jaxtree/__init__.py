@@ -96,7 +96,16 @@ from ._src.scene import (
     Prescribed as Prescribed,
 )
 from ._src.scene import (
+    PrescribedRamp as PrescribedRamp,
+)
+from ._src.scene import (
     PrescribedSine as PrescribedSine,
+)
+from ._src.scene import (
+    PrescribedSmoothStep as PrescribedSmoothStep,
+)
+from ._src.scene import (
+    PrescribedTable as PrescribedTable,
 )
 from ._src.scene import (
     SpringDamper as SpringDamper,
@@ -260,6 +269,9 @@ from ._src.loads import (
     BodyTorque as BodyTorque,
 )
 from ._src.loads import (
+    CircularOrbit as CircularOrbit,
+)
+from ._src.loads import (
     CombinedLoads as CombinedLoads,
 )
 from ._src.loads import (
@@ -267,6 +279,9 @@ from ._src.loads import (
 )
 from ._src.loads import (
     PerBodyLoads as PerBodyLoads,
+)
+from ._src.loads import (
+    ScheduledLoads as ScheduledLoads,
 )
 from ._src.loads import (
     combine_loads as combine_loads,
@@ -380,6 +395,9 @@ __all__ = [
     "Free",
     "SpringDamper",
     "PrescribedSine",
+    "PrescribedRamp",
+    "PrescribedSmoothStep",
+    "PrescribedTable",
     "Prescribed",
     "build_model",
     "validate_model",
@@ -440,6 +458,8 @@ __all__ = [
     "CombinedLoads",
     "combine_loads",
     "thruster_pulse",
+    "ScheduledLoads",
+    "CircularOrbit",
     # simulation of Eq. (1) (Eqs. 25-27 with diffrax), events, failures
     "simulate",
     "Solution",

@@ -139,7 +139,8 @@ class HingePID(AbstractController):
     ``tau = -kp e - ki integral - kd f``.
 
     **Arguments:** `n` number of hinges of the model; `hinges` (1-based); gains `kp`, `ki`,
-    `kd` and `filter_time` (scalars or one per hinge); `reference` as for :class:`HingePD`.
+    `kd` and `filter_time` (scalars or one per hinge); `reference` as for :class:`HingePD`;
+    `z0` the initial internal states (default zero), e.g. where a run in parts continues.
     """
 
     kp: jax.Array
@@ -150,8 +151,9 @@ class HingePID(AbstractController):
     n: int = eqx.field(static=True)
     hinges: tuple[int, ...] = eqx.field(static=True)
     reference_fn: Callable | None = eqx.field(static=True, default=None)
+    z0: Any = None
 
-    def __init__(self, n, hinges, kp, ki, kd, filter_time, reference=None):
+    def __init__(self, n, hinges, kp, ki, kd, filter_time, reference=None, z0=None):
         self.n = int(n)
         self.hinges = tuple(int(k) for k in np.atleast_1d(hinges))
         shape = (len(self.hinges),)
@@ -159,8 +161,11 @@ class HingePID(AbstractController):
             jnp.broadcast_to(jnp.asarray(x, float), shape) for x in (kp, ki, kd, filter_time)
         )
         self.reference_fn, self.reference_value = _split_reference(reference, self.hinges)
+        self.z0 = z0
 
     def initial(self):
+        if self.z0 is not None:
+            return self.z0
         z = jnp.zeros((len(self.hinges),), self.kp.dtype)
         return {"integral": z, "rate": z}
 
@@ -178,3 +183,45 @@ class HingePID(AbstractController):
     def rate(self, t, state, z, params):
         e, ed = self._error(t, state)
         return {"integral": e, "rate": (ed - z["rate"]) / self.filter_time.astype(e.dtype)}
+
+
+class LawSum(eqx.Module):
+    """Several hinge laws ``tau(t, state, params)`` side by side: their torques add."""
+
+    laws: tuple
+
+    def __call__(self, t, state: State, params=None):
+        tau = self.laws[0](t, state, params)
+        for law in self.laws[1:]:
+            tau = tau + law(t, state, params)
+        return tau
+
+
+class ControllerGroup(AbstractController):
+    """Several controllers side by side: internal states a tuple (one entry per controller),
+    torques that add."""
+
+    parts: tuple[AbstractController, ...]
+
+    def initial(self):
+        return tuple(c.initial() for c in self.parts)
+
+    def torque(self, t, state, z, params):
+        tau: Any = self.parts[0].torque(t, state, z[0], params)
+        for c, zc in zip(self.parts[1:], z[1:]):
+            tau = tau + c.torque(t, state, zc, params)
+        return tau
+
+    def rate(self, t, state, z, params):
+        return tuple(c.rate(t, state, zc, params) for c, zc in zip(self.parts, z))
+
+
+def with_model_laws(model, law, controller):
+    """The hinge law and controller of a run: the model's own (``model.law``,
+    ``model.controller``, from its scene) and those given to :func:`jaxtree.simulate`, side by
+    side (the model's first)."""
+    laws = [x for x in (getattr(model, "law", None), law) if x is not None]
+    ctrls = [x for x in (getattr(model, "controller", None), controller) if x is not None]
+    law = None if not laws else laws[0] if len(laws) == 1 else LawSum(tuple(laws))
+    controller = None if not ctrls else ctrls[0] if len(ctrls) == 1 else ControllerGroup(tuple(ctrls))
+    return law, controller

@@ -24,6 +24,7 @@ import numpy as np
 from .dynamics import SINGULAR_CONDITION, _matrix_condition, _unknown_labels, rotational_equations
 from .model import Model, SinePrescription, State
 from .scene import SceneError, load_scene, scene_from_dict
+from .scene_laws import describe_laws
 
 # Above this condition number the summary warns that digits are being lost (float64 keeps
 # about 8 of its 16 digits there).
@@ -192,6 +193,9 @@ class SceneReport:
             f"  prescribed hinges: {list(m.prescribed) or 'none'}; sprung: {list(m.sprung) or 'none'}; "
             f"inert: {list(m.inert) or 'none'}; unknowns of Eq. (1): 3 + {len(m.unknown_hinges)}"
         )
+        laws = describe_laws(m)
+        if laws:
+            lines += ["", "loads and laws (applied by jaxtree simulate):", *laws]
         lines += ["", "tree (body index, name, mass; hinge k joins body k to its parent):"]
         lines += ["  " + s for s in self.tree]
         if tables:

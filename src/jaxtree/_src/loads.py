@@ -9,6 +9,10 @@ This module builds such objects:
 - :class:`BodyTorque`: a torque history ``torque(t)`` on one body, e.g. a thruster pair on
   the bus (:func:`thruster_pulse` gives a smooth on/off pulse);
 - :class:`GravityGradient`: the gravity-gradient torques and tidal forces of a circular orbit;
+- :class:`ScheduledLoads`: the scene format's forces and torques, each a constant vector in a
+  body's frame times a profile of time (constant, pulse or table: :mod:`jaxtree.profiles`);
+- :class:`CircularOrbit`: the circular orbit of the mass center about a central body (Eq. 2),
+  whose rate the gravity gradient uses;
 - :class:`CombinedLoads` (:func:`combine_loads`): several of the above side by side.
 
 Loads written as equinox Modules keep their numbers as array leaves (traced, differentiable).
@@ -22,9 +26,11 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike
 
 from .dynamics import configuration
 from .model import BodyLoads, Model, State
+from .profiles import linear_table, pad_tables
 
 
 class PerBodyLoads(BodyLoads):
@@ -50,7 +56,7 @@ class PerBodyLoads(BodyLoads):
         return F, T
 
 
-def thruster_pulse(t, start, duration, rise=1e-2):
+def thruster_pulse(t, start, duration, rise: ArrayLike = 1e-2):
     """Smooth 0 -> 1 -> 0 pulse (tanh edges of width `rise`) from `start` for `duration`."""
     on = 0.5 * (1 + jnp.tanh((t - start) / rise))
     off = 0.5 * (1 + jnp.tanh((t - start - duration) / rise))
@@ -102,7 +108,14 @@ class GravityGradient(BodyLoads):
     phase: jax.Array
     bodies: tuple[int, ...] = eqx.field(static=True)
 
-    def __init__(self, model: Model, mu=3.986004418e14, radius=7.0e6, phase=0.0, bodies=None):
+    def __init__(
+        self,
+        model: Model,
+        mu: ArrayLike = 3.986004418e14,
+        radius: ArrayLike = 7.0e6,
+        phase: ArrayLike = 0.0,
+        bodies=None,
+    ):
         self.geometry = model.with_loads(None)
         self.mu = jnp.asarray(mu, float)
         self.radius = jnp.asarray(radius, float)
@@ -159,3 +172,116 @@ def combine_loads(*loads: BodyLoads | None) -> BodyLoads | None:
     if len(parts) == 1:
         return parts[0]
     return CombinedLoads(parts)
+
+
+LOAD_PROFILES = ("constant", "pulse", "table")
+
+
+class ScheduledLoads(BodyLoads):
+    """Forces and torques of the scene format: load i is ``vector_i * p_i(t)`` on body
+    ``rows[i]`` (components in that body's frame; a force acts at its mass center), a torque
+    or a force as ``kinds[i]`` says, with the profile ``profiles[i]``: ``"constant"`` (1),
+    ``"pulse"`` (:func:`thruster_pulse` with `start`, `duration`, `rise`) or ``"table"``
+    (linear interpolation of `times`, `values`, held constant outside; the tables padded as in
+    :func:`jaxtree.profiles.pad_tables` to one length, `lengths` the true ones).
+
+    Leaves: `vector` (m, 3), `start`, `duration`, `rise` (m,), `times`, `values` (m, L); the
+    kinds, profiles, rows and lengths are static. One vectorized evaluation per profile kind.
+    """
+
+    vector: jax.Array
+    start: jax.Array
+    duration: jax.Array
+    rise: jax.Array
+    times: jax.Array
+    values: jax.Array
+    rows: tuple[int, ...] = eqx.field(static=True)
+    kinds: tuple[str, ...] = eqx.field(static=True)
+    profiles: tuple[str, ...] = eqx.field(static=True)
+    lengths: tuple[int, ...] = eqx.field(static=True)
+    bodies: tuple[int, ...] = eqx.field(static=True)
+
+    def __init__(self, rows, kinds, vectors, profiles, start=None, duration=None, rise=None, tables=None):
+        """**Arguments:** per load: `rows` body index, `kinds` ``"torque"`` or ``"force"``,
+        `vectors` (3,), `profiles` a kind of :data:`LOAD_PROFILES`; `start`, `duration`, `rise`
+        the pulse parameters (ignored elsewhere); `tables` ``(times, values)`` of each table
+        profile (None elsewhere)."""
+        m = len(rows)
+        self.rows = tuple(int(k) for k in rows)
+        self.kinds = tuple(kinds)
+        self.profiles = tuple(profiles)
+        self.bodies = tuple(sorted(set(self.rows)))
+        self.vector = jnp.asarray(np.reshape(np.asarray(vectors, float), (m, 3)))
+        fill = lambda x, v: np.full(m, v) if x is None else np.asarray(x, float)  # noqa: E731
+        self.start = jnp.asarray(fill(start, 0.0))
+        self.duration = jnp.asarray(fill(duration, 0.0))
+        self.rise = jnp.asarray(fill(rise, 1.0))
+        tables = [None] * m if tables is None else list(tables)
+        ts = [np.asarray(tb[0], float) if tb is not None else np.array([0.0, 1.0]) for tb in tables]
+        vs = [np.asarray(tb[1], float) if tb is not None else np.array([1.0, 1.0]) for tb in tables]
+        self.lengths = tuple(len(t) if tb is not None else 0 for t, tb in zip(ts, tables))
+        T, V = pad_tables(ts, vs)
+        self.times, self.values = jnp.asarray(T), jnp.asarray(V)
+
+    def profile(self, t):
+        """The factors ``p_i(t)`` (m,)."""
+        kinds = np.asarray(self.profiles)
+        dtype = self.vector.dtype
+        p = jnp.ones((len(self.rows),), dtype)
+        if (kinds == "pulse").any():
+            p = jnp.where(kinds == "pulse", thruster_pulse(t, self.start, self.duration, self.rise), p)
+        if (kinds == "table").any():
+            table = jax.vmap(linear_table, in_axes=(None, 0, 0))(t, self.times, self.values)
+            p = jnp.where(kinds == "table", table, p)
+        return p
+
+    def __call__(self, t, state):
+        dtype = state.omega0.dtype
+        p = self.profile(jnp.asarray(t, dtype)).astype(dtype)
+        v = self.vector.astype(dtype) * p[:, None]
+        force = np.asarray([k == "force" for k in self.kinds], dtype=float)[:, None]
+        # rows -> bodies: a constant 0/1 matrix (several loads on one body add)
+        S = np.zeros((len(self.bodies), len(self.rows)))
+        S[[self.bodies.index(k) for k in self.rows], np.arange(len(self.rows))] = 1.0
+        S = jnp.asarray(S, dtype)
+        return S @ (v * force), S @ (v * (1.0 - force))
+
+
+class CircularOrbit(eqx.Module):
+    """A circular orbit of the system mass center about a central body of gravitational
+    parameter `mu`: Eq. (2) with the central body's attraction ``-mu M X / |X|^3`` alone, whose
+    circular solution in the ``i_1, i_2`` plane is ``X(t) = radius (cos a, sin a, 0)``,
+    ``a = rate t + phase``, ``rate = sqrt(mu / radius^3)`` (the mean motion).
+
+    The vehicle's own loads do not perturb it: the tidal forces of :class:`GravityGradient` sum
+    to zero over the vehicle (``sum m_k rho_k = 0``), and scheduled forces are assumed small
+    against the central attraction over the run. Leaves: `mu`, `radius`, `phase`.
+    """
+
+    mu: jax.Array
+    radius: jax.Array
+    phase: jax.Array
+
+    def __init__(self, mu: ArrayLike = 3.986004418e14, radius: ArrayLike = 7.0e6, phase: ArrayLike = 0.0):
+        self.mu = jnp.asarray(mu, float)
+        self.radius = jnp.asarray(radius, float)
+        self.phase = jnp.asarray(phase, float)
+
+    @property
+    def rate(self) -> jax.Array:
+        """The mean motion ``sqrt(mu / radius^3)`` (rad/s)."""
+        return jnp.sqrt(self.mu / self.radius**3)
+
+    def position(self, t) -> jax.Array:
+        """``X(t)`` (3,) in inertial components."""
+        a = self.rate * t + self.phase
+        return self.radius * jnp.stack([jnp.cos(a), jnp.sin(a), jnp.zeros_like(a)])
+
+    def velocity(self, t) -> jax.Array:
+        """``X_dot(t)`` (3,) in inertial components."""
+        a = self.rate * t + self.phase
+        return self.radius * self.rate * jnp.stack([-jnp.sin(a), jnp.cos(a), jnp.zeros_like(a)])
+
+    def gravity_gradient(self, model: Model, bodies=None) -> GravityGradient:
+        """The :class:`GravityGradient` of this orbit on `model` (`bodies`: default all with mass)."""
+        return GravityGradient(model, self.mu, self.radius, self.phase, bodies)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import abc
 import dataclasses
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax
@@ -115,6 +115,13 @@ class Model(eqx.Module):
     :func:`jaxtree.articulated.resolve_method`), with `block_size` the most hinges per block
     of the articulated method (0: its default). All give the same accelerations to round-off.
 
+    Laws a scene carries (Sec. II D inputs 7-8; all optional, None when absent): `law`, a hinge
+    law ``tau(t, state, params)`` (e.g. :class:`~jaxtree.HingePD`), and `controller`, an
+    :class:`~jaxtree.control.AbstractController` with internal states (e.g.
+    :class:`~jaxtree.HingePID`), which :func:`jaxtree.simulate` adds to those it is given; and
+    `orbit`, the :class:`~jaxtree.CircularOrbit` of the mass center (Eq. 2 with a central
+    body), whose rate the scene's gravity-gradient load uses.
+
     Build models with :func:`jaxtree.build_model` or :func:`jaxtree.load_scene`,
     which validate the input before anything is traced.
     """
@@ -136,6 +143,9 @@ class Model(eqx.Module):
     name: str = eqx.field(static=True, default="")
     method: str = eqx.field(static=True, default="auto")
     block_size: int = eqx.field(static=True, default=0)
+    law: Any = None
+    controller: Any = None
+    orbit: Any = None
 
     def __check_init__(self):
         if self.method not in ("auto", "dense", "articulated"):
@@ -193,6 +203,10 @@ class Model(eqx.Module):
     def with_loads(self, loads: BodyLoads | None) -> Model:
         """A copy of the model with other external loads (or none)."""
         return eqx.tree_at(lambda m: m.loads, self, loads, is_leaf=lambda x: x is None)
+
+    def with_control(self, law=None, controller=None) -> Model:
+        """A copy of the model that carries the hinge `law` and the `controller` (or none)."""
+        return eqx.tree_at(lambda m: (m.law, m.controller), self, (law, controller), is_leaf=lambda x: x is None)
 
     def astype(self, dtype) -> Model:
         """All floating leaves cast to `dtype` (e.g. ``jnp.float32`` for GPU batches)."""

@@ -24,6 +24,7 @@ import numpy as np
 
 from ._checks import SceneError, SceneTypeError, as_float, is_traced, rotation, short, unknown_keys
 from .model import BodyLoads, Model, Prescription, SinePrescription, State
+from .profiles import ShapePrescription, TablePrescription, pad_tables
 from .topology import Topology
 
 FORMAT = "jaxtree-scene/1"
@@ -67,6 +68,48 @@ class PrescribedSine(Joint):
     frequency: float
     phase: float = 0.0
     kind: ClassVar[str] = "prescribed"
+
+
+@dataclasses.dataclass(frozen=True)
+class PrescribedRamp(Joint):
+    """Prescribed ``gamma_k(t) = initial + (final - initial) clip((t - start) / duration, 0, 1)``
+    (the scene's ``ramp``: constant rate inside, held before and after)."""
+
+    final: float
+    duration: float
+    initial: float = 0.0
+    start: float = 0.0
+    kind: ClassVar[str] = "prescribed"
+    function: ClassVar[str] = "ramp"
+
+
+@dataclasses.dataclass(frozen=True)
+class PrescribedSmoothStep(Joint):
+    """Prescribed ``gamma_k(t) = initial + (final - initial) (10 s^3 - 15 s^4 + 6 s^5)``,
+    ``s = clip((t - start) / duration, 0, 1)`` (the scene's ``smooth_step``: rate and
+    acceleration zero at both ends)."""
+
+    final: float
+    duration: float
+    initial: float = 0.0
+    start: float = 0.0
+    kind: ClassVar[str] = "prescribed"
+    function: ClassVar[str] = "smooth_step"
+
+
+@dataclasses.dataclass(frozen=True)
+class PrescribedTable(Joint):
+    """Prescribed ``gamma_k(t)`` through tabulated ``(times, angles)`` (the scene's ``table``): a
+    cubic Hermite curve with centred-difference slopes, zero slope at the first and last
+    point, constant outside the table (:mod:`jaxtree.profiles`)."""
+
+    times: Any
+    angles: Any
+    kind: ClassVar[str] = "prescribed"
+    function: ClassVar[str] = "table"
+
+
+_SHAPED = (PrescribedRamp, PrescribedSmoothStep)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -149,10 +192,19 @@ _JOINT_KEYS = {
     "spring_damper": {"kind", "stiffness", "damping"},
     "prescribed": {"kind", "function", "amplitude", "frequency", "phase"},
 }
+# the keys of each prescribed function (beside "kind" and "function") and the required ones
+_FUNCTION_KEYS = {
+    "sine": ({"amplitude", "frequency", "phase"}, ("amplitude", "frequency")),
+    "ramp": ({"initial", "final", "start", "duration"}, ("final", "duration")),
+    "smooth_step": ({"initial", "final", "start", "duration"}, ("final", "duration")),
+    "table": ({"times", "angles"}, ("times", "angles")),
+}
+_FUNCTIONS = "'sine', 'ramp', 'smooth_step' or 'table'"
 
 
 def _joint(joint, k, name):
-    if isinstance(joint, (Free, SpringDamper, PrescribedSine, Prescribed)):  # the closed family
+    family = (Free, SpringDamper, PrescribedSine, PrescribedRamp, PrescribedSmoothStep, PrescribedTable, Prescribed)
+    if isinstance(joint, family):  # the closed family
         j = joint
     elif isinstance(joint, dict):
         if "kind" not in joint:
@@ -165,7 +217,18 @@ def _joint(joint, k, name):
                 f"{_where(k, name)}: unknown joint kind {short(kind)} in field 'joint' "
                 "(expected 'free', 'spring_damper' or 'prescribed')"
             )
-        unknown_keys(joint, _JOINT_KEYS[kind], f"{_where(k, name)}: field 'joint' ({kind})")
+        if kind == "prescribed":
+            fn = joint.get("function")
+            if not isinstance(fn, str) or fn not in _FUNCTION_KEYS:
+                raise SceneError(f"{_where(k, name)}: field 'joint.function' must be {_FUNCTIONS}, got {short(fn)}")
+            unknown_keys(
+                joint, {"kind", "function"} | _FUNCTION_KEYS[fn][0], f"{_where(k, name)}: field 'joint' ({fn})"
+            )
+            for field in _FUNCTION_KEYS[fn][1]:
+                if field not in joint:
+                    raise SceneError(f"{_where(k, name)}: field 'joint.{field}' is missing (a {fn} needs it)")
+        else:
+            unknown_keys(joint, _JOINT_KEYS[kind], f"{_where(k, name)}: field 'joint' ({kind})")
         if kind == "free":
             j = Free()
         elif kind == "spring_damper":
@@ -175,14 +238,13 @@ def _joint(joint, k, name):
                     "use 0 for a pure damper)"
                 )
             j = SpringDamper(joint["stiffness"], joint.get("damping", 0.0))
-        else:
-            fn = joint.get("function")
-            if fn != "sine":
-                raise SceneError(f"{_where(k, name)}: field 'joint.function' must be 'sine', got {short(fn)}")
-            for field in ("amplitude", "frequency"):
-                if field not in joint:
-                    raise SceneError(f"{_where(k, name)}: field 'joint.{field}' is missing")
+        elif joint["function"] == "sine":
             j = PrescribedSine(joint["amplitude"], joint["frequency"], joint.get("phase", 0.0))
+        elif joint["function"] == "table":
+            j = PrescribedTable(joint["times"], joint["angles"])
+        else:
+            cls = PrescribedRamp if joint["function"] == "ramp" else PrescribedSmoothStep
+            j = cls(joint["final"], joint["duration"], joint.get("initial", 0.0), joint.get("start", 0.0))
     elif joint is None:
         j = Free()
     else:
@@ -201,9 +263,28 @@ def _joint(joint, k, name):
             _scalar(j.frequency, k, name, "joint.frequency"),
             _scalar(j.phase, k, name, "joint.phase"),
         )
+    if isinstance(j, _SHAPED):
+        fields = {f: _scalar(getattr(j, f), k, name, f"joint.{f}") for f in ("final", "duration", "initial", "start")}
+        if fields["duration"] <= 0:
+            raise SceneError(f"{_where(k, name)}: field 'joint.duration' must be > 0, got {fields['duration']}")
+        j = type(j)(**fields)
+    if isinstance(j, PrescribedTable):
+        j = PrescribedTable(*_table(j.times, j.angles, f"{_where(k, name)}: field 'joint", "angles"))
     if isinstance(j, Prescribed) and not callable(j.fn):
         raise SceneTypeError(f"{_where(k, name)}: field 'joint.fn' must be callable")
     return j
+
+
+def _table(times, values, where: str, label: str) -> tuple[np.ndarray, np.ndarray]:
+    """A checked table: at least two strictly increasing finite `times` and as many finite values.
+    `where` names the object up to the field (``"... field 'joint"``), closed here with the key."""
+    t = as_float(times, f"{where}.times'")
+    if t.ndim != 1 or len(t) < 2:
+        raise SceneError(f"{where}.times' must be a list of at least 2 times, got shape {t.shape}")
+    if not np.all(np.diff(t) > 0):
+        raise SceneError(f"{where}.times' must be strictly increasing, got {t.tolist()}")
+    v = as_float(values, f"{where}.{label}'", t.shape)
+    return t, v
 
 
 _INITIAL_KEYS = {"gamma", "gamma_dot", "omega0", "dcm", "attitude_dcm"}
@@ -291,7 +372,7 @@ def build_model(
         stiffness=jnp.asarray(laws.stiffness),
         damping=jnp.asarray(laws.damping),
         initial=State(*(jnp.asarray(x) for x in state)),
-        prescription=_prescription(laws.sine, laws.funcs),
+        prescription=_prescription(laws),
         loads=loads,
         topology=topology,
         joints=tuple(j.kind for j in fields.joints),
@@ -423,10 +504,12 @@ class _JointLaws(NamedTuple):
     sprung: list[int]
     sine: list[tuple[int, PrescribedSine]]
     funcs: list[tuple[int, Prescribed]]
+    shaped: list[tuple[int, PrescribedRamp | PrescribedSmoothStep]]
+    tables: list[tuple[int, PrescribedTable]]
 
 
 def _joint_laws(joints: list[Joint], n: int) -> _JointLaws:
-    laws = _JointLaws(np.zeros(n), np.zeros(n), [], [], [])
+    laws = _JointLaws(np.zeros(n), np.zeros(n), [], [], [], [], [])
     for k, j in enumerate(joints, start=1):
         if isinstance(j, SpringDamper):
             laws.stiffness[k - 1], laws.damping[k - 1] = j.stiffness, j.damping
@@ -435,6 +518,10 @@ def _joint_laws(joints: list[Joint], n: int) -> _JointLaws:
             laws.sine.append((k, j))
         elif isinstance(j, Prescribed):
             laws.funcs.append((k, j))
+        elif isinstance(j, _SHAPED):
+            laws.shaped.append((k, j))
+        elif isinstance(j, PrescribedTable):
+            laws.tables.append((k, j))
     return laws
 
 
@@ -459,9 +546,10 @@ def _check_loads(loads, n: int) -> None:
             raise SceneError(f"loads: body index {short(k)} is not in 0..{n}")
 
 
-def _prescription(sine: list[tuple[int, PrescribedSine]], funcs: list[tuple[int, Prescribed]]) -> Prescription | None:
-    """One :class:`~jaxtree.Prescription` of the prescribed hinges (a group when both kinds occur),
-    or None when no hinge is prescribed."""
+def _prescription(laws: _JointLaws) -> Prescription | None:
+    """One :class:`~jaxtree.Prescription` of the prescribed hinges (a group when several kinds
+    occur: one vectorized part per kind), or None when no hinge is prescribed."""
+    sine, funcs, shaped, tables = laws.sine, laws.funcs, laws.shaped, laws.tables
     parts = []
     if sine:
         parts.append(
@@ -470,6 +558,21 @@ def _prescription(sine: list[tuple[int, PrescribedSine]], funcs: list[tuple[int,
                 jnp.asarray([j.amplitude for _, j in sine]),
                 jnp.asarray([j.frequency for _, j in sine]),
                 jnp.asarray([j.phase for _, j in sine]),
+            )
+        )
+    if shaped:
+        parts.append(
+            ShapePrescription(
+                tuple(k for k, _ in shaped),
+                tuple(j.function for _, j in shaped),
+                *(jnp.asarray([getattr(j, f) for _, j in shaped]) for f in ("initial", "final", "start", "duration")),
+            )
+        )
+    if tables:
+        T, V = pad_tables([j.times for _, j in tables], [j.angles for _, j in tables])
+        parts.append(
+            TablePrescription(
+                tuple(k for k, _ in tables), tuple(len(j.times) for _, j in tables), jnp.asarray(T), jnp.asarray(V)
             )
         )
     if funcs:
@@ -664,11 +767,15 @@ def _body_from_dict(d, k):
 
 
 # ----------------------------------------------------------------------------- JSON
-_SCENE_KEYS = {"format", "name", "description", "bodies", "initial"}
+_SCENE_KEYS = {"format", "name", "description", "bodies", "initial", "loads", "control", "orbit"}
 
 
 def scene_from_dict(data: dict) -> Model:
     """Build a model from a parsed ``jaxtree-scene/1`` document.
+
+    Besides the bodies and the initial state, the optional keys ``loads``, ``control`` and
+    ``orbit`` give the model its external loads, hinge laws and orbit
+    (:mod:`jaxtree.scene_laws`; README, "Loads and laws in a scene").
 
     Raises :class:`SceneError` naming the body and the field of any invalid entry; an unknown
     key (anywhere) gives a :class:`SceneWarning` naming it and is ignored."""
@@ -685,7 +792,9 @@ def scene_from_dict(data: dict) -> Model:
     initial = data.get("initial")
     if initial is not None and not isinstance(initial, dict):
         raise SceneTypeError(f"scene: field 'initial' must be an object, got {short(initial)}")
-    return build_model(data["bodies"], initial, name=data.get("name", ""))
+    from .scene_laws import with_scene_laws
+
+    return with_scene_laws(build_model(data["bodies"], initial, name=data.get("name", "")), data)
 
 
 def scene_path(name: str) -> pathlib.Path:
@@ -715,20 +824,19 @@ def load_scene(path) -> Model:
 
 
 def scene_to_dict(model: Model, description: str = "") -> dict:
-    """The ``jaxtree-scene/1`` document of a model (sine and free/spring joints only)."""
-    pres = model.prescription
-    sine = {}
-    if isinstance(pres, SinePrescription):
-        for i, k in enumerate(pres.hinges):
-            sine[k] = (float(pres.amplitude[i]), float(pres.frequency[i]), float(pres.phase[i]))
-    elif pres is not None:
-        raise ValueError("scene_to_dict: only 'sine' prescriptions have a JSON form")
+    """The ``jaxtree-scene/1`` document of a model, with its loads, control laws and orbit.
+
+    Raises ValueError for what has no JSON form: a prescription, load or law given as a Python
+    function (or another class than the scene format's)."""
+    from .scene_laws import laws_to_dict, prescribed_joints
+
+    prescribed = prescribed_joints(model)
+    laws = laws_to_dict(model)
     f = lambda a: np.asarray(a, dtype=float).tolist()
     bodies = [{"name": model.names[0], "mass": float(model.mass[0]), "inertia": f(model.inertia[0])}]
     for k in range(1, model.n + 1):
-        if k in sine:
-            A, W, P = sine[k]
-            joint = {"kind": "prescribed", "function": "sine", "amplitude": A, "frequency": W, "phase": P}
+        if k in prescribed:
+            joint = prescribed[k]
         elif k in model.sprung:
             joint = {
                 "kind": "spring_damper",
@@ -756,6 +864,7 @@ def scene_to_dict(model: Model, description: str = "") -> dict:
         "description": description,
         "bodies": bodies,
         "initial": {"gamma": f(s.gamma), "gamma_dot": f(s.gamma_dot), "omega0": f(s.omega0), "attitude_dcm": f(s.dcm)},
+        **laws,
     }
 
 

@@ -56,7 +56,7 @@ from ._integrate import (
 )
 from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
 from .autosolver import choose_solver, given
-from .control import AbstractController
+from .control import AbstractController, with_model_laws
 from .dynamics import (
     SINGULAR_CONDITION,
     _energy_and_momentum,
@@ -861,9 +861,11 @@ def simulate(
       ``(t, state) -> scalar`` (see :func:`state_event`, :func:`hinge_angle_event`).
     - `progress`: show diffrax's progress meter (tqdm when installed, else text), or a diffrax
       progress meter.
-    - `law`: hinge law ``tau(t, state, params) -> (n,)`` added to the joint laws.
+    - `law`: hinge law ``tau(t, state, params) -> (n,)`` added to the joint laws (and to the
+      model's own ``model.law``, from its scene's ``control``).
     - `controller`: an :class:`~jaxtree.control.AbstractController` whose internal states are
-      appended to the ODE state.
+      appended to the ODE state (beside those of ``model.controller``: then ``control_state``
+      is a pair, the model's first).
     - `params`: pytree passed to `law` and `controller` (traced; differentiable).
     - `translation`: integrate Eq. (2) for the mass center: True (start at rest at the origin)
       or ``(X0, X_dot0)`` in inertial components.
@@ -878,6 +880,7 @@ def simulate(
     """
     _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw)
     att = _check_attitude_and_laws(attitude, controller, law)
+    law, controller = with_model_laws(model, law, controller)  # a scene's own laws first
     dtype = jnp.result_type(model.mass)
     if rtol is None:
         rtol = default_tolerance(dtype)
