@@ -679,6 +679,12 @@ class _Runner:
         self.dtype = jnp.result_type(model.mass)
         if "hybrid_small" in cfg:
             from .hybrid import hybrid_model
+
+            if model.law is not None or model.controller is not None:
+                raise UserError(
+                    "--hybrid-small: the scene's 'control' laws are not part of the hybrid equations; "
+                    "run it without --hybrid-small"
+                )
             from .modes import ModalError
 
             small = _hinges(model, cfg["hybrid_small"], "--hybrid-small")
@@ -700,9 +706,28 @@ class _Runner:
             self._diag = _hybrid_diagnostics()
         self.truncation_state = None  # the neglected modes' state where the last hybrid part ended
 
+        # a scene's controller (internal states) continues from part to part: its states where
+        # the last part ended are the next part's z0 (always an array: one compiled program)
+        self.control = None
+        if model.controller is not None and hasattr(model.controller, "z0"):
+            from jax.flatten_util import ravel_pytree
+
+            self.control = ravel_pytree(model.controller.initial())
+
     def initial(self):
         # the hybrid runs pack the physical start themselves, and see its neglected modes' content
+        if self.control is not None:
+            self.set_control(self.control[0])
         return self.model.initial
+
+    def set_control(self, flat):
+        """Start the next part's controller from the flat internal states `flat`."""
+        import equinox as eqx
+        import jax.numpy as jnp
+
+        assert self.control is not None
+        z0 = self.control[1](jnp.asarray(flat, self.dtype))
+        self.model = eqx.tree_at(lambda m: m.controller.z0, self.model, z0, is_leaf=lambda x: x is None)
 
     def run(self, ts, y0, rtol, atol):
         """One part: integrate from ts[0] to ts[-1] saving at `ts` (padded: repeated end time)."""
@@ -725,7 +750,10 @@ class _Runner:
                 max_steps=self.cfg["max_steps"],
                 throw=False,
             )
-            return _FullPart(sol)
+            part = _FullPart(sol)
+            if self.control is not None:  # the next part's controller continues from here
+                self.set_control(part.end_state()["resume_control"][1])
+            return part
         from .hybrid import simulate_hybrid
 
         sol = simulate_hybrid(
@@ -796,7 +824,18 @@ class _FullPart:
             "resume_omega0": (("axis",), np.asarray(f.omega0)),
             "resume_gamma": (("hinge",), np.asarray(f.gamma)),
             "resume_gamma_dot": (("hinge",), np.asarray(f.gamma_dot)),
+            **self._control_end(),
         }
+
+    def _control_end(self):
+        """The controller's internal states at the end (flat), where the run has a controller."""
+        import numpy as np
+        from jax.flatten_util import ravel_pytree
+
+        z = self.sol.final_control_state
+        if z is None:
+            return {}
+        return {"resume_control": (("control_state",), np.asarray(ravel_pytree(z)[0]))}
 
 
 def _hybrid_diagnostics():
@@ -896,6 +935,8 @@ def _state_from_part(ds, runner):
             runner.truncation_state = jnp.asarray(ds["resume_truncation"].values, runner.dtype)
         return jnp.asarray(ds["resume_flat"].values, runner.dtype)
     v = lambda k: jnp.asarray(ds[k].values, runner.dtype)  # noqa: E731
+    if "resume_control" in ds and runner.control is not None:
+        runner.set_control(ds["resume_control"].values)
     return State(v("resume_dcm"), v("resume_omega0"), v("resume_gamma"), v("resume_gamma_dot"))
 
 
