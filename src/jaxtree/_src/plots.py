@@ -258,16 +258,21 @@ def _heat_map(fig, ax, s, hinges, chains, labels):
         vmax=a or 1.0,
         extent=(float(t[0]), float(t[-1]), 0.5, len(hinges) + 0.5),
     )
-    # one tick per appendage, at its root hinge; lines between appendages
-    ticks, names, row = [], [], 1
+    # rows are the appendages' hinges in order: ticks name hinge numbers; a line and the root's
+    # name mark where each appendage starts
+    from matplotlib.ticker import FuncFormatter, MaxNLocator
+
+    ax.yaxis.set_major_locator(MaxNLocator(nbins=8, integer=True))
+    ax.yaxis.set_major_formatter(
+        FuncFormatter(lambda y, _: str(hinges[int(y) - 1] + 1) if 1 <= int(y) <= len(hinges) else "")
+    )
+    row = 1
     for c in chains:
-        ticks.append(row)
-        names.append(labels[c[0]])
         if row > 1:
             ax.axhline(row - 0.5, color="k", lw=0.6)
+        ax.text(0.01, row - 0.5, f" {labels[c[0]]}", transform=ax.get_yaxis_transform(), va="bottom", fontsize=8)
         row += len(c)
-    ax.set_yticks(ticks, names)
-    ax.set_ylabel("hinge (root of each appendage named)")
+    ax.set_ylabel("hinge $k$")
     fig.colorbar(im, ax=ax, label="$\\gamma_k$ (rad)", pad=0.01)
 
 
