@@ -26,7 +26,7 @@ from jupyter_client.manager import KernelManager
 from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((pathlib.Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
-MAX_BYTES = 300_000  # outputs stay small: figures at 60-72 dpi, 3D pages of a few dozen frames
+MAX_BYTES = 300_000  # outputs stay small: figures at 120 dpi of a few panels, 3D pages of a few dozen frames
 
 
 def test_the_four_notebooks_are_there():
