@@ -35,8 +35,9 @@ PRESCRIBED_SHAPES = ("ramp", "smooth_step")
 
 
 def ramp_shape(s):
-    """``clip(s, 0, 1)``."""
-    return jnp.clip(s, 0.0, 1.0)
+    """``clip(s, 0, 1)`` with a right-continuous derivative (1 at s = 0, 0 at s = 1; ``jnp.clip``
+    would give 1/2 at both ends)."""
+    return jnp.where(s < 0.0, 0.0, jnp.where(s >= 1.0, 1.0, s))
 
 
 def smooth_step_shape(s):
@@ -108,14 +109,15 @@ def hermite_table(t, times, values, length):
     slopes = jnp.where(inner, (values[hi] - values[lo]) / (times[hi] - times[lo]), 0.0)
     i = jnp.clip(jnp.searchsorted(times, t, side="right") - 1, 0, L - 2)
     h = times[i + 1] - times[i]
-    s = jnp.clip((t - times[i]) / h, 0.0, 1.0)
+    s = (t - times[i]) / h  # in [0, 1) inside the table (a clip would halve the rate at the knots)
     s2, s3 = s * s, s * s * s
-    return (
+    inside = (
         (2 * s3 - 3 * s2 + 1) * values[i]
         + (s3 - 2 * s2 + s) * h * slopes[i]
         + (-2 * s3 + 3 * s2) * values[i + 1]
         + (s3 - s2) * h * slopes[i + 1]
     )
+    return jnp.where(t < times[0], values[0], jnp.where(t >= times[L - 1], values[L - 1], inside))
 
 
 def linear_table(t, times, values):
