@@ -309,7 +309,7 @@ def _drift_panel(ax, runs, which, note=""):
     if linear:
         ax.yaxis.set_major_formatter(PercentFormatter(xmax=1.0, decimals=None))
         ax.set_ylabel(f"${sym}$ (%)")
-        ax.set_title(f"{name} change: {100 * float(first[-1]):+.3g} % at the end{note}")
+        ax.set_title(f"{name} change: {100 * float(first[-1]):+.3g} % at the end, {100 * big:.3g} % at most{note}")
     else:
         ax.set_yscale("log")
         ax.set_ylabel(f"${'|E - E_0|/|E_0|' if which == 'energy' else sym}$ (log axis)")
