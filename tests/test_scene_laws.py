@@ -14,6 +14,7 @@ import math
 import pathlib
 
 import diffrax
+import equinox as eqx
 import numpy as np
 import pytest
 from scipy.interpolate import CubicHermiteSpline
@@ -420,3 +421,14 @@ def test_models_without_a_json_form_say_so():
     d = jaxtree.scene_to_dict(plain.with_loads(gg))
     assert d["orbit"]["radius"] == 7.2e6 and d["loads"] == [{"kind": "gravity_gradient"}]
     assert copy.deepcopy(d) == jaxtree.scene_to_dict(jaxtree.scene_from_dict(d))
+
+
+def test_validate_model_checks_the_new_leaves_and_hybrid_model_refuses_laws():
+    model = jaxtree.load_scene(EXAMPLE)
+    assert jaxtree.validate_model(model) is model
+    shapes = model.prescription.parts[0]  # the ramp and smooth-step hinges (3, 4)
+    bad = eqx.tree_at(lambda m: m.prescription.parts[0].duration, model, shapes.duration.at[1].set(-1.0))
+    with pytest.raises(jaxtree.SceneError, match=r"body 4 \('shutter'\): field 'joint.duration' must be > 0"):
+        jaxtree.validate_model(bad)
+    with pytest.raises(jaxtree.SceneError, match=r"hybrid_model: the model carries hinge control laws"):
+        jaxtree.hybrid_model(model, [1, 2])

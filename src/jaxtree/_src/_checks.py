@@ -327,6 +327,11 @@ def hybrid_model_args(
 
     name = "hybrid_model"
     linearize_args(name, model, small, omega0=omega0, gamma=gamma, dcm=dcm)
+    if getattr(model, "law", None) is not None or getattr(model, "controller", None) is not None:
+        raise SceneError(
+            f"{name}: the model carries hinge control laws (model.law / model.controller, from its scene's "
+            "'control'), which the hybrid equations do not include; drop them with model.with_control(None, None)"
+        )
     if basis is not None and basis not in ("substructure", "set"):
         raise SceneError(f"{name}: basis must be 'substructure', 'set' or None, got {short(basis)}")
     t = float(as_float(tol, f"{name}: tol", ()))

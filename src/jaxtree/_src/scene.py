@@ -742,14 +742,20 @@ def _validate_leaves_of(model: Model) -> None:
                     f"{what} must be a proper rotation matrix (orthonormal, det +1): max |C C^T - I| = {err:.3g}"
                 )
     pres = model.prescription
-    if isinstance(pres, SinePrescription):
-        for field in ("amplitude", "frequency", "phase"):
-            v = np.asarray(getattr(pres, field), float)
-            bad = ~np.isfinite(v)
-            if bad.any():
-                i = int(np.argwhere(bad)[0][-1])
-                k = pres.hinges[i]
-                raise SceneError(f"{_where(k, model.names[k])}: field 'joint.{field}' must be finite")
+    parts = [] if pres is None else list(pres.parts) if isinstance(pres, _PrescriptionGroup) else [pres]
+    fields = {
+        SinePrescription: ("amplitude", "frequency", "phase"),
+        ShapePrescription: ("initial", "final", "start", "duration"),
+        TablePrescription: ("times", "angles"),
+    }
+    for p in parts:
+        for field in fields.get(type(p), ()):
+            v = np.asarray(getattr(p, field), float)
+            for bad, what in ((~np.isfinite(v), "finite"), (v <= 0 if field == "duration" else None, "> 0")):
+                if bad is not None and bad.any():
+                    i = int(np.argwhere(bad)[0][v.ndim - (2 if isinstance(p, TablePrescription) else 1)])
+                    k = p.hinges[i]
+                    raise SceneError(f"{_where(k, model.names[k])}: field 'joint.{field}' must be {what}")
 
 
 _BODY_KEYS = {"name", "mass", "inertia", "parent", "axis", "hinge_on_parent", "hinge_on_body", "joint"}
