@@ -129,6 +129,7 @@ from ._integrate import (
     result_code,
     warn_below_roundoff,
 )
+from ._math import build_jit
 from .articulated import _force_cross, _inertia_apply, _inertia_matrix, _motion_cross
 from .attitude import AbstractAttitude, get_attitude
 from .dynamics import _unbalanced, configuration, mass_matrix, rotational_equations
@@ -458,16 +459,20 @@ class HybridModel(eqx.Module):
 def _modal_block(hm: HybridModel):
     """The constant modal block ``kin + rows^T I accel`` (masked), when the projected small-small
     block of Eq. (30) is constant."""
-    ku = hm._keep_u()
-    H = hm.kin + hm.rows.T @ hm.inertia @ hm.accel
-    return H * ku[:, None] * ku[None, :] + jnp.diag(1.0 - ku)
+    xp = jnp if is_traced(hm) else np  # numpy for a concrete model (built once, eagerly)
+    keep = xp.asarray(hm.keep)
+    ku = keep if hm.form == "real" else xp.concatenate([keep, keep])
+    H = xp.asarray(hm.kin) + xp.asarray(hm.rows).T @ xp.asarray(hm.inertia) @ xp.asarray(hm.accel)
+    return H * ku[:, None] * ku[None, :] + xp.diag(1.0 - ku)
 
 
 def _with_inverse(hm: HybridModel) -> HybridModel:
     """Recompute `modal_inverse` for the current mask (eager)."""
     if hm.modal_inverse is None:
         return hm
-    return eqx.tree_at(lambda h: h.modal_inverse, hm, jnp.linalg.inv(_modal_block(hm)))
+    block = _modal_block(hm)
+    inverse = jnp.linalg.inv(block) if is_traced(block) else jnp.asarray(np.linalg.inv(np.asarray(block)))
+    return eqx.tree_at(lambda h: h.modal_inverse, hm, inverse)
 
 
 # ----------------------------------------------------------------------------- precomputed path
@@ -1151,10 +1156,11 @@ def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u,
 
 def _nominal_motion(model, omega0, gamma, dcm):
     dtype = jnp.result_type(model.mass)
-    w = jnp.zeros(3, dtype) if omega0 is None else jnp.asarray(omega0, dtype)
-    g = jnp.zeros(model.n, dtype) if gamma is None else jnp.asarray(gamma, dtype)
-    C = jnp.eye(3, dtype=dtype) if dcm is None else jnp.asarray(dcm, dtype)
-    return w, g, C
+    # numpy defaults: an eager jnp.zeros compiles a program on a build's first call
+    w = np.zeros(3, dtype) if omega0 is None else omega0
+    g = np.zeros(model.n, dtype) if gamma is None else gamma
+    C = np.eye(3, dtype=dtype) if dcm is None else dcm
+    return tuple(x.astype(dtype) if is_traced(x) else jnp.asarray(np.asarray(x, dtype)) for x in (w, g, C))
 
 
 @full_precision
@@ -1238,14 +1244,14 @@ def hybrid_model(
     basis, precompute = _basis_and_precompute(model, S, groups, basis, precompute)
     if form not in (None, "real", "first_order"):
         raise ValueError(f"hybrid_model: form must be 'real' or 'first_order', got {form!r}")
-    w_nom, g_nom, C_nom = _nominal_motion(model, omega0, gamma, dcm)
+    w_nom, g_nom, _ = _nominal_motion(model, omega0, gamma, dcm)
     tms = [_sub.terms(model, g, g_nom) for g in groups] if (precompute or basis == "substructure") else None
     if basis == "set":
         lin = linearize(model, S, omega0=omega0, gamma=gamma, dcm=dcm)
         systems = [(tuple(range(len(S))), np.asarray(lin.I), np.asarray(lin.J), np.asarray(lin.K), lin.coordinates)]
     else:
         assert tms is not None, "computed for the substructure basis"
-        systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom, C_nom, attitude)
+        systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom)
     mds = [_modes(I, J, K, labels=lab, rtol=rtol) for (_, I, J, K, lab) in systems]
     kinds = [md.kind for md in mds]
     if form is None:
@@ -1312,56 +1318,37 @@ def _basis_and_precompute(model: Model, S, groups, basis: str | None, precompute
     return basis, precompute
 
 
-def _substructure_systems(model: Model, S, groups, tms, g_nom, w_nom, C_nom, attitude) -> list:
+@build_jit
+def _nominal_frames(model: Model, g_nom, w_nom, bases: tuple, small: tuple):
+    """The nominal vehicle at angles `g_nom` spinning at `w_nom` about its mass center, large and
+    prescribed hinges held: each base's spatial velocity ``(p, 6)`` in its frame about its mass
+    center (:func:`_large_frame`'s convention), and ``a_bar`` of the small hinges (Eq. 36d, the
+    small rows and columns of Eq. 1's matrix), in one compilation for the build."""
+    cfg = configuration(model, g_nom)
+    b = np.asarray(bases, np.int64)
+    r = cfg.rho[b] - cfg.rho[0]  # the bases' mass centers from b_0's, {b^0}
+    E = jnp.swapaxes(cfg.R[b], -1, -2)  # {b^0} -> the base's frame
+    u0 = cross(-cfg.rho[0], w_nom)  # b_0's mass center in the spin about the system's
+    vb = jnp.concatenate([mv(E, w_nom), mv(E, u0 + cross(w_nom, r))], -1)
+    S = np.asarray(small, np.int64) + 2
+    return vb, mass_matrix(model, g_nom)[np.ix_(S, S)]
+
+
+def _substructure_systems(model: Model, S, groups, tms, g_nom, w_nom) -> list:
     """Eq. (42) of each substructure on its held base in the nominal spin about the system mass
     center: ``(rows in A, I, J, K, coordinate names)`` per substructure."""
-    nu = len(S)
-    L = tuple(k for k in model.unknown_hinges if k not in S)
-    dtype = jnp.result_type(model.mass)
-    cfg = configuration(model, g_nom)
-    r_cm = -cfg.rho[0]  # the system mass center from b_0's: the nominal spins about it
-    skeleton = HybridModel(
-        model=model,
-        gamma_nominal=g_nom,
-        omega0_nominal=w_nom,
-        inertia=jnp.zeros((0, 0)),
-        frequencies=jnp.zeros(0),
-        damping_ratios=jnp.zeros(0),
-        positions=jnp.zeros((nu, 0)),
-        rates=jnp.zeros((nu, 0)),
-        accel=jnp.zeros((nu, 0)),
-        rows=jnp.zeros((nu, 0)),
-        kin=jnp.zeros((0, 0)),
-        kin_rhs=jnp.zeros((0, 0)),
-        project=jnp.zeros((0, 2 * nu)),
-        keep=jnp.zeros(0),
-        modal_inverse=None,
-        pre=None,
-        attitude=get_attitude(attitude),
-        small=S,
-        large=L,
-        form="real",
-        kind="real",
-        mode_index=(),
-        groups=groups,
-        basis="substructure",
-    )
-    gL = g_nom[np.asarray(L, np.int64) - 1]
-    v0 = jnp.concatenate([w_nom, cross(r_cm, w_nom)])  # b_0's velocity in the spin about the mass center
-    held = _held_prescription(skeleton)
-    _, _, _, vb, _, _ = _large_frame(
-        held, tuple(g.base for g in groups), jnp.asarray(0.0, dtype), C_nom, w_nom, gL, jnp.zeros_like(gL), v0=v0
-    )
+    vb, _ = _nominal_frames(model, g_nom, w_nom, tuple(g.base for g in groups), tuple(S))
+    vb = np.asarray(vb)
     sprung = np.zeros(model.n)
     sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
+    stiffness, damping = np.asarray(model.stiffness) * sprung, np.asarray(model.damping) * sprung
     systems = []
     for grp, tm, vg in zip(groups, tms, vb):
         h = np.asarray(grp.hinges, np.int64) - 1
-        k_s = jnp.asarray(np.asarray(model.stiffness) * sprung)[h]
-        d_s = jnp.asarray(np.asarray(model.damping) * sprung)[h]
-        I, J, K = _sub.held_base(tm, vg, jnp.zeros(6, dtype), k_s, d_s)  # steady spin: no base acceleration
+        # steady spin: no spatial acceleration of the base
+        I, J, K = _sub.held_base(tm, vg, np.zeros(6), stiffness[h], damping[h], xp=np)
         rows = tuple(S.index(k) for k in grp.hinges)
-        systems.append((rows, np.asarray(I), np.asarray(J), np.asarray(K), tuple(model.names[k] for k in grp.hinges)))
+        systems.append((rows, I, J, K, tuple(model.names[k] for k in grp.hinges)))
     return systems
 
 
@@ -1423,7 +1410,7 @@ def _assemble_model(
     u = parts["accel"].shape[1]
     pre = _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, umaps, basis) if precompute else None
     one_base = len({g.base for g in groups}) == 1
-    inertia = mass_matrix(model, g_nom)[np.ix_(np.asarray(S) + 2, np.asarray(S) + 2)]
+    _, inertia = _nominal_frames(model, g_nom, w_nom, tuple(g.base for g in groups), tuple(S))
     hm = HybridModel(
         model=model,
         gamma_nominal=g_nom,

@@ -111,15 +111,17 @@ class Modes(eqx.Module):
 
 def first_order(I, J, K):
     """``(P, Q, B)`` of Eqs. (70)-(71): ``P = diag(K, I)``, ``Q = [[0, K], [-K, -J]]``,
-    ``B = [[0, U], [-I^{-1} K, -I^{-1} J]]`` (``Q = P B`` holds even for singular K)."""
-    I, J, K = (jnp.asarray(x) for x in (I, J, K))
+    ``B = [[0, U], [-I^{-1} K, -I^{-1} J]]`` (``Q = P B`` holds even for singular K).
+    Concrete matrices are combined in numpy (no eager JAX operations to compile)."""
+    xp = jnp if is_traced((I, J, K)) else np
+    I, J, K = (xp.asarray(x) for x in (I, J, K))
     nu = I.shape[0]
-    Z = jnp.zeros((nu, nu), I.dtype)
-    U = jnp.eye(nu, dtype=I.dtype)
-    P = jnp.block([[K, Z], [Z, I]])
-    Q = jnp.block([[Z, K], [-K, -J]])
-    B = jnp.block([[Z, U], [-jnp.linalg.solve(I, K), -jnp.linalg.solve(I, J)]])
-    return P, Q, B
+    Z = xp.zeros((nu, nu), I.dtype)
+    U = xp.eye(nu, dtype=I.dtype)
+    P = xp.block([[K, Z], [Z, I]])
+    Q = xp.block([[Z, K], [-K, -J]])
+    B = xp.block([[Z, U], [-xp.linalg.solve(I, K), -xp.linalg.solve(I, J)]])
+    return jnp.asarray(P), jnp.asarray(Q), jnp.asarray(B)
 
 
 # ----------------------------------------------------------------------------- real modes
@@ -314,18 +316,20 @@ def modes(
             raise ValueError("modes: the general case needs concrete arrays")
         m = _general_modes(I, J, K)
 
-    # participation: |phi_ij|^2 I_ii, normalized per mode
-    w = jnp.abs(m.shapes) ** 2 * jnp.diag(I)[:, None]
-    tot = jnp.sum(w, axis=0, keepdims=True)
-    part = w / jnp.where(tot > 0, tot, 1.0)
+    # participation: |phi_ij|^2 I_ii, normalized per mode (numpy when concrete: no eager dispatch)
+    xp = jnp if traced else np
+    w = xp.abs(xp.asarray(m.shapes)) ** 2 * xp.diag(xp.asarray(I))[:, None]
+    tot = xp.sum(w, axis=0, keepdims=True)
+    part = jnp.asarray(w / xp.where(tot > 0, tot, 1.0))
     labs = () if traced else _labels(np.asarray(m.shapes), np.asarray(part), coords, np.asarray(m.rigid), hinges_of)
+    cast = lambda x, dt: jnp.asarray(xp.asarray(x).astype(dt))  # noqa: E731
     return Modes(
-        eigenvalues=m.eigenvalues.astype(cdtype),
+        eigenvalues=cast(m.eigenvalues, cdtype),
         frequencies=m.frequencies,
-        damping_ratios=m.damping_ratios.astype(dtype),
+        damping_ratios=cast(m.damping_ratios, dtype),
         shapes=m.shapes,
-        right=m.right.astype(cdtype),
-        left=m.left.astype(cdtype),
+        right=cast(m.right, cdtype),
+        left=cast(m.left, cdtype),
         P=P,
         Q=Q,
         B=m.B,
@@ -392,7 +396,9 @@ def _kind(I, J, K, kind: str | None, traced: bool, rtol: float) -> tuple[str, bo
 
 def _modal_damping(damping, nu: int, dtype, kind: str, traced: bool) -> jax.Array:
     """The modal damping ratios zeta (nu,) of Eq. (104): zero when `damping` is None."""
-    zeta = jnp.zeros(nu, dtype) if damping is None else jnp.broadcast_to(jnp.asarray(damping, dtype), (nu,))
+    if damping is None:
+        return jnp.asarray(np.zeros(nu, dtype))
+    zeta = jnp.broadcast_to(jnp.asarray(damping, dtype), (nu,))
     if not traced and damping is not None:
         zn = np.asarray(zeta)
         if np.any(zn < 0) or not np.all(np.isfinite(zn)):
@@ -489,23 +495,19 @@ def _general_modes(I, J, K) -> _Solved:
     """Eqs. (70)-(90) by a general eigensolver (concrete arrays), modes by ascending frequency;
     the damping ratios are ``-Re lambda / |lambda|``."""
     nu = I.shape[0]
-    lam_np, Phi, left_np, _, _, B_np = _general(I, J, K, "general")
-    lam = jnp.asarray(lam_np)
-    right = jnp.asarray(Phi)
-    left = jnp.asarray(left_np)
-    sigma = jnp.abs(lam[:nu].imag)
-    absl = jnp.abs(lam[:nu])
-    zeta = jnp.where(absl > 0, -lam[:nu].real / jnp.where(absl > 0, absl, 1.0), 0.0)
+    lam, right, left, _, _, B = _general(I, J, K, "general")  # numpy throughout
+    sigma = np.abs(np.imag(lam[:nu]))
+    absl = np.abs(lam[:nu])
+    zeta = np.where(absl > 0, -np.real(lam[:nu]) / np.where(absl > 0, absl, 1.0), 0.0)
     # shapes: y part of Phi, scaled so that the largest entry is real and positive
     y = right[:nu, :nu]
-    k = jnp.argmax(jnp.abs(y), axis=0)
-    ph = y[k, jnp.arange(nu)]
-    shapes = y * (jnp.abs(ph) / jnp.where(ph == 0, 1.0, ph))[None, :]
-    rigid = jnp.asarray(np.asarray(absl) <= ROUNDOFF_RTOL * max(float(np.max(np.asarray(absl))), 1e-300))
-    B = jnp.asarray(B_np)
-    order = np.argsort(np.asarray(sigma), kind="stable")
+    k = np.argmax(np.abs(y), axis=0)
+    ph = y[k, np.arange(nu)]
+    shapes = y * (np.abs(ph) / np.where(ph == 0, 1.0, ph))[None, :]
+    rigid = absl <= ROUNDOFF_RTOL * max(float(np.max(absl)), 1e-300)
+    order = np.argsort(sigma, kind="stable")
     if np.any(order != np.arange(nu)):
         sel = np.concatenate([order, order + nu])
         lam, right, left = lam[sel], right[:, sel], left[:, sel]
         sigma, zeta, shapes, rigid = sigma[order], zeta[order], shapes[:, order], rigid[order]
-    return _Solved(lam, sigma, zeta, shapes, right, left, B, rigid)
+    return _Solved(*(jnp.asarray(x) for x in (lam, sigma, zeta, shapes, right, left, B, rigid)))

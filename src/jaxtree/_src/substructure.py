@@ -50,6 +50,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._checks import is_traced
+from ._math import build_jit
 from .articulated import _force_cross, _inertia_apply, _inertia_matrix, _motion_cross
 from .kinematics import ancestor_sum, body_rotations, cross, mm, mv
 from .topology import Topology
@@ -105,6 +107,12 @@ class _Bodies(NamedTuple):
 def _bodies(model, sub: Substructure) -> _Bodies:
     h = np.asarray(sub.hinges, np.int64) - 1
     bodies = np.concatenate([[0], h + 1])
+    leaves = (model.mass, model.inertia, model.axis, model.hinge_on_parent, model.hinge_on_body)
+    if not is_traced(leaves):  # gathers in numpy: eager ones would each compile on a first build
+        mass, inertia, axis, on_parent, on_body = (np.asarray(x) for x in leaves)
+        mass, inertia = mass[bodies].copy(), inertia[bodies].copy()
+        mass[0], inertia[0] = 0.0, 0.0
+        return _Bodies(*(jnp.asarray(x) for x in (mass, inertia, axis[h], on_parent[h], on_body[h])))
     return _Bodies(
         model.mass[bodies].at[0].set(0.0),
         model.inertia[bodies].at[0].set(0.0),
@@ -168,20 +176,53 @@ class Terms(eqx.Module):
     mass: jax.Array
 
 
-@eqx.filter_jit
+def _polarization(k: int):
+    """Index pairs ``(a, b)``, ``a < b``, of `k` coordinates and the unit vectors of the
+    polarization of a quadratic form: rows ``e_a`` (k), then ``e_a + e_b`` (pairs)."""
+    ia, ib = np.triu_indices(k, 1)
+    eye = np.eye(k)
+    return ia, ib, np.concatenate([eye, eye[ia] + eye[ib]], 0)
+
+
+def _hessian_of_quadratic(values, k: int):
+    """The symmetric Hessian ``H (.., k, k)`` of a homogeneous quadratic form ``q(x) = x^T H x / 2``
+    from its values at the rows of :func:`_polarization` (last axis of `values`): ``H_aa = 2
+    q(e_a)`` and ``H_ab = q(e_a + e_b) - q(e_a) - q(e_b)``. Exact for a quadratic form (round-off
+    aside), and it needs no nested differentiation."""
+    ia, ib, _ = _polarization(k)
+    single, pair = values[..., :k], values[..., k:]
+    H = jnp.zeros(values.shape[:-1] + (k, k), values.dtype)
+    H = H.at[..., np.arange(k), np.arange(k)].set(2.0 * single)
+    off = pair - single[..., ia] - single[..., ib]
+    return H.at[..., ia, ib].set(off).at[..., ib, ia].set(off)
+
+
+@build_jit
 def _terms(topo, d: _Bodies, gamma_bar):
-    # one compilation per substructure shape: identical wings share it
+    # One compilation per substructure shape: identical wings share it. The velocity products are
+    # exactly quadratic in (v, y'): their second derivatives come from b's values at sums of unit
+    # vectors (_hessian_of_quadratic), all in one batched evaluation of the Gauss function and one
+    # jacfwd of it, instead of nested jacfwd (whose compilation took 8 of a flex95 build's 24 s).
     nu = gamma_bar.shape[0]
     dtype = gamma_bar.dtype
-    zn, z6 = jnp.zeros(nu, dtype), jnp.zeros(6, dtype)
-    A = lambda y: _gauss(topo, d, gamma_bar + y, zn, z6)[0]
-    b = lambda y, yd, v: _gauss(topo, d, gamma_bar + y, yd, v)[1]
-    A0 = A(zn)
-    A1 = jax.jacfwd(A)(zn)
-    hess_v = lambda y: jax.hessian(lambda v: b(y, zn, v))(z6)
-    G0 = hess_v(zn)
-    G1 = jax.jacfwd(hess_v)(zn)
-    G2 = jax.jacfwd(lambda yd: jax.jacfwd(lambda v: b(zn, yd, v))(z6))(zn)
+    zn = jnp.zeros(nu, dtype)
+    _, _, V = _polarization(6)  # (21, 6): v = e_a, then e_a + e_b
+    eye_n, eye_6 = np.eye(nu), np.eye(6)
+    # rows (y', v): the 21 of V with y' = 0, then (e_k, e_a) for all k, a, then (e_k, 0), (0, e_a)
+    yd_rows = np.concatenate([np.zeros((21, nu)), np.repeat(eye_n, 6, 0), eye_n, np.zeros((6, nu))])
+    v_rows = np.concatenate([V, np.tile(eye_6, (nu, 1)), np.zeros((nu, 6)), eye_6])
+    yd_rows, v_rows = jnp.asarray(yd_rows, dtype), jnp.asarray(v_rows, dtype)
+
+    def at(y):
+        A, b = jax.vmap(lambda yd, v: _gauss(topo, d, gamma_bar + y, yd, v))(yd_rows, v_rows)
+        out = (A[0], _hessian_of_quadratic(b[:21].T, 6), b[21:])
+        return out, out
+
+    (A1, G1, _), (A0, G0, mixed) = jax.jacfwd(at, has_aux=True)(zn)
+    # the mixed second derivative in (y', v) at y = 0: b(e_k, e_a) - b(e_k, 0) - b(0, e_a)
+    both = mixed[: 6 * nu].reshape(nu, 6, -1)
+    only_yd, only_v = mixed[6 * nu : 7 * nu], mixed[7 * nu :]
+    G2 = jnp.transpose(both - only_yd[:, None] - only_v[None], (2, 1, 0))  # (6+nu, 6, nu)
     return Terms(A0, A1, G0, G1, G2, jnp.sum(d.mass.astype(dtype)))
 
 
@@ -189,18 +230,17 @@ def terms(model, sub: Substructure, gamma_nominal) -> Terms:
     """The Taylor coefficients of `sub` at the nominal angles (all n; its own entries are used)."""
     h = np.asarray(sub.hinges, np.int64) - 1
     topo = Topology(_local_topology(model, sub).parents)  # unnamed: equal shapes share a compilation
-    return _terms(topo, _bodies(model, sub), jnp.asarray(gamma_nominal)[h])
+    g = gamma_nominal[h] if is_traced(gamma_nominal) else jnp.asarray(np.asarray(gamma_nominal)[h])
+    return _terms(topo, _bodies(model, sub), g)
 
 
-def held_base(t: Terms, v, c, stiffness, damping):
+def held_base(t: Terms, v, c, stiffness, damping, xp=jnp):
     """``(I, J, K)`` of the substructure with its base moving at spatial velocity `v` and
     acceleration `c` (6 each, {b} components about the base's mass center): the small rows of
-    ``A(y) [c; y''] + b(y, y', v) - tau_S = 0`` to first order (Eq. 40 for one substructure)."""
-    I = t.A0[6:, 6:]
-    K = (
-        jnp.einsum("iaj,a->ij", t.A1[6:, :6], c)
-        + 0.5 * jnp.einsum("iabj,a,b->ij", t.G1[6:], v, v)
-        + jnp.diag(stiffness)
-    )
-    J = jnp.einsum("iaj,a->ij", t.G2[6:], v) + jnp.diag(damping)
+    ``A(y) [c; y''] + b(y, y', v) - tau_S = 0`` to first order (Eq. 40 for one substructure).
+    `xp`: the array module (numpy for a concrete build: no dispatch of small eager operations)."""
+    A1, G1, G2 = (xp.asarray(x) for x in (t.A1, t.G1, t.G2))
+    I = xp.asarray(t.A0)[6:, 6:]
+    K = xp.einsum("iaj,a->ij", A1[6:, :6], c) + 0.5 * xp.einsum("iabj,a,b->ij", G1[6:], v, v) + xp.diag(stiffness)
+    J = xp.einsum("iaj,a->ij", G2[6:], v) + xp.diag(damping)
     return I, J, K
