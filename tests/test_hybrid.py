@@ -806,3 +806,65 @@ def test_truncation_ranks_damped_modes_by_their_rate_so_an_overdamped_fast_pair_
     np.testing.assert_allclose(np.sort(np.asarray(hyb.frequencies)), np.sort(slowest.imag), rtol=1e-6)
     sol = jaxtree.simulate_hybrid(hyb, 1.0, saveat=2, rtol=1e-6, atol=1e-6)  # Dopri8
     assert sol.ok and int(sol.stats["num_accepted_steps"]) < 100, sol.stats
+
+
+# ----------------------------------------------------------------------------- issue 24 point 5
+def test_real_form_modal_damping_gives_the_damped_eigenvalues_of_eq_104():
+    """Eq. (121) with the modal damping 2 zeta sigma of Eq. (104), a vehicle at rest: the
+    eigenvalues of the hybrid model's linearization (jacfwd of its right side, eigenvalues by
+    scipy) are -zeta sigma +- i sigma sqrt(1 - zeta^2) for every retained mode, and zero for the
+    rigid hub. The hub is made 1e9 times heavier so that the held-base modes are the vehicle's (as
+    in test_held_base_modes_are_the_cantilever_modes); each mode gets its own ratio. A 10 % change
+    of the ratios moves the eigenvalues far beyond the tolerance (the check can fail)."""
+    model = _wings(damping=False)
+    heavy = eqx.tree_at(
+        lambda m: (m.mass, m.inertia), model, (model.mass.at[0].multiply(1e9), model.inertia.at[0].multiply(1e9))
+    )
+    small = tuple(range(1, 9))
+    zeta = np.array([0.02, 0.05, 0.1, 0.3, 0.6, 0.9])
+    hm = jaxtree.hybrid_model(heavy, small, 3, damping=zeta)
+    assert hm.form == "real" and hm.n_modes == 6
+    sigma = np.asarray(hm.frequencies)
+    np.testing.assert_array_equal(np.asarray(hm.damping_ratios), zeta)
+    rest = heavy.initial._replace(
+        omega0=jnp.zeros(3), gamma=jnp.zeros(heavy.n), gamma_dot=jnp.zeros(heavy.n), dcm=jnp.eye(3)
+    )
+    y0 = hm.pack(rest)
+    ev = sla.eigvals(np.asarray(jax.jacfwd(lambda y: jaxtree.hybrid_rhs(0.0, y, hm))(y0)))
+
+    def expected(z):
+        up = -z * sigma + 1j * sigma * np.sqrt(1.0 - z**2)
+        return np.concatenate([up, np.conj(up)])
+
+    def mismatch(lam):  # the worst relative distance of an expected eigenvalue to the computed ones
+        return max(np.abs(ev - lv).min() / abs(lv) for lv in lam)
+
+    print(
+        "worst relative eigenvalue mismatch", mismatch(expected(zeta)), "with 1.1 zeta", mismatch(expected(1.1 * zeta))
+    )
+    assert mismatch(expected(zeta)) < 1e-7
+    modal = np.abs(ev) > 1e-6 * sigma.min()
+    assert modal.sum() == 2 * len(sigma)  # the rest are the rigid hub's zeros
+    assert mismatch(expected(1.1 * zeta)) > 1e-3
+
+
+def test_precomputed_equals_general_on_flex95_with_loads_large_hinges_and_spin():
+    """The precomputed substructure terms against the general form (one jvp of the whole Eq. 1 per
+    right side) on flex95: six stiff damped wings (first-order modes) on one bus, the large gimbals
+    and rotor moving, a time-varying torque on the bus and a spinning nominal; random large states
+    with the wings deflected. Matrix and right side of Eq. (118) agree to round-off."""
+    rng = np.random.default_rng(95)
+    model = jaxtree.load_scene("flex95")
+    model = model.with_loads(jaxtree.BodyTorque(0, [15.0, 9.0, -4.0], lambda t: jnp.cos(0.7 * t)))
+    small = tuple(k for k in range(1, model.n + 1) if model.names[k].startswith("wing"))
+    kw = dict(omega0=[0.02, -0.01, 0.2])
+    pre = jaxtree.hybrid_model(model, small, 2, **kw)
+    gen = jaxtree.hybrid_model(model, small, 2, precompute=False, **kw)
+    assert pre.precomputed and not gen.precomputed and pre.form == "first_order" and len(pre.large) == 4
+    for _ in range(2):
+        y = pre.pack(random_state(model, rng, scale=0.05))
+        t = jnp.asarray(rng.uniform(0, 3))
+        m1, r1 = equations_jit(pre, t, y)
+        m2, r2 = equations_jit(gen, t, y)
+        np.testing.assert_allclose(np.asarray(m1), np.asarray(m2), atol=1e-11 * float(np.abs(m2).max()))
+        np.testing.assert_allclose(np.asarray(r1), np.asarray(r2), atol=1e-11 * float(np.abs(r2).max()))
