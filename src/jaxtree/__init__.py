@@ -266,6 +266,9 @@ from ._src.linearize import (
     structure as structure,
 )
 from ._src.loads import (
+    AttitudePD as AttitudePD,
+)
+from ._src.loads import (
     BodyTorque as BodyTorque,
 )
 from ._src.loads import (
@@ -459,6 +462,7 @@ __all__ = [
     "combine_loads",
     "thruster_pulse",
     "ScheduledLoads",
+    "AttitudePD",
     "CircularOrbit",
     # simulation of Eq. (1) (Eqs. 25-27 with diffrax), events, failures
     "simulate",

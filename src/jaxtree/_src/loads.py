@@ -11,6 +11,7 @@ This module builds such objects:
 - :class:`GravityGradient`: the gravity-gradient torques and tidal forces of a circular orbit;
 - :class:`ScheduledLoads`: the scene format's forces and torques, each a constant vector in a
   body's frame times a profile of time (constant, pulse or table: :mod:`jaxtree.profiles`);
+- :class:`AttitudePD`: a PD law on the reference body's attitude, as a torque on it;
 - :class:`CircularOrbit`: the circular orbit of the mass center about a central body (Eq. 2),
   whose rate the gravity gradient uses;
 - :class:`CombinedLoads` (:func:`combine_loads`): several of the above side by side.
@@ -285,3 +286,36 @@ class CircularOrbit(eqx.Module):
     def gravity_gradient(self, model: Model, bodies=None) -> GravityGradient:
         """The :class:`GravityGradient` of this orbit on `model` (`bodies`: default all with mass)."""
         return GravityGradient(model, self.mu, self.radius, self.phase, bodies)
+
+
+class AttitudePD(BodyLoads):
+    """A PD law on the attitude of the reference body b_0 to a set point, as an external torque on
+    it (thrusters): ``T^0 = -kp e - kd omega0`` in {b^0}, with ``e = vee(C_e^T - C_e) / 2``
+    (``sin(angle) axis`` of the error rotation ``C_e = C C_r^T``; ``C`` of Def. 9 and the set
+    point ``C_r``). About one axis from rest it is ``J theta'' = -kp sin(theta) - kd theta'``.
+
+    Leaves: `kp`, `kd` (3,) per axis of {b^0}; `set_point` (3, 3) the direction cosines ``C_r``.
+    """
+
+    kp: jax.Array
+    kd: jax.Array
+    set_point: jax.Array
+    bodies: tuple[int, ...] = eqx.field(static=True)
+
+    def __init__(self, kp, kd, set_point=None):
+        self.kp = jnp.broadcast_to(jnp.asarray(kp, float), (3,))
+        self.kd = jnp.broadcast_to(jnp.asarray(kd, float), (3,))
+        self.set_point = jnp.eye(3) if set_point is None else jnp.asarray(set_point, float).reshape(3, 3)
+        self.bodies = (0,)
+
+    def error(self, dcm) -> jax.Array:
+        """The attitude error ``e`` (3,) in {b^0}."""
+        Ce = dcm @ self.set_point.astype(dcm.dtype).T
+        S = 0.5 * (Ce.T - Ce)
+        return jnp.stack([S[2, 1], S[0, 2], S[1, 0]])
+
+    def __call__(self, t, state):
+        dtype = state.omega0.dtype
+        e = self.error(jnp.asarray(state.dcm, dtype))
+        T = -self.kp.astype(dtype) * e - self.kd.astype(dtype) * state.omega0
+        return jnp.zeros((1, 3), dtype), T[None, :]

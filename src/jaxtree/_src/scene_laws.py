@@ -5,7 +5,9 @@
   vector in the body's frame times a profile of time (constant, pulse, table), and the gravity
   gradient of the orbit (:class:`~jaxtree.ScheduledLoads`, :class:`~jaxtree.GravityGradient`);
 - ``control``: hinge laws to a set point, PD (``model.law``, a :class:`~jaxtree.HingePD`) and PID
-  with an integrator and a filtered rate (``model.controller``, a :class:`~jaxtree.HingePID`);
+  with an integrator and a filtered rate (``model.controller``, a :class:`~jaxtree.HingePID`),
+  and a PD law on the reference body's attitude (a torque on it among the loads,
+  :class:`~jaxtree.AttitudePD`);
 - ``orbit``: the circular orbit of the mass center (:class:`~jaxtree.CircularOrbit`).
 
 Every entry is checked here on plain Python and numpy values before anything is built or
@@ -19,9 +21,9 @@ from __future__ import annotations
 import equinox as eqx
 import numpy as np
 
-from ._checks import SceneError, SceneTypeError, as_float, short, unknown_keys
+from ._checks import SceneError, SceneTypeError, as_float, rotation, short, unknown_keys
 from .control import HingePD, HingePID
-from .loads import CircularOrbit, CombinedLoads, GravityGradient, ScheduledLoads, combine_loads
+from .loads import AttitudePD, CircularOrbit, CombinedLoads, GravityGradient, ScheduledLoads, combine_loads
 from .model import Model, SinePrescription
 from .profiles import ShapePrescription, TablePrescription
 
@@ -41,6 +43,7 @@ _PROFILE_KEYS = {
 _CONTROL_KEYS = {
     "hinge_pd": {"kind", "hinge", "kp", "kd", "set_point"},
     "hinge_pid": {"kind", "hinge", "kp", "ki", "kd", "filter_time", "set_point"},
+    "attitude_pd": {"kind", "kp", "kd", "euler123", "attitude_dcm"},
 }
 _ORBIT_KEYS = {"mu", "radius", "phase"}
 
@@ -178,16 +181,50 @@ def parse_loads(value, model: Model, orbit: CircularOrbit | None):
     return combine_loads(*parts)
 
 
+def _attitude_pd(e: dict, where: str, names) -> AttitudePD:
+    w = f"{where} (attitude_pd on {_body(0, names)})"
+    gains = []
+    for field in ("kp", "kd"):
+        if field not in e:
+            raise SceneError(f"{w}: field {field!r} is missing")
+        g = as_float(e[field], f"{w}: field {field!r}")
+        if g.shape not in ((), (3,)):
+            raise SceneError(
+                f"{w}: field {field!r} must be a number or 3 numbers (one per axis of b0), got shape {g.shape}"
+            )
+        if np.any(g < 0):
+            raise SceneError(f"{w}: field {field!r} must be >= 0, got {g.tolist()}")
+        gains.append(g)
+    if "euler123" in e and "attitude_dcm" in e:
+        raise SceneError(f"{w}: give the set point once, as 'euler123' or as 'attitude_dcm', not both")
+    if "attitude_dcm" in e:
+        C = rotation(e["attitude_dcm"], f"{w}: field 'attitude_dcm'")
+    elif "euler123" in e:
+        from .attitude import euler123_to_dcm
+
+        C = np.asarray(euler123_to_dcm(as_float(e["euler123"], f"{w}: field 'euler123'", (3,))))
+    else:
+        C = np.eye(3)
+    return AttitudePD(gains[0], gains[1], C)
+
+
 def parse_control(value, model: Model):
-    """The scene's ``control`` list as ``(law, controller)``: one :class:`~jaxtree.HingePD` for
-    all PD entries and one :class:`~jaxtree.HingePID` for all PID entries (None when absent)."""
+    """The scene's ``control`` list as ``(law, controller, attitude)``: one
+    :class:`~jaxtree.HingePD` for all PD entries, one :class:`~jaxtree.HingePID` for all PID
+    entries, the :class:`~jaxtree.AttitudePD` of the reference body (None when absent)."""
     names, n = model.names, model.n
     seen: dict[int, int] = {}
     pd: list[tuple[int, list[float]]] = []
     pid: list[tuple[int, list[float]]] = []
+    attitude = None
     for i, e in enumerate(_entries(value, "control")):
         where = f"control[{i}]"
         kind = _kind(e, where, _CONTROL_KEYS)
+        if kind == "attitude_pd":
+            if attitude is not None:
+                raise SceneError(f"{where} (attitude_pd): given twice (also control[{attitude[0]}])")
+            attitude = (i, _attitude_pd(e, where, names))
+            continue
         if "hinge" not in e:
             raise SceneError(f"{where} ({kind}): field 'hinge' is missing")
         if n == 0:
@@ -215,7 +252,7 @@ def parse_control(value, model: Model):
     if pid:
         kp, ki, kd, tf, r = (list(x) for x in zip(*(v for _, v in pid)))
         controller = HingePID(n, [k for k, _ in pid], kp, ki, kd, tf, reference=np.asarray(r))
-    return law, controller
+    return law, controller, None if attitude is None else attitude[1]
 
 
 def with_scene_laws(model: Model, data: dict) -> Model:
@@ -223,7 +260,10 @@ def with_scene_laws(model: Model, data: dict) -> Model:
     orbit of the scene document `data` (each key optional)."""
     orbit = parse_orbit(data["orbit"]) if data.get("orbit") is not None else None
     loads = parse_loads(data["loads"], model, orbit) if data.get("loads") is not None else None
-    law, controller = parse_control(data["control"], model) if data.get("control") is not None else (None, None)
+    law = controller = None
+    if data.get("control") is not None:
+        law, controller, attitude = parse_control(data["control"], model)
+        loads = combine_loads(*_safe_parts(loads), attitude)  # one level of parts
     if loads is None and law is None and controller is None and orbit is None:
         return model
     return eqx.tree_at(
@@ -240,7 +280,7 @@ def _load_parts(loads) -> list:
         return []
     parts = list(loads.parts) if isinstance(loads, CombinedLoads) else [loads]
     for p in parts:
-        if not isinstance(p, (ScheduledLoads, GravityGradient)):
+        if not isinstance(p, (ScheduledLoads, GravityGradient, AttitudePD)):
             raise ValueError(
                 f"scene_to_dict: loads of type {type(p).__name__} have no JSON form "
                 "(only ScheduledLoads and GravityGradient, the scene format's 'loads')"
@@ -262,6 +302,8 @@ def laws_to_dict(model: Model) -> dict:
     loads: list[dict] = []
     orbit = model.orbit
     for p in _load_parts(model.loads):
+        if isinstance(p, AttitudePD):
+            continue  # a law: written under 'control'
         if isinstance(p, GravityGradient):
             if orbit is None:
                 orbit = CircularOrbit(p.mu, p.radius, p.phase)
@@ -285,6 +327,9 @@ def laws_to_dict(model: Model) -> dict:
     if loads:
         out["loads"] = loads
     control: list[dict] = []
+    for p in _load_parts(model.loads):
+        if isinstance(p, AttitudePD):
+            control.append({"kind": "attitude_pd", "kp": f(p.kp), "kd": f(p.kd), "attitude_dcm": f(p.set_point)})
     for law, kind in ((model.law, "hinge_pd"), (model.controller, "hinge_pid")):
         if law is None:
             continue
@@ -400,6 +445,14 @@ def describe_laws(model: Model) -> list[str]:
                     L = p.lengths[i]
                     prof = f"times a table of {L} points, t = {_g(p.times[i, 0])} .. {_g(p.times[i, L - 1])} s"
                 lines.append(f"  load: {p.kinds[i]} {_vec(p.vector[i])} {unit} on {_body(k, names)}, {prof}")
+        elif isinstance(p, AttitudePD):
+            from .attitude import dcm_to_euler123
+
+            angles = _vec(dcm_to_euler123(p.set_point))
+            lines.append(
+                f"  control: {_body(0, names)} attitude PD to Euler 1-2-3 angles {angles} rad, kp {_vec(p.kp)} N m/rad, "
+                f"kd {_vec(p.kd)} N m s/rad (a torque on it)"
+            )
         else:
             lines.append(f"  load: {type(p).__name__} on bodies {list(p.bodies)} (Python)")
     for law in (model.law, model.controller):
