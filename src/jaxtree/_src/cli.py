@@ -1282,6 +1282,10 @@ def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
     why = []
     if model.prescribed:
         why.append("prescribed hinges do work")
+    if model.law is not None or model.controller is not None:
+        why.append("the scene's control laws do work")
+    if model.loads is not None:
+        why.append("external loads do work")
     damped = bool(np.any(np.asarray(model.damping)[np.asarray(model.sprung, int) - 1] != 0)) if model.sprung else False
     if damped and "energy" in ds:
         e = np.asarray(ds["energy"].values, float)
@@ -1293,7 +1297,10 @@ def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
             f"  energy drift: max |E - E0| / |E0| = {float(a['energy_drift']):.3e}"
             + (f" (not conserved: {', '.join(why)})" if why else "")
         )
-        lines.append(f"  angular-momentum drift: max |H - H0| / |H0| = {float(a['momentum_drift']):.3e}")
+        lines.append(
+            f"  angular-momentum drift: max |H - H0| / |H0| = {float(a['momentum_drift']):.3e}"
+            + (" (not conserved: external loads)" if model.loads is not None else "")
+        )
     last = ds.isel(time=-1)
     lines.append(f"  at the last saved time, t = {float(last['time']):.6g} s:")
     lines.append(f"    gamma  = {fmt(last['gamma'].values)}")
