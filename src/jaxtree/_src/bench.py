@@ -9,10 +9,10 @@ classical RK4 at fixed steps) and a ladder of tolerances (or steps), :func:`work
 records
 
 - the error: the largest absolute error over the save times in ``omega0`` (rad/s) and
-  ``gamma`` (rad) against a reference computed at rtol = atol = 1e-12 by a *different*
-  solver (two references per case, Dopri8 and Tsit5, or Kvaerno5 and Dopri8 for stiff cases;
-  every row is measured against the one whose solver differs from its own, and their
-  difference is the report's floor);
+  ``gamma`` (rad) (flex95: relative, see :class:`BenchCase`) against a reference computed at
+  rtol = atol = 1e-12 by a *different* solver (two references per case, Dopri8 and Tsit5, or
+  Kvaerno5 and Dopri8 for the stiff chains; every row is measured against the one whose solver
+  differs from its own, and their difference is the report's floor);
 - the wall time (median of repeated calls after the first), the compile time apart (first
   call minus the median), accepted and rejected steps, right sides, energy and momentum drift;
 
@@ -21,7 +21,9 @@ and the same for the peers that are installed and can represent the scene
 and implicitfast), each cross-checked against the reference at its tightest setting before
 its timings count.
 
-The cases (:data:`CASES`, :func:`bench_case`) are the reference scenes, the *stiff* chains
+The cases (:data:`CASES`, :func:`bench_case`) are the reference scenes, flex95's slew (stiff
+latched wing hinges, a torque on the bus; relative errors; Radau5 among the solvers, the bus
+torque given to Pinocchio as its free flyer's generalized force), the *stiff* chains
 (chain10 with its tip hinge's spring stiffened by s = 1e2 ... 1e8 and damped at a ratio of
 0.7: separated time scales with the fast one decaying; scaling every spring alike would make
 the problem faster, not stiffer) and the *extreme* cases (a fast rotor, a spinning bus, gimbal
@@ -74,6 +76,9 @@ TOLERANCES = (1e-4, 1e-6, 1e-8, 1e-10)
 # competing. Outside the stiff group they run at the tolerances from this one up, and only
 # Kvaerno5 except on EVERY_SOLVER_CASES, where every solver runs.
 IMPLICIT_TIGHTEST = 1e-6
+# flex95's slew: its wing modes (to 433 rad/s) hold the explicit solvers to ~1000 steps (about 1 s
+# a run here) at every tolerance; Radau5 is the stiff solver, Kvaerno5 5-10x its time (bench_stiff.py)
+FLEX95_SOLVERS = ("Tsit5", "Dopri8", "Radau5")
 NONSTIFF_SOLVERS = ("Tsit5", "Dopri5", "Dopri8", "Kvaerno5", "RK4")
 EVERY_SOLVER_CASES = ("appendix_c", "wings")
 # The full Eq. (1) in float32 (GPU batches): tolerances above its roundoff (1000 eps ~ 1e-4)
@@ -104,7 +109,16 @@ class BenchCase:
     """One row group of the report: `model` run from 0 to `t1` with `n_save` save times.
     `group`: ``"reference"``, ``"stiff"`` or ``"extreme"``; `small`: the small hinges of the
     ``eq30`` / ``hybrid-k`` formulations (None: full only); `hybrid_modes`: the k of the
-    ``hybrid-k`` rows; `solvers` / `tolerances`: restrictions for long cases (None: all)."""
+    ``hybrid-k`` rows; `solvers` / `tolerances`: restrictions for long cases (None: all);
+    `references`: the two reference solvers (None: the group's, see :func:`_references`);
+    `relative`: the hinges of a relative error, the larger of the hub rate's error over its
+    peak and these hinges' angles' over theirs (None: the absolute error in omega0 and every
+    gamma); `peer_torque`: ``t -> (3,)`` in numpy, the torque on body 0 (its axes) that the
+    model's loads apply, for the peers, which take no jaxtree loads (Pinocchio as the free
+    flyer's generalized force; a peer that takes no base torque is skipped with a note; None:
+    a case with loads has no peers); `peer_methods`: scipy's methods for Pinocchio, each over the
+    whole ladder, the first the cross-check (None: the group's, RK45 and Radau at their two
+    loosest settings)."""
 
     name: str
     group: str
@@ -116,6 +130,10 @@ class BenchCase:
     hybrid_modes: tuple[int, ...] = ()
     solvers: tuple[str, ...] | None = None
     tolerances: tuple[float, ...] | None = None
+    references: tuple[str, str] | None = None
+    relative: tuple[int, ...] | None = None
+    peer_torque: Callable[[float], np.ndarray] | None = None
+    peer_methods: tuple[str, ...] | None = None
 
 
 def _scene(name):
@@ -177,6 +195,28 @@ def _panel_hinges(model: Model, prefix: str) -> tuple[int, ...]:
     return tuple(k for k in range(1, model.n + 1) if model.names[k].startswith(prefix))
 
 
+FLEX95_TORQUE = (15.0, 9.0, 0.0)  # N m on the bus in flex95's slew (issue 24)
+
+
+def _slew_pulse(t):
+    """flex95's slew profile: on at 1 s, off at 3 s, tanh edges of ~0.2 s (0.1 s time constant)."""
+    return 0.5 * (jnp.tanh((t - 1.0) / 0.1) - jnp.tanh((t - 3.0) / 0.1))
+
+
+def _slew_torque_np(t) -> np.ndarray:
+    """flex95's slew torque in numpy, for the peers' right sides (a JAX call per right side would
+    add its dispatch to every Pinocchio evaluation and distort the peer's timing)."""
+    return np.asarray(FLEX95_TORQUE) * (0.5 * (math.tanh((t - 1.0) / 0.1) - math.tanh((t - 3.0) / 0.1)))
+
+
+def flex95_slew() -> Model:
+    """flex95 (the scene: rotor at 10 pi rad/s, the bus spinning, wings straight) with the slew
+    torque of issue 24 on the bus: :data:`FLEX95_TORQUE` times :func:`_slew_pulse`."""
+    from .loads import BodyTorque
+
+    return _scene("flex95").with_loads(BodyTorque(0, jnp.asarray(FLEX95_TORQUE), _slew_pulse))
+
+
 def _case(name: str) -> BenchCase:
     if name.startswith("stiff_"):
         try:
@@ -215,6 +255,16 @@ def _case(name: str) -> BenchCase:
             name, "reference", "the 95-body vehicle of Fig. 2/3c, 10 s", m, 10.0,
             small=_panel_hinges(m, "wing"), hybrid_modes=(2,), solvers=LARGE_SOLVERS,
         )  # fmt: skip
+    if name == "flex95":
+        m = flex95_slew()
+        return BenchCase(
+            name, "stiff",
+            "flex95's slew (wing modes to 433 rad/s; rotor at 10 pi rad/s, the scene's bus spin, (15, 9, 0) N m on "
+            "the bus from 1 s to 3 s, 0.2 s tanh edges), 10 s; error: the hub rate relative to its peak and the "
+            "wing angles relative to theirs, the larger",
+            m, 10.0, solvers=FLEX95_SOLVERS, references=("Dopri8", "Tsit5"), relative=_panel_hinges(m, "wing"),
+            peer_torque=_slew_torque_np, peer_methods=("DOP853", "Radau"),
+        )  # fmt: skip
     extreme = {
         "rotor_10pi": (lambda: _fig4_state(rotor=10 * math.pi), "fig4_free, rotor at 10 pi rad/s, 10 s", 10.0),
         "rotor_1000pi": (lambda: _fig4_state(rotor=1000 * math.pi), "fig4_free, rotor at 1000 pi rad/s, 10 s", 10.0),
@@ -244,6 +294,7 @@ CASES = (
     "wings",
     "chain50",
     "panels95",
+    "flex95",
     "stiff_1e2",
     "stiff_1e4",
     "stiff_1e6",
@@ -265,11 +316,18 @@ def bench_case(name: str) -> BenchCase:
 
 
 # ----------------------------------------------------------------------------- runs
-def _error(omega0, gamma, ref) -> float:
+def _error(omega0, gamma, ref, relative: tuple[int, ...] | None = None) -> float:
+    """The largest absolute error in omega0 and gamma against `ref`, or with `relative` (hinges)
+    the larger of the hub rate's error over its peak and those hinges' angles' over theirs."""
     w, g = np.asarray(omega0, float), np.asarray(gamma, float)
     if not (np.all(np.isfinite(w)) and np.all(np.isfinite(g))):
         return math.nan
-    return float(max(np.abs(w - ref[0]).max(), np.abs(g - ref[1]).max()))
+    if relative is None:
+        return float(max(np.abs(w - ref[0]).max(), np.abs(g - ref[1]).max()))
+    cols = np.asarray(relative) - 1
+    gr = np.asarray(ref[1])[:, cols]
+    hub = np.abs(w - ref[0]).max() / np.abs(ref[0]).max()
+    return float(max(hub, np.abs(g[:, cols] - gr).max() / np.abs(gr).max()))
 
 
 def _timed(call, repeats: int, budget: float, first_done=None):
@@ -411,7 +469,9 @@ def _row_of(case, formulation, engine, solver, setting, sol_fields, ref, first, 
         solver=solver,
         method=f"{engine} {solver}" + ("" if formulation == "full" else f" [{formulation}]"),
         setting=setting,
-        error=_error(sol_fields[0], sol_fields[1], ref) if ref is not None and sol_fields is not None else math.nan,
+        error=_error(sol_fields[0], sol_fields[1], ref, case.relative)
+        if ref is not None and sol_fields is not None
+        else math.nan,
         time_s=median,
         compile_s=max(first - median, 0.0) if engine == "jaxtree" else math.nan,
     )
@@ -604,7 +664,8 @@ class BenchReport:
             "",
             "Error: the largest absolute error over the save times in omega0 (rad/s) and gamma (rad), "
             f"against a reference at rtol = atol = {REFERENCE_TOL:g} by a different solver (the floor column: the two "
-            "references' difference). Time: the median of repeated calls after the first, compile time apart "
+            "references' difference; a case that names a relative error, as flex95, takes the hub rate's error over "
+            "its peak and its wing angles' over theirs). Time: the median of repeated calls after the first, compile time apart "
             "(jaxtree only). Peers run only on the scenes they can represent, cross-checked first. "
             f"A run stopped at the step cap ({STEP_CAP} steps) is *stalled*; its note says how far it got.",
             "",
@@ -627,6 +688,9 @@ class BenchReport:
                     + ", ".join(f"{k} {v:.1e}" for k, v in checks.items())
                     + "."
                 )
+            idle = {r["method"]: r["note"] for r in rows if r["engine"] != "jaxtree" and r["status"] == "skipped"}
+            if idle:
+                out.append("Peers not timed: " + "; ".join(f"{k} ({v})" for k, v in idle.items()) + ".")
             out.append("")
             out += self.summary(case)
             if plots and case in plots:
@@ -792,7 +856,7 @@ def _references(case: BenchCase):
     names the tolerances and the floor shows what they cost."""
     from .simulate import simulate
 
-    pair = ("Kvaerno5", "Dopri8") if case.group == "stiff" else ("Dopri8", "Tsit5")
+    pair = case.references or (("Kvaerno5", "Dopri8") if case.group == "stiff" else ("Dopri8", "Tsit5"))
     ts = jnp.asarray(np.linspace(0.0, case.t1, case.n_save))
     refs, tols = {}, {}
     for name in pair:
@@ -815,8 +879,8 @@ def _references(case: BenchCase):
             raise RuntimeError(f"bench case {case.name}: no reference by {name} ({why})")
         refs[name] = (np.asarray(sol.omega0, float), np.asarray(sol.gamma, float))
         tols[name] = tol
-    a, b = refs[pair[0]], refs[pair[1]]
-    floor = float(max(np.abs(a[0] - b[0]).max(), np.abs(a[1] - b[1]).max()))
+    (w, g), ref = refs[pair[1]], refs[pair[0]]
+    floor = _error(w, g, ref, case.relative)
     return pair, refs, floor, tols
 
 
@@ -835,14 +899,25 @@ def _formulations(case: BenchCase, wanted: Sequence[str] | None) -> list[str]:
     return forms
 
 
+# Why a peer is not run on a case whose model has a bus torque (BenchCase.peer_torque).
+NO_BASE_TORQUE = {
+    "mujoco": "not run: the bus torque is not applied (MuJoCo holds an applied force over each step, which "
+    "would cut its integrators to first or second order on the pulse)",
+    "basilisk": "not run: the bus torque is not applied (jaxtree's loads are not mapped onto Basilisk's effectors)",
+}
+
+
 def _peer_ladders(case, ts, quick):
-    """``[(engine, solver, settings, run(setting) -> (omega0, gamma, wall s, right sides))]`` for
-    the peers that are installed and can represent `case`."""
+    """``[(engine, solver, settings, run(setting) -> (omega0, gamma, wall s, right sides), why)]``
+    for the peers that are installed and can represent `case`; `why` is "" or the reason a peer
+    is not run (one row, skipped, at its first setting)."""
     from .peer_basilisk import basilisk_available, basilisk_run, basilisk_supports
     from .peers import mujoco_runner, peer_support, pinocchio_runner
 
     ladders: list = []
-    if peer_support(case.model) is not None:
+    # a case's bus torque reaches the peers as a numpy function of time, not as jaxtree loads
+    model = case.model if case.peer_torque is None else case.model.with_loads(None)
+    if peer_support(model) is not None:
         return ladders
     tols = QUICK_TOLERANCES if quick else TOLERANCES
     steps = QUICK_RK4_STEPS if quick else (1, 2, 4, 8, 16, 32, 64)
@@ -850,40 +925,50 @@ def _peer_ladders(case, ts, quick):
         import pinocchio  # noqa: F401  # pyright: ignore[reportMissingImports]  (optional: the peers extra)
         import scipy  # noqa: F401
 
-        run = pinocchio_runner(case.model, ts)
+        run = pinocchio_runner(model, ts, base_torque=case.peer_torque)
         # On the stiff chains scipy's explicit methods take 1e4-1e6 stability-limited steps in Python
         # (minutes a run): there Radau, the implicit one, is the peer, at its two loosest settings.
-        for method in ("Radau",) if case.group == "stiff" else ("DOP853", "RK45", "Radau"):
-            # RK45 and Radau at tight tolerances cost minutes in Python: their loosest settings
-            ladder = tols if method == "DOP853" else tols[:2]
-            ladders.append(("pinocchio", f"scipy {method}", ladder, lambda s, m=method: run(m, s, s)))
+        methods = case.peer_methods or (("Radau",) if case.group == "stiff" else ("DOP853", "RK45", "Radau"))
+        for method in methods:
+            # RK45 and Radau at tight tolerances cost minutes in Python: their loosest settings (a
+            # case that names its methods runs them over the whole ladder)
+            ladder = tols if method == "DOP853" or case.peer_methods else tols[:2]
+            ladders.append(("pinocchio", f"scipy {method}", ladder, lambda s, m=method: run(m, s, s), ""))
     except ImportError:
         pass
     try:
         import mujoco  # noqa: F401  # pyright: ignore[reportMissingImports]  (optional: the peers extra)
 
-        mrun = mujoco_runner(case.model, ts)
-        ladders.append(("mujoco", "RK4", steps, lambda k: mrun("RK4", k)))
-        ladders.append(("mujoco", "implicitfast", steps, lambda k: mrun("implicitfast", k)))
+        if case.peer_torque is not None:
+            for integ in ("RK4", "implicitfast"):
+                ladders.append(("mujoco", integ, steps[:1], None, NO_BASE_TORQUE["mujoco"]))
+        else:
+            mrun = mujoco_runner(model, ts)
+            ladders.append(("mujoco", "RK4", steps, lambda k: mrun("RK4", k), ""))
+            ladders.append(("mujoco", "implicitfast", steps, lambda k: mrun("implicitfast", k), ""))
     except ImportError:
         pass
-    if basilisk_available() and basilisk_supports(case.model) is None:
+    if basilisk_available() and basilisk_supports(model) is None:
+        if case.peer_torque is not None:
+            for integ in ("RKF78", "RKF45", "RK4"):
+                ladders.append(
+                    ("basilisk", integ, (steps if integ == "RK4" else tols)[:1], None, NO_BASE_TORQUE["basilisk"])
+                )
+            return ladders
         interval = float(ts[1] - ts[0])
 
         def bsk(integrator, setting):
             if integrator == "rk4":
-                out = basilisk_run(case.model, case.t1, ts, integrator="rk4", dt=interval / setting)
+                out = basilisk_run(model, case.t1, ts, integrator="rk4", dt=interval / setting)
                 rhs = 4 * setting * (len(ts) - 1)
             else:  # the task step = the save interval (a smaller one caps Basilisk's steps)
-                out = basilisk_run(
-                    case.model, case.t1, ts, integrator=integrator, dt=interval, rtol=setting, atol=setting
-                )
+                out = basilisk_run(model, case.t1, ts, integrator=integrator, dt=interval, rtol=setting, atol=setting)
                 rhs = -1
             return out["omega0"], out["gamma"], out["time"], rhs
 
         for integ in ("rkf78", "rkf45"):
-            ladders.append(("basilisk", integ.upper(), tols, lambda s, i=integ: bsk(i, s)))
-        ladders.append(("basilisk", "RK4", steps, lambda k: bsk("rk4", k)))
+            ladders.append(("basilisk", integ.upper(), tols, lambda s, i=integ: bsk(i, s), ""))
+        ladders.append(("basilisk", "RK4", steps, lambda k: bsk("rk4", k), ""))
     return ladders
 
 
@@ -901,14 +986,16 @@ def _peer_runs(case, ts, ref, quick, repeats, budget, progress):
         return base
 
     verdict: dict[str, str] = {}  # per engine: "" when its model agrees with jaxtree's, else why not
-    for engine, solver, ladder, fn in _peer_ladders(case, ts, quick):
+    for engine, solver, ladder, fn, why in _peer_ladders(case, ts, quick):
         # Cross-check each engine once, with its first (most accurate) integrator at its tightest
         # setting: an engine whose model disagrees is reported, not timed. A low-order integrator
         # of an engine that agrees is timed whatever its accuracy (that is what it costs).
-        if engine not in verdict:
+        if why:
+            verdict[engine] = why
+        elif engine not in verdict:
             try:
                 tight = fn(ladder[-1])
-                err = _error(tight[0], tight[1], ref)
+                err = _error(tight[0], tight[1], ref, case.relative)
                 checks[f"{engine} {solver}"] = err
                 verdict[engine] = "" if err <= PEER_AGREEMENT else f"disagrees with the reference by {err:.1e}"
             except Exception as e:  # a peer's failure is a row of the report, not the end of it
@@ -931,7 +1018,7 @@ def _peer_runs(case, ts, ref, quick, repeats, budget, progress):
                         engine,
                         solver,
                         setting,
-                        error=_error(out[0], out[1], ref),
+                        error=_error(out[0], out[1], ref, case.relative),
                         time_s=statistics.median(times),
                         rhs=out[3],
                     )
@@ -948,7 +1035,10 @@ def _plan(case: BenchCase, solvers, tolerances, quick, formulations):
     default = QUICK_SOLVERS if quick else tuple(SOLVERS)
     if not quick and case.group != "stiff" and case.name not in EVERY_SOLVER_CASES:
         default = NONSTIFF_SOLVERS
-    names = [s for s in (case.solvers or default) if s in (solvers or default)]
+    allowed = tuple(solvers or default)
+    if quick and not solvers and case.solvers:  # a quick run keeps a case's own implicit solver (flex95's Radau5)
+        allowed += tuple(s for s in case.solvers if s in IMPLICIT)
+    names = [s for s in (case.solvers or default) if s in allowed]
     tols = tolerances or case.tolerances or (QUICK_TOLERANCES if quick else TOLERANCES)
     plan = []
 
