@@ -8,6 +8,7 @@ momentum without loads, and two references by different solvers agreeing.
 """
 
 import csv
+import dataclasses
 import math
 
 import diffrax as dfx
@@ -210,3 +211,48 @@ def test_a_reference_that_cannot_meet_its_tolerance_runs_looser_and_a_singular_s
     assert rows["float32"]["status"] == "refused" and "singular" in rows["float32"]["note"], rows["float32"]
     assert report.rows[-1]["status"] == "skipped" and "refused" in report.rows[-1]["note"]
     assert "Failed runs: none." in text and "Refused by `simulate`'s checks" in text and "(*collapsed*)" in text
+
+
+def test_flex95_slew_case_drives_jaxtree_and_the_pinocchio_peer_with_the_same_bus_torque():
+    """flex95 (issue 24) is a bench case: the slew's torque on the bus, relative errors over the
+    wing hinges, Radau5 among the solvers. The peer's numpy torque equals the model's load at every
+    time; over the first 2 s (the pulse's rise and top) Pinocchio + DOP853 with it follows jaxtree's
+    run to 1e-7 of the hub rate's and wing angles' peaks (at 1e-10), while the same peer without it
+    misses by more than 10 %; the peers that take no base torque are rows skipped with the reason."""
+    pytest.importorskip("pinocchio")
+    from jaxtree._src import bench
+    from jaxtree._src.peers import pinocchio_runner
+
+    case = jaxtree.bench_case("flex95")
+    assert "flex95" in bench.CASES and case.group == "stiff" and "Radau5" in (case.solvers or ())
+    wings = [k for k in range(1, case.model.n + 1) if case.model.names[k].startswith("wing")]
+    assert case.relative == tuple(wings) and len(wings) == 90 and case.references == ("Dopri8", "Tsit5")
+    assert any(s == "Radau5" for _, s, _ in bench._plan(case, None, None, True, None))  # a quick run keeps it
+    loads, torque = case.model.loads, case.peer_torque
+    assert loads is not None and torque is not None
+    for t in (0.0, 0.9, 1.0, 1.5, 2.95, 3.2, 9.0):
+        _, T = loads(jnp.asarray(t), case.model.initial)
+        np.testing.assert_allclose(torque(t), np.asarray(T)[0], rtol=1e-12, atol=1e-12)
+    assert np.allclose(torque(2.0), [15.0, 9.0, 0.0])
+
+    short = dataclasses.replace(case, t1=2.0)
+    ts = np.linspace(0.0, 2.0, 11)
+    sol = jaxtree.simulate(case.model, 2.0, saveat=jnp.asarray(ts), solver=dfx.Dopri8(), rtol=1e-10, atol=1e-10)
+    W = np.asarray(sol.omega0)
+    # the torque turns the hub about b_1 and b_2 in the pulse: 1e-2 rad/s at 2 s, 2e-5 before it (the rotor's coupling)
+    assert np.linalg.norm(W[-1, :2]) > 100 * np.linalg.norm(W[4, :2]) and np.linalg.norm(W[-1, :2]) > 0.1 * W[0, 2]
+    ref = (W, np.asarray(sol.gamma))
+
+    class Steps:
+        def step(self, label, n=1):
+            pass
+
+    rows, checks = bench._peer_runs(short, ts, ref, True, 1, 0.0, Steps())
+    by = {(r["method"], r["setting"]): r for r in rows}
+    tight = by["pinocchio scipy DOP853", 1e-8]
+    assert checks["pinocchio scipy DOP853"] < 1e-7, checks  # the cross-check, at 1e-10 in a quick run too
+    assert tight["status"] == "ok" and tight["error"] < 1e-5, tight
+    free = pinocchio_runner(case.model.with_loads(None), ts)("DOP853", 1e-8, 1e-8)
+    assert bench._error(free[0], free[1], ref, case.relative) > 0.1
+    skipped = [r for r in rows if r["engine"] in ("mujoco", "basilisk")]
+    assert all(r["status"] == "skipped" and "bus torque is not applied" in r["note"] for r in skipped)
