@@ -1,7 +1,9 @@
 """Scenes: the ``jaxtree-scene/1`` JSON format, a Python builder, and validation.
 
 The format is defined in the docstring of ``make_scenes.py`` of the shared
-reference scenes (bundled here under ``jaxtree/scenes``). All validation runs
+reference scenes (bundled here under ``jaxtree/scenes``); jaxtree's optional keys
+(``loads``, ``control``, ``orbit``, the prescribed ``ramp``, ``smooth_step`` and ``table``)
+are defined in ``docs/scene_format.md`` and read in :mod:`jaxtree.scene_laws`. All validation runs
 on plain numpy data before anything is traced, and every error names the body
 and the field at fault.
 """
@@ -35,11 +37,13 @@ _SCENES = pathlib.Path(__file__).resolve().parents[1] / "scenes"  # jaxtree/scen
 class Joint(abc.ABC):
     """The law of one hinge, a closed family (Def. 21, Sec. II B): :class:`Free` and
     :class:`SpringDamper` give the joint torque ``tau_k`` of Eq. (1) (the model's `sprung`
-    hinges); :class:`PrescribedSine` and :class:`Prescribed` prescribe ``gamma_k(t)``
+    hinges); :class:`PrescribedSine`, :class:`PrescribedRamp`, :class:`PrescribedSmoothStep`,
+    :class:`PrescribedTable` and :class:`Prescribed` prescribe ``gamma_k(t)``
     kinematically (the model's `prescribed` hinges, moved to the right side of Eq. 1). Laws of
     the whole state act beside them at run time: a user law ``tau(t, state, params)`` and a
-    controller with internal states (:mod:`jaxtree.control`), both arguments of
-    :func:`jaxtree.simulate`. `kind` is the scene format's joint kind."""
+    controller with internal states (:mod:`jaxtree.control`), arguments of
+    :func:`jaxtree.simulate` or carried by the model from its scene's ``control``. `kind` is the
+    scene format's joint kind."""
 
     kind: ClassVar[str]
 
