@@ -690,9 +690,13 @@ class BenchReport:
                     + ", ".join(f"{k} {v:.1e}" for k, v in checks.items())
                     + "."
                 )
-            idle = {r["method"]: r["note"] for r in rows if r["engine"] != "jaxtree" and r["status"] == "skipped"}
+            idle: dict[str, list[str]] = {}  # the peers' skipped methods by reason
+            for r in rows:
+                if r["engine"] != "jaxtree" and r["status"] == "skipped":
+                    methods = idle.setdefault(r["note"], [])
+                    methods += [r["method"]] if r["method"] not in methods else []
             if idle:
-                out.append("Peers not timed: " + "; ".join(f"{k} ({v})" for k, v in idle.items()) + ".")
+                out.append("Peers not timed: " + "; ".join(f"{', '.join(m)}: {why}" for why, m in idle.items()) + ".")
             out.append("")
             out += self.summary(case)
             if plots and case in plots:
@@ -903,9 +907,9 @@ def _formulations(case: BenchCase, wanted: Sequence[str] | None) -> list[str]:
 
 # Why a peer is not run on a case whose model has a bus torque (BenchCase.peer_torque).
 NO_BASE_TORQUE = {
-    "mujoco": "not run: the bus torque is not applied (MuJoCo holds an applied force over each step, which "
-    "would cut its integrators to first or second order on the pulse)",
-    "basilisk": "not run: the bus torque is not applied (jaxtree's loads are not mapped onto Basilisk's effectors)",
+    "mujoco": "not run, no bus torque in its runner (MuJoCo holds an applied force over each step, which would "
+    "cut its integrators to first or second order on the pulse)",
+    "basilisk": "not run, no bus torque in its runner (jaxtree's loads are not mapped onto Basilisk's effectors)",
 }
 
 
