@@ -4,7 +4,8 @@ work-precision report behind ``jaxtree bench``.
 Independent sources: the convergence order of RK4 (halving the step divides the error by
 2^4), a second solver family (explicit Dopri8 against the implicit choice on the stiff chain),
 the dissipation of a damped vehicle (its energy never rises), the conservation of angular
-momentum without loads, and two references by different solvers agreeing.
+momentum without loads, two references by different solvers agreeing, and Pinocchio's ABA
+driven by the same bus torque as flex95's slew.
 """
 
 import csv
