@@ -103,6 +103,7 @@ def build_jit(fn):
     import inspect
 
     import equinox as eqx
+    from jax.core import Tracer
 
     options = BUILD_COMPILER_OPTIONS if "compiler_options" in inspect.signature(jax.jit).parameters else None
     compiled = {}
@@ -110,6 +111,8 @@ def build_jit(fn):
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         dynamic, static = eqx.partition((args, kwargs), eqx.is_array)
+        if any(isinstance(x, Tracer) for x in jax.tree_util.tree_leaves(dynamic)):
+            return fn(*args, **kwargs)  # inside a trace (grad, jit): part of the caller's program
         leaves, treedef = jax.tree_util.tree_flatten(static)
         try:
             key = (treedef, tuple(leaves))
@@ -123,6 +126,11 @@ def build_jit(fn):
                 return fn(*a, **kw)
 
             compiled[key] = jax.jit(run, compiler_options=options) if options else jax.jit(run)
-        return compiled[key](dynamic)
+        try:
+            return compiled[key](dynamic)
+        except ValueError as err:  # compiler options are refused on a jit nested in another trace
+            if "compiler_options" not in str(err):
+                raise
+            return fn(*args, **kwargs)
 
     return wrapper

@@ -175,11 +175,11 @@ _PAIRS = np.triu_indices(6)
 _FEATURES = len(_PAIRS[0]) + 6 + 6 + 1
 
 
-def _stacked_terms(t: dict) -> dict:
+def _stacked_terms(t: dict, xp=np) -> dict:
     """The arrays of :class:`_Precomputed` from the per-term stacks of :func:`_build_pre`
     (numpy, leading axis p)."""
     p, uS, mS = t["w1"].shape
-    z = lambda *shape: np.zeros((p, *shape))  # noqa: E731
+    z = lambda *shape: xp.zeros((p, *shape))  # noqa: E731
     iu, ju = _PAIRS
 
     def pairs(g):  # g : v v / 2 over the 21 products v_b v_c, b <= c
@@ -189,15 +189,15 @@ def _stacked_terms(t: dict) -> dict:
             * np.where(iu == ju, 0.5, 1.0).reshape((1, 1, -1) + (1,) * (g.ndim - 4))
         )
 
-    a0 = np.concatenate([pairs(t["g0a"]), z(6, 6), t["aa0"], z(6, 1)], 2)
-    w0 = np.concatenate([pairs(t["g0w"]), z(uS, 6), t["wa0"], t["w0"][:, :, None]], 2)
-    a1 = np.concatenate([pairs(t["g1a"]), t["g2a"], t["aa1"], z(6, 1, mS)], 2)
-    w1 = np.concatenate([pairs(t["g1w"]), t["g2w"], t["wa1"], t["w1"][:, :, None, :]], 2)
+    a0 = xp.concatenate([pairs(t["g0a"]), z(6, 6), t["aa0"], z(6, 1)], 2)
+    w0 = xp.concatenate([pairs(t["g0w"]), z(uS, 6), t["wa0"], t["w0"][:, :, None]], 2)
+    a1 = xp.concatenate([pairs(t["g1a"]), t["g2a"], t["aa1"], z(6, 1, mS)], 2)
+    w1 = xp.concatenate([pairs(t["g1w"]), t["g2w"], t["wa1"], t["w1"][:, :, None, :]], 2)
     return {
-        "bias0": np.concatenate([a0, w0], 1),
-        "bias1": np.concatenate([a1, w1], 1).reshape(p, 6 + uS, _FEATURES * mS),
-        "mat0": np.concatenate([t["aa0"], t["wa0"]], 1),
-        "mat1": np.concatenate([t["aa1"], t["wa1"]], 1),
+        "bias0": xp.concatenate([a0, w0], 1),
+        "bias1": xp.concatenate([a1, w1], 1).reshape(p, 6 + uS, _FEATURES * mS),
+        "mat0": xp.concatenate([t["aa0"], t["wa0"]], 1),
+        "mat1": xp.concatenate([t["aa1"], t["wa1"]], 1),
         "aw0": t["aw0"],
     }
 
@@ -826,25 +826,37 @@ def hybrid_rhs(t, y, args: HybridModel):
 
 
 # ----------------------------------------------------------------------------- construction
-def _real_pairs(md, picked, tol):
+def _put(xp, a, idx, v, add: bool = False):
+    """``a[idx] = v`` (or ``+=``) for numpy in place, for JAX as a functional update."""
+    if xp is np:
+        if add:
+            a[idx] += v
+        else:
+            a[idx] = v
+        return a
+    return a.at[idx].add(v) if add else a.at[idx].set(v)
+
+
+def _real_pairs(md, picked, tol, xp=np):
     """Real bases ``(right, left)`` (2nu, 2k) of the retained pairs: ``[Re Phi^j ..., Im Phi^j ...]``
-    for complex pairs, ``[Phi^j ..., Phi^{j+nu} ...]`` for pairs of real eigenvalues."""
+    for complex pairs, ``[Phi^j ..., Phi^{j+nu} ...]`` for pairs of real eigenvalues. Traced
+    (`xp` jnp, a differentiable build of real or gyroscopic modes): every pair is complex."""
     nu = md.nu
-    R, Lf = np.asarray(md.right), np.asarray(md.left)
-    lam = np.asarray(md.eigenvalues)
+    R, Lf = xp.asarray(md.right), xp.asarray(md.left)
+    lam = None if xp is jnp else np.asarray(md.eigenvalues)
     a_r, b_r, a_l, b_l = [], [], [], []
     for j in picked:
-        if abs(np.imag(lam[j])) > tol:
-            a_r.append(np.real(R[:, j]))
-            b_r.append(np.imag(R[:, j]))
-            a_l.append(np.real(Lf[:, j]))
-            b_l.append(np.imag(Lf[:, j]))
+        if lam is None or abs(np.imag(lam[j])) > tol:
+            a_r.append(xp.real(R[:, j]))
+            b_r.append(xp.imag(R[:, j]))
+            a_l.append(xp.real(Lf[:, j]))
+            b_l.append(xp.imag(Lf[:, j]))
         else:
-            a_r.append(np.real(R[:, j]))
-            b_r.append(np.real(R[:, j + nu]))
-            a_l.append(np.real(Lf[:, j]))
-            b_l.append(np.real(Lf[:, j + nu]))
-    return np.stack(a_r + b_r, 1), np.stack(a_l + b_l, 1)
+            a_r.append(xp.real(R[:, j]))
+            b_r.append(xp.real(R[:, j + nu]))
+            a_l.append(xp.real(Lf[:, j]))
+            b_l.append(xp.real(Lf[:, j + nu]))
+    return xp.stack(a_r + b_r, 1), xp.stack(a_l + b_l, 1)
 
 
 # Frequencies within this relative distance of each other count as one repeated frequency: a
@@ -886,7 +898,7 @@ def _select(sigma, candidates, n, cutoff, where):
     return cand
 
 
-def _modal_rep(md, I, K, idx, form):
+def _modal_rep(md, I, K, idx, form, xp=np):
     """The modes `idx` (indices below nu, no rigid mode) as decoupled complex coordinates
     ``q' = lam q + d . f``, ``y = Re(c q)`` under a generalized force `f` on the rows of
     ``I y'' + J y' + K y = f``: ``(c (nu, N), d (N, nu), lam (N,), d0 (N, 2nu))`` with ``q = d0 [y;
@@ -899,18 +911,21 @@ def _modal_rep(md, I, K, idx, form):
     idx = np.asarray(idx, np.int64)
     nu = I.shape[0]
     if form == "real":
-        phi = np.real(np.asarray(md.shapes))[:, idx]
-        sig = np.asarray(md.frequencies)[idx]
-        d0 = np.concatenate([1j * sig[:, None] * (phi.T @ I), phi.T @ I], 1)
+        phi = xp.real(xp.asarray(md.shapes))[:, idx]
+        sig = xp.asarray(md.frequencies)[idx]
+        d0 = xp.concatenate([1j * sig[:, None] * (phi.T @ I), phi.T @ I], 1)
         return -1j * phi / sig, phi.T.astype(complex), 1j * sig, d0
     jj = np.concatenate([idx, idx + nu])
-    R, L = np.asarray(md.right), np.asarray(md.left)
-    P = np.block([[K, np.zeros_like(K)], [np.zeros_like(K), I]])
-    return R[:nu, jj], L[nu:, jj].T, np.asarray(md.eigenvalues)[jj], L[:, jj].T @ P
+    R, L = xp.asarray(md.right), xp.asarray(md.left)
+    P = xp.block([[K, xp.zeros_like(K)], [xp.zeros_like(K), I]])
+    return R[:nu, jj], L[nu:, jj].T, xp.asarray(md.eigenvalues)[jj], L[:, jj].T @ P
 
 
 def _flexible(md):
-    """The modes that have a static response (not rigid), in the order of :func:`jaxtree.modes`."""
+    """The modes that have a static response (not rigid), in the order of :func:`jaxtree.modes`
+    (all of them for a traced build, whose reference build had no rigid mode)."""
+    if is_traced(md.rigid):
+        return list(range(md.nu))
     rigid = np.asarray(md.rigid)
     return [j for j in range(md.nu) if not rigid[j]]
 
@@ -981,62 +996,60 @@ def _base_loads(model, S, groups, tms, g_nom, basis):
 def _truncation_terms(systems, mds, form, owners, nu, dtype) -> _Truncation:
     """:class:`_Truncation` of every flexible mode of the systems; `owners[(system, mode)]` is a
     retained mode's global index."""
+    xp = jnp if is_traced(mds) else np
     cs, ds, lams, d0s, own = [], [], [], [], []
     for si, ((rows, I, _J, K, _), md) in enumerate(zip(systems, mds)):
         flex = _flexible(md)
         if not flex:
             continue
-        c, d, lam, d0 = _modal_rep(md, I, K, flex, form)
+        c, d, lam, d0 = _modal_rep(md, I, K, flex, form, xp)
         r = np.asarray(rows, np.int64)
-        C = np.zeros((nu, len(lam)), complex)
-        C[r] = c
-        D = np.zeros((len(lam), nu), complex)
-        D[:, r] = d
-        D0 = np.zeros((len(lam), 2 * nu), complex)
-        D0[:, np.concatenate([r, nu + r])] = d0
+        C = _put(xp, xp.zeros((nu, len(lam)), complex), r, c)
+        D = _put(xp, xp.zeros((len(lam), nu), complex), (slice(None), r), d)
+        D0 = _put(xp, xp.zeros((len(lam), 2 * nu), complex), (slice(None), np.concatenate([r, nu + r])), d0)
         o = [owners.get((si, j), -1) for j in flex]
         cs.append(C)
         ds.append(D)
         lams.append(lam)
         d0s.append(D0)
         own.extend(o if form == "real" else o + o)
-    f = lambda x: jnp.asarray(np.stack([np.real(x), np.imag(x)], -1), dtype)  # noqa: E731
+    f = lambda x: jnp.asarray(xp.stack([xp.real(x), xp.imag(x)], -1), dtype)  # noqa: E731
     if not cs:
         return _Truncation(
             f(np.zeros((nu, 0))), f(np.zeros((0, nu))), f(np.zeros(0)), f(np.zeros((0, 2 * nu))), jnp.zeros(0, int)
         )
     return _Truncation(
-        c_parts=f(np.concatenate(cs, 1)),
-        d_parts=f(np.concatenate(ds, 0)),
-        lam_parts=f(np.concatenate(lams)),
-        d0_parts=f(np.concatenate(d0s, 0)),
+        c_parts=f(xp.concatenate(cs, 1)),
+        d_parts=f(xp.concatenate(ds, 0)),
+        lam_parts=f(xp.concatenate(lams)),
+        d0_parts=f(xp.concatenate(d0s, 0)),
         owner=jnp.asarray(np.asarray(own, np.int64)),
     )
 
 
-def _basis(md, I, K, cand, form, zeta):
+def _basis(md, I, K, cand, form, zeta, xp=np):
     """Modal matrices of the retained modes `cand` of one set of coordinates (module docstring):
     ``positions, rates (nu, m), accel, rows (nu, u), kin (u, u), kin_rhs (u, m), project (m, 2nu)``."""
     nu, k = I.shape[0], len(cand)
-    sig = np.asarray(md.frequencies)[cand]
-    Z = np.zeros((nu, k))
+    sig = xp.asarray(md.frequencies)[np.asarray(cand, np.int64)]
+    Z = xp.zeros((nu, k))
     if form == "real":
-        phi = np.real(np.asarray(md.shapes))[:, cand]  # Eq. (119), phi^T I phi = U
+        phi = xp.real(xp.asarray(md.shapes))[:, np.asarray(cand, np.int64)]  # Eq. (119), phi^T I phi = U
         Ip = phi.T @ I
         return dict(
-            positions=np.concatenate([phi, Z], 1),
-            rates=np.concatenate([Z, phi], 1),
+            positions=xp.concatenate([phi, Z], 1),
+            rates=xp.concatenate([Z, phi], 1),
             accel=phi,
             rows=phi,
-            kin=np.zeros((k, k)),
-            kin_rhs=np.concatenate([np.zeros((k, k)), -np.diag(2.0 * zeta * sig)], 1),  # Eq. (104)
-            project=np.block([[Ip, np.zeros_like(Ip)], [np.zeros_like(Ip), Ip]]),
+            kin=xp.zeros((k, k)),
+            kin_rhs=xp.concatenate([xp.zeros((k, k)), -xp.diag(2.0 * zeta * sig)], 1),  # Eq. (104)
+            project=xp.block([[Ip, xp.zeros_like(Ip)], [xp.zeros_like(Ip), Ip]]),
         )
-    scale = max(float(np.abs(np.asarray(md.eigenvalues)).max()), 1e-300)
-    T, V = _real_pairs(md, cand, 1e-9 * scale)
-    W = np.concatenate([K.T @ V[:nu], V[nu:]], 0)  # left vectors of the unscaled rows (30d)
-    Pu = np.block([[np.eye(nu), np.zeros((nu, nu))], [np.zeros((nu, nu)), I]])
-    W = W @ np.linalg.inv(W.T @ Pu @ T).T  # W^T diag(U, I) T = U (Eqs. 116-117)
+    tol = 0.0 if xp is jnp else 1e-9 * max(float(np.abs(np.asarray(md.eigenvalues)).max()), 1e-300)
+    T, V = _real_pairs(md, cand, tol, xp)
+    W = xp.concatenate([K.T @ V[:nu], V[nu:]], 0)  # left vectors of the unscaled rows (30d)
+    Pu = xp.block([[xp.eye(nu), xp.zeros((nu, nu))], [xp.zeros((nu, nu)), I]])
+    W = W @ xp.linalg.inv(W.T @ Pu @ T).T  # W^T diag(U, I) T = U (Eqs. 116-117)
     positions, rates = T[:nu], T[nu:]
     return dict(
         positions=positions,
@@ -1044,7 +1057,7 @@ def _basis(md, I, K, cand, form, zeta):
         accel=rates,
         rows=W[nu:],
         kin=W[:nu].T @ positions,
-        kin_rhs=W[:nu].T @ rates - np.diag(np.concatenate([zeta * sig, zeta * sig])),
+        kin_rhs=W[:nu].T @ rates - xp.diag(xp.concatenate([zeta * sig, zeta * sig])),
         project=W.T @ Pu,
     )
 
@@ -1067,22 +1080,25 @@ def _zeta(damping, k, kind):
     return zeta
 
 
-def _assemble(blocks, nu, form):
+def _assemble(blocks, nu, form, order=None):
     """Global modal matrices from per-group blocks ``(rows of the set A, sigma, parts)``: the modes
-    of all groups ordered by frequency; returns the matrices, the order ``(group, local index)``
-    and each group's global modal coordinates and rows."""
-    order = sorted(((float(sig[j]), g, j) for g, (_, sig, _) in enumerate(blocks) for j in range(len(sig))))
+    of all groups ordered by frequency (or as `order` gives, ``(_, group, local index)``: a traced
+    build keeps its reference build's order); returns the matrices, the order ``(group, local
+    index)`` and each group's global modal coordinates and rows."""
+    xp = jnp if is_traced(blocks) else np
+    if order is None:
+        order = sorted(((float(sig[j]), g, j) for g, (_, sig, _) in enumerate(blocks) for j in range(len(sig))))
     k = len(order)
     u = k if form == "real" else 2 * k
     pos = {(g, j): q for q, (_, g, j) in enumerate(order)}
     out = dict(
-        positions=np.zeros((nu, 2 * k)),
-        rates=np.zeros((nu, 2 * k)),
-        accel=np.zeros((nu, u)),
-        rows=np.zeros((nu, u)),
-        kin=np.zeros((u, u)),
-        kin_rhs=np.zeros((u, 2 * k)),
-        project=np.zeros((2 * k, 2 * nu)),
+        positions=xp.zeros((nu, 2 * k)),
+        rates=xp.zeros((nu, 2 * k)),
+        accel=xp.zeros((nu, u)),
+        rows=xp.zeros((nu, u)),
+        kin=xp.zeros((u, u)),
+        kin_rhs=xp.zeros((u, 2 * k)),
+        project=xp.zeros((2 * k, 2 * nu)),
     )
     mmaps, umaps = [], []
     for g, (rows, sig, p) in enumerate(blocks):
@@ -1091,13 +1107,17 @@ def _assemble(blocks, nu, form):
         mm_ = np.concatenate([q, k + q])
         um = q if form == "real" else mm_
         r = np.asarray(rows, np.int64)
-        out["positions"][np.ix_(r, mm_)] = p["positions"]
-        out["rates"][np.ix_(r, mm_)] = p["rates"]
-        out["accel"][np.ix_(r, um)] = p["accel"]
-        out["rows"][np.ix_(r, um)] = p["rows"]
-        out["kin"][np.ix_(um, um)] = p["kin"]
-        out["kin_rhs"][np.ix_(um, mm_)] = p["kin_rhs"]
-        out["project"][np.ix_(mm_, np.concatenate([r, nu + r]))] = p["project"]
+        at = {
+            "positions": np.ix_(r, mm_),
+            "rates": np.ix_(r, mm_),
+            "accel": np.ix_(r, um),
+            "rows": np.ix_(r, um),
+            "kin": np.ix_(um, um),
+            "kin_rhs": np.ix_(um, mm_),
+            "project": np.ix_(mm_, np.concatenate([r, nu + r])),
+        }
+        for key, idx in at.items():
+            out[key] = _put(xp, out[key], idx, p[key])
         mmaps.append(mm_)
         umaps.append(um)
     return out, [(g, j) for _, g, j in order], mmaps, umaps
@@ -1105,48 +1125,49 @@ def _assemble(blocks, nu, form):
 
 def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u, m):
     """The precomputed substructure terms (:class:`_Precomputed`), projected on the modes."""
+    xp = jnp if is_traced((model, tms, parts)) else np
     ms, us = max(len(x) for x in mmaps), max(len(x) for x in umaps)
     keys = ("aa0", "aa1", "wa0", "wa1", "aw0", "g0a", "g1a", "g2a", "g0w", "g1w", "g2w", "w0", "w1")
     acc = {k: [] for k in keys}
-    ww0 = np.zeros((u, u))
+    ww0 = xp.zeros((u, u))
     sprung = np.zeros(model.n)
     sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
-    stiff = np.asarray(model.stiffness) * sprung
-    damp = np.asarray(model.damping) * sprung
+    stiff = xp.asarray(model.stiffness) * sprung
+    damp = xp.asarray(model.damping) * sprung
     for grp, tm, mc, uc in zip(groups, tms, mmaps, umaps):
         idx = np.asarray([small.index(k) for k in grp.hinges], np.int64)
         P = parts["positions"][np.ix_(idx, mc)]
         Q = parts["rates"][np.ix_(idx, mc)]
         Acc = parts["accel"][np.ix_(idx, uc)]
         Rw = parts["rows"][np.ix_(idx, uc)]
-        A0, A1, G0, G1, G2 = (np.asarray(x) for x in (tm.A0, tm.A1, tm.G0, tm.G1, tm.G2))
+        A0, A1, G0, G1, G2 = (xp.asarray(x) for x in (tm.A0, tm.A1, tm.G0, tm.G1, tm.G2))
         h = np.asarray(grp.hinges, np.int64) - 1
-        gbar = np.asarray(gamma_nominal)[h]
-        pad_m = lambda x: np.concatenate([x, np.zeros(x.shape[:-1] + (ms - x.shape[-1],))], -1)
+        gbar = xp.asarray(gamma_nominal)[h]
+        pad_m = lambda x: xp.concatenate([x, xp.zeros(x.shape[:-1] + (ms - x.shape[-1],))], -1)
 
         def pad_u(x, axis=0):
             width = [(0, 0)] * x.ndim
             width[axis] = (0, us - x.shape[axis])
-            return np.pad(x, width)
+            return xp.pad(x, width)
 
         acc["aa0"].append(A0[:6, :6])
         acc["aa1"].append(pad_m(A1[:6, :6] @ P))
         acc["wa0"].append(pad_u(Rw.T @ A0[6:, :6]))
-        acc["wa1"].append(pad_u(pad_m(np.einsum("ju,jak,km->uam", Rw, A1[6:, :6], P))))
+        acc["wa1"].append(pad_u(pad_m(xp.einsum("ju,jak,km->uam", Rw, A1[6:, :6], P))))
         acc["aw0"].append(pad_u(A0[:6, 6:] @ Acc, 1))
         acc["g0a"].append(G0[:6])
         acc["g1a"].append(pad_m(G1[:6] @ P))
         acc["g2a"].append(pad_m(G2[:6] @ Q))
-        acc["g0w"].append(pad_u(np.einsum("ju,jbc->ubc", Rw, G0[6:])))
-        acc["g1w"].append(pad_u(pad_m(np.einsum("ju,jbck,km->ubcm", Rw, G1[6:], P))))
-        acc["g2w"].append(pad_u(pad_m(np.einsum("ju,jbk,km->ubm", Rw, G2[6:], Q))))
+        acc["g0w"].append(pad_u(xp.einsum("ju,jbc->ubc", Rw, G0[6:])))
+        acc["g1w"].append(pad_u(pad_m(xp.einsum("ju,jbck,km->ubcm", Rw, G1[6:], P))))
+        acc["g2w"].append(pad_u(pad_m(xp.einsum("ju,jbk,km->ubm", Rw, G2[6:], Q))))
         acc["w0"].append(pad_u(Rw.T @ (stiff[h] * gbar)))  # -tau_S at y = 0 (a spring preload)
         acc["w1"].append(pad_u(pad_m(Rw.T @ (stiff[h][:, None] * P + damp[h][:, None] * Q))))
-        ww0[np.ix_(uc, uc)] += Rw.T @ A0[6:, 6:] @ Acc
+        ww0 = _put(xp, ww0, np.ix_(uc, uc), Rw.T @ A0[6:, 6:] @ Acc, add=True)
     dtype = jnp.result_type(model.mass)
     pad_idx = lambda x, n, width: tuple(tuple(int(i) for i in c) + (n,) * (width - len(c)) for c in x)
     return _Precomputed(
-        **{k: jnp.asarray(v, dtype) for k, v in _stacked_terms({k: np.stack(v) for k, v in acc.items()}).items()},
+        **{k: jnp.asarray(v, dtype) for k, v in _stacked_terms({k: xp.stack(v) for k, v in acc.items()}, xp).items()},
         ww0=jnp.asarray(ww0, dtype),
         mcols=pad_idx(mmaps, m, ms),
         ucols=pad_idx(umaps, u, us),
@@ -1180,6 +1201,7 @@ def hybrid_model(
     rtol: float = 1e-9,
     basis: str | None = None,
     tol: float = 1e-2,
+    like: HybridModel | None = None,
 ) -> HybridModel:
     """The hybrid-coordinate equations of `model` with the hinges of `small` (the set A) in
     truncated large-deformation modal coordinates (Eqs. 105-123).
@@ -1218,6 +1240,15 @@ def hybrid_model(
     - `attitude`: attitude variables of b_0 in the state (``"quaternion"``, ``"dcm"``,
       ``"euler123"``).
 
+    - `like`: a hybrid model of the same vehicle and set A (built from concrete values): its
+      retained modes (indices in each substructure's modes, global order), basis, form and
+      precomputation are kept, and `n_modes`, `cutoff`, `tol`, `basis`, `form`, `precompute`
+      are ignored. This makes the build differentiable: under ``jax.grad`` (or ``jvp``) with
+      respect to the model's parameters (stiffness, masses, geometry) or the nominal motion, the
+      modes are recomputed from the traced matrices (``jnp``) with the selection fixed. Traced
+      builds need real or gyroscopic modes (undamped hinges; modal damping by `damping`): the
+      derivatives of general (damped) eigenvectors are not provided.
+
     Rigid (zero-frequency) modes have no first-order eigenvectors (Sec. III E, all-small case):
     the first-order form leaves them out.
 
@@ -1241,6 +1272,15 @@ def hybrid_model(
     )
     S = resolve_hinges(model, small)
     groups = _sub.substructures(model, S)
+    traced = is_traced((model, omega0, gamma, dcm))
+    if like is not None:
+        _check_like(like, S, groups)
+        basis, precompute, form = like.basis, like.precomputed, like.form
+    elif traced:
+        raise ValueError(
+            "hybrid_model: the model or the nominal motion is traced (jax.grad, jvp, vmap): pass "
+            "like=<hybrid_model of the same vehicle built from concrete values> to fix the retained modes"
+        )
     basis, precompute = _basis_and_precompute(model, S, groups, basis, precompute)
     if form not in (None, "real", "first_order"):
         raise ValueError(f"hybrid_model: form must be 'real' or 'first_order', got {form!r}")
@@ -1248,11 +1288,22 @@ def hybrid_model(
     tms = [_sub.terms(model, g, g_nom) for g in groups] if (precompute or basis == "substructure") else None
     if basis == "set":
         lin = linearize(model, S, omega0=omega0, gamma=gamma, dcm=dcm)
-        systems = [(tuple(range(len(S))), np.asarray(lin.I), np.asarray(lin.J), np.asarray(lin.K), lin.coordinates)]
+        xp = jnp if is_traced(lin) else np
+        systems = [(tuple(range(len(S))), xp.asarray(lin.I), xp.asarray(lin.J), xp.asarray(lin.K), lin.coordinates)]
     else:
         assert tms is not None, "computed for the substructure basis"
         systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom)
-    mds = [_modes(I, J, K, labels=lab, rtol=rtol) for (_, I, J, K, lab) in systems]
+    if is_traced(systems):
+        assert like is not None, "checked above"
+        if like.kind == "general":
+            raise ValueError(
+                "hybrid_model: a traced build needs real or gyroscopic modes (undamped small hinges, modal "
+                "damping by `damping`); the modes of this set A are general (damped): their eigenvectors' "
+                "derivatives are not provided"
+            )
+        mds = [_modes(I, J, K, kind=like.kind, rtol=rtol) for (_, I, J, K, _lab) in systems]
+    else:
+        mds = [_modes(I, J, K, labels=lab, rtol=rtol) for (_, I, J, K, lab) in systems]
     kinds = [md.kind for md in mds]
     if form is None:
         form = "real" if all(kd == "real" for kd in kinds) else "first_order"
@@ -1262,11 +1313,15 @@ def hybrid_model(
             f"hybrid_model: form='real' needs real modes (J = 0, K symmetric); the modes of the set A "
             f"are {bad!r}. Use form='first_order' (Eq. 118)."
         )
-    loads = None
-    if isinstance(n_modes, str):  # "auto"
-        tms_all = tms if tms is not None else [_sub.terms(model, g, g_nom) for g in groups]
-        loads = _base_loads(model, S, groups, tms_all, g_nom, basis)
-    blocks, picked = _retained_modes(model, groups, systems, mds, n_modes, cutoff, form, basis, loads, float(tol))
+    order = None
+    if like is not None:
+        blocks, picked, order = _retained_like(like, systems, mds)
+    else:
+        loads = None
+        if isinstance(n_modes, str):  # "auto"
+            tms_all = tms if tms is not None else [_sub.terms(model, g, g_nom) for g in groups]
+            loads = _base_loads(model, S, groups, tms_all, g_nom, basis)
+        blocks, picked = _retained_modes(model, groups, systems, mds, n_modes, cutoff, form, basis, loads, float(tol))
     zeta = _zeta(
         damping,
         sum(len(b[1]) for b in blocks),
@@ -1289,7 +1344,40 @@ def hybrid_model(
         attitude,
         systems,
         mds,
+        order,
     )
+
+
+def _check_like(like, S, groups) -> None:
+    """`like` of :func:`hybrid_model` describes the same set A and substructures."""
+    if not isinstance(like, HybridModel):
+        raise TypeError(f"hybrid_model: like must be a HybridModel, got {type(like).__name__}")
+    if tuple(like.small) != tuple(S) or tuple(like.groups) != tuple(groups):
+        raise ValueError(
+            f"hybrid_model: like was built for the small hinges {like.small}, not {tuple(S)} (or other substructures)"
+        )
+
+
+def _retained_like(like: HybridModel, systems, mds):
+    """The retained modes of a reference build `like` (:func:`_retained_modes`' blocks and picks)
+    and its global order of the modes, ``(_, block, local index)`` (see :func:`_assemble_model`)."""
+    per: dict[int, list[int]] = {}
+    for gi, j in zip(like.mode_group, like.mode_index):
+        per.setdefault(int(gi), []).append(int(j))
+    blocks, picked = [], []
+    for gi in sorted(per):
+        rows, I, _J, K, _ = systems[gi]
+        md = mds[gi]
+        cand = sorted(per[gi])
+        xp = jnp if is_traced(md) else np
+        blocks.append((rows, xp.asarray(md.frequencies)[np.asarray(cand, np.int64)], cand, md, I, K))
+        picked.append((gi, cand))
+    position = {gi: b for b, (gi, _) in enumerate(picked)}
+    order = [
+        (q, position[int(gi)], picked[position[int(gi)]][1].index(int(j)))
+        for q, (gi, j) in enumerate(zip(like.mode_group, like.mode_index))
+    ]
+    return blocks, picked, order
 
 
 def _basis_and_precompute(model: Model, S, groups, basis: str | None, precompute: bool | None) -> tuple[str, bool]:
@@ -1338,15 +1426,17 @@ def _substructure_systems(model: Model, S, groups, tms, g_nom, w_nom) -> list:
     """Eq. (42) of each substructure on its held base in the nominal spin about the system mass
     center: ``(rows in A, I, J, K, coordinate names)`` per substructure."""
     vb, _ = _nominal_frames(model, g_nom, w_nom, tuple(g.base for g in groups), tuple(S))
-    vb = np.asarray(vb)
+    # numpy for a concrete model; jnp where a parameter is traced (a differentiable build)
+    xp = jnp if is_traced((model, tms, vb)) else np
+    vb = xp.asarray(vb)
     sprung = np.zeros(model.n)
     sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
-    stiffness, damping = np.asarray(model.stiffness) * sprung, np.asarray(model.damping) * sprung
+    stiffness, damping = xp.asarray(model.stiffness) * sprung, xp.asarray(model.damping) * sprung
     systems = []
     for grp, tm, vg in zip(groups, tms, vb):
         h = np.asarray(grp.hinges, np.int64) - 1
         # steady spin: no spatial acceleration of the base
-        I, J, K = _sub.held_base(tm, vg, np.zeros(6), stiffness[h], damping[h], xp=np)
+        I, J, K = _sub.held_base(tm, vg, xp.zeros(6), stiffness[h], damping[h], xp=xp)
         rows = tuple(S.index(k) for k in grp.hinges)
         systems.append((rows, I, J, K, tuple(model.names[k] for k in grp.hinges)))
     return systems
@@ -1390,19 +1480,40 @@ def _retained_modes(
 
 
 def _assemble_model(
-    model, S, groups, tms, w_nom, g_nom, blocks, picked, zeta, form, kind, precompute, basis, attitude, systems, mds
+    model,
+    S,
+    groups,
+    tms,
+    w_nom,
+    g_nom,
+    blocks,
+    picked,
+    zeta,
+    form,
+    kind,
+    precompute,
+    basis,
+    attitude,
+    systems,
+    mds,
+    order=None,
 ):
     """The :class:`HybridModel` of the retained modes: their modal matrices assembled over the set
-    A in ascending frequency, the modal damping `zeta` (in that order), the precomputed terms."""
+    A in ascending frequency (or in `order`, ``(_, block, local index)``, that of a reference
+    build), the modal damping `zeta` (in that order), the precomputed terms."""
     nu = len(S)
     dtype = jnp.result_type(model.mass)
+    xp = jnp if is_traced(blocks) else np
     # modal damping follows the global (frequency) order of the modes: split it by group afterwards
-    order = sorted(((float(sig[j]), g, j) for g, (_, sig, *_r) in enumerate(blocks) for j in range(len(sig))))
+    if order is None:
+        order = sorted(((float(sig[j]), g, j) for g, (_, sig, *_r) in enumerate(blocks) for j in range(len(sig))))
     zg = [np.zeros(len(b[1])) for b in blocks]
     for q, (_, g, j) in enumerate(order):
         zg[g][j] = zeta[q]
-    parts_g = [(rows, sig, _basis(md, I, K, cand, form, zg[g])) for g, (rows, sig, cand, md, I, K) in enumerate(blocks)]
-    parts, mode_order, mmaps, umaps = _assemble(parts_g, nu, form)
+    parts_g = [
+        (rows, sig, _basis(md, I, K, cand, form, zg[g], xp)) for g, (rows, sig, cand, md, I, K) in enumerate(blocks)
+    ]
+    parts, mode_order, mmaps, umaps = _assemble(parts_g, nu, form, order)
     mode_index = tuple(int(blocks[g][2][j]) for g, j in mode_order)
     group_of = [picked[g][0] for g in range(len(blocks))]
     owners = {(group_of[g], int(blocks[g][2][j])): q for q, (g, j) in enumerate(mode_order)}
@@ -1416,7 +1527,7 @@ def _assemble_model(
         gamma_nominal=g_nom,
         omega0_nominal=w_nom,
         inertia=f(inertia),
-        frequencies=f(np.asarray([blocks[g][1][j] for g, j in mode_order])),
+        frequencies=f(xp.stack([blocks[g][1][j] for g, j in mode_order])),
         damping_ratios=f(np.asarray([zg[g][j] for g, j in mode_order])),
         positions=f(parts["positions"]),
         rates=f(parts["rates"]),

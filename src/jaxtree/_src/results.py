@@ -87,12 +87,24 @@ def versions() -> dict[str, str]:
 
 
 def _scene_json(model: Model) -> str:
-    """The model as ``jaxtree-scene/1`` JSON, or "" for a model that has no JSON form (a
-    prescription given by a Python function)."""
+    """The model as ``jaxtree-scene/1`` JSON; where its loads or laws are Python functions
+    (no JSON form), the vehicle without them, said in its description (the plots and the 3D
+    page need only the vehicle); "" for a model that has no JSON form (a prescription given by
+    a Python function)."""
+    import equinox as eqx
+
     from .scene import scene_to_dict
 
     try:
         return json.dumps(scene_to_dict(model))
+    except (ValueError, TypeError):
+        pass
+    bare = eqx.tree_at(
+        lambda m: (m.law, m.controller), model.with_loads(None), (None, None), is_leaf=lambda x: x is None
+    )
+    try:
+        note = "the vehicle only: its loads and laws are Python functions, not stored"
+        return json.dumps(scene_to_dict(bare, description=note))
     except (ValueError, TypeError):
         return ""
 
