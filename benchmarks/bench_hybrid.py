@@ -163,8 +163,12 @@ def main():
             )
         )
         print(rows[-1], flush=True)
-    ks = (1, 2, 3, 4) if args.quick else (1, 2, 3, 4, 6, 8)
+    ks = (1, 2, 3, 4) if args.quick else ("auto", 1, 2, 3, 4, 6, 8)
     hyb_tols = (1e-4, 1e-5) if args.quick else (1e-3, 1e-4, 1e-5, 1e-6)
+    # the hybrid model with the implicit integrator too: its explicit steps are bound by the
+    # rotor-gimbal nutation (~56 rad/s), not by the wings (125 Dopri8 steps at any tolerance)
+    radau_ks = (3,) if args.quick else ("auto", 2, 3, 4)
+    radau_tols = (1e-4, 3e-5) if args.quick else (1e-4, 3e-5, 1e-5, 1e-6)
     for k in ks:
         t0 = time.perf_counter()
         hm = jaxtree.hybrid_model(model, small, k, omega0=state.omega0)
@@ -172,21 +176,30 @@ def main():
         t0 = time.perf_counter()
         hm = jaxtree.hybrid_model(model, small, k, omega0=state.omega0)
         build2 = time.perf_counter() - t0
+        per = hm.modes_per_substructure
+        label = f"auto ({'/'.join(map(str, per))})" if k == "auto" else str(k)
         est = jaxtree.simulate_hybrid(hm, args.t1, y0=state, saveat=ts, rtol=hyb_tols[-1], atol=hyb_tols[-1])
         cost = rhs_us(hm)
         truncation = float(est.max_truncation_error()) / float(np.abs(ref["gamma"][:, S]).max())
-        print(f"{k} modes per substructure: right side {cost:.1f} us; truncation estimate {truncation:.2e} of the peak")
-        for tol in hyb_tols:
+        print(
+            f"{label} modes per substructure: right side {cost:.1f} us; truncation estimate {truncation:.2e} of the "
+            f"peak; build {build1:.2f} s first call, {build2:.2f} s again"
+        )
+        runs = [(None, "jaxtree hybrid", tol) for tol in hyb_tols]
+        if k in radau_ks:
+            runs += [(jaxtree.Radau5(), "jaxtree hybrid, Radau5", tol) for tol in radau_tols]
+        for solver, method, tol in runs:
+            kw = {} if solver is None else dict(solver=solver)
             sol, first, run = timed(
                 lambda: jaxtree.simulate_hybrid(
-                    hm, args.t1, y0=state, saveat=ts, rtol=tol, atol=tol, truncation_error=False
+                    hm, args.t1, y0=state, saveat=ts, rtol=tol, atol=tol, truncation_error=False, **kw
                 ),
                 args.repeats,
             )
             rows.append(
                 dict(
-                    method="jaxtree hybrid",
-                    setting=f"{k} modes per substructure ({hm.n_modes}), rtol {tol:g}",
+                    method=method,
+                    setting=f"{label} modes per substructure ({hm.n_modes}), rtol {tol:g}",
                     compile=first - run,
                     run=run,
                     steps=int(sol.stats["num_accepted_steps"]),
@@ -220,27 +233,37 @@ def main():
     print(f"\ncheapest setting reaching hub {HUB_GOAL:g} and small angles {SMALL_GOAL:g}:")
     for m, r in best.items():
         print(f"  {m:22s} {r['setting']:44s} {1e3 * r['run']:8.1f} ms")
-    h, f = best.get("jaxtree hybrid"), best.get("jaxtree full Eq. (1)")
+    hybrids = [best[m] for m in ("jaxtree hybrid", "jaxtree hybrid, Radau5") if m in best]
+    h = min(hybrids, key=lambda r: r["run"]) if hybrids else None
+    fulls = [best[m] for m in ("jaxtree full Eq. (1)", "jaxtree full, Radau5") if m in best]
+    f = min(fulls, key=lambda r: r["run"]) if fulls else None
     if h and f:
-        print(f"hybrid / full Eq. (1): {f['run'] / h['run']:.1f}x faster (goal 20x)")
-    for peer in ("Pinocchio + DOP853", "Pinocchio + Radau"):
-        if h and peer in best:
-            print(f"hybrid / {peer}: {best[peer]['run'] / h['run']:.1f}x faster")
-    costs = {int(r["setting"].split()[0]): r["rhs_us"] for r in rows if "rhs_us" in r}
+        print(f"best hybrid / best full Eq. (1): {f['run'] / h['run']:.1f}x faster (issue 24: >= 3x)")
+    peers = [best[p] for p in ("Pinocchio + DOP853", "Pinocchio + Radau") if p in best]
+    if h and peers:
+        p = min(peers, key=lambda r: r["run"])
+        print(
+            f"best hybrid / better Pinocchio run ({p['method']}): {p['run'] / h['run']:.1f}x faster (issue 24: >= 5x)"
+        )
+    costs = {r["setting"].split(" modes")[0]: r["rhs_us"] for r in rows if "rhs_us" in r}
     if costs:
         print(
             "hybrid right side in a jitted loop: "
             + ", ".join(f"{k} per substructure {c:.1f} us" for k, c in costs.items())
         )
-        if 1 in costs and 6 in costs:
+        if "1" in costs and "6" in costs:
             print(
-                f"  from 1 to 6 modes per substructure: {costs[6] / costs[1]:.2f}x (issue 24: <= 2x from 6 to 36 in all)"
+                f"  from 1 to 6 modes per substructure: {costs['6'] / costs['1']:.2f}x "
+                "(issue 24: <= 2x from 6 to 36 in all)"
             )
-    if h:
+    builds = [r["build"][0] for r in rows if "build" in r]
+    if builds:
         print(
-            f"build of the chosen hybrid model: {h['build'][0]:.2f} s first call, {h['build'][1]:.2f} s again "
-            "(goal: under 2 s after compilation)"
+            f"build of the first hybrid model: {builds[0]:.2f} s on its first call in this process "
+            "(issue 24: <= 5 s compile included, <= 1 s after)"
         )
+    if h:
+        print(f"build of the chosen hybrid model again: {h['build'][1]:.2f} s")
     if args.json:
         write_json(args.json, dict(machine=machine(), scene=args.scene, rows=rows))
 

@@ -1245,9 +1245,10 @@ def hybrid_model(
       precomputation are kept, and `n_modes`, `cutoff`, `tol`, `basis`, `form`, `precompute`
       are ignored. This makes the build differentiable: under ``jax.grad`` (or ``jvp``) with
       respect to the model's parameters (stiffness, masses, geometry) or the nominal motion, the
-      modes are recomputed from the traced matrices (``jnp``) with the selection fixed. Traced
-      builds need real or gyroscopic modes (undamped hinges; modal damping by `damping`): the
-      derivatives of general (damped) eigenvectors are not provided.
+      modes are recomputed from the traced matrices (``jnp``) with the selection fixed. Damped
+      (general) modes are differentiated by JAX's eigenvector derivatives, which need every mode
+      underdamped and distinct within its substructure (checked on `like`); rigid modes of the
+      reference are not supported in a traced build.
 
     Rigid (zero-frequency) modes have no first-order eigenvectors (Sec. III E, all-small case):
     the first-order form leaves them out.
@@ -1295,11 +1296,11 @@ def hybrid_model(
         systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom)
     if is_traced(systems):
         assert like is not None, "checked above"
-        if like.kind == "general":
+        lam_ref = np.asarray(like.truncation.lam_parts) if like.truncation is not None else np.zeros((0, 2))
+        if like.kind == "general" and np.any(np.abs(lam_ref[:, 1]) <= 1e-9 * np.abs(lam_ref).max(initial=1.0)):
             raise ValueError(
-                "hybrid_model: a traced build needs real or gyroscopic modes (undamped small hinges, modal "
-                "damping by `damping`); the modes of this set A are general (damped): their eigenvectors' "
-                "derivatives are not provided"
+                "hybrid_model: a traced build of general (damped) modes needs every mode underdamped (complex "
+                "pairs); the reference build has an overdamped mode (a pair of real eigenvalues)"
             )
         mds = [_modes(I, J, K, kind=like.kind, rtol=rtol) for (_, I, J, K, _lab) in systems]
     else:

@@ -18,9 +18,10 @@ Three cases, as in the seed:
 - **general** (anything else, e.g. hinge dampers in ``J`` or load-dependent ``K``):
   the eigenvalues and right eigenvectors of ``B = P^{-1} Q`` (Eq. 71) by a general
   eigensolver, the left eigenvectors from ``Phi^{-1}``, normalized by Eq. (89),
-  ``Phi'^T P Phi = U``, so that ``Phi'^T Q Phi = Lambda`` (Eq. 90). This path needs
-  concrete arrays (JAX's general ``eig`` has no reliable derivative, and runs on
-  CPU only).
+  ``Phi'^T P Phi = U``, so that ``Phi'^T Q Phi = Lambda`` (Eq. 90). Concrete arrays are
+  solved by numpy (with the checks below); traced ones (``kind="general"`` under
+  ``jax.grad``) by JAX's ``eig`` with its eigenvector derivatives, valid for an underdamped
+  system with distinct eigenvalues (no check is possible on traced values; CPU only).
 
 Eigenvalues are ordered in pairs: ``eigenvalues[j]`` (``Im >= 0``) and
 ``eigenvalues[j + nu]`` (its conjugate), ``j`` by ascending frequency. Zero-frequency
@@ -249,6 +250,30 @@ def _general(I, J, K, name):
     return lam, Phi, left, P, Q, B
 
 
+def _general_modes_traced(I, J, K) -> _Solved:
+    """:func:`_general_modes` for traced matrices of an underdamped system (every eigenvalue one
+    of a complex pair, all distinct: e.g. a substructure with light hinge dampers): JAX's general
+    eigensolver with its eigenvector derivatives (first-order perturbation theory, valid for
+    distinct eigenvalues; CPU only), the ``Im > 0`` members by ascending frequency, then their
+    conjugates; left eigenvectors from ``Phi^{-1}`` (Eqs. 85, 89). No check is made on the
+    values (they are traced): the caller knows the kind from a concrete solve."""
+    nu = I.shape[0]
+    P, _, B = first_order(I, J, K)
+    lam, vr = jax.lax.linalg.eig(B, compute_left_eigenvectors=False, enable_eigvec_derivs=True)
+    up = jnp.argsort(jnp.where(jnp.imag(lam) > 0, jnp.imag(lam), jnp.inf))[:nu]
+    lam_up, phi_up = lam[up], vr[:, up]
+    Phi = jnp.concatenate([phi_up, jnp.conj(phi_up)], 1)
+    Phi = Phi / jnp.linalg.norm(Phi, axis=0, keepdims=True)
+    lam = jnp.concatenate([lam_up, jnp.conj(lam_up)])
+    left = jnp.linalg.inv(P).T.astype(Phi.dtype) @ jnp.linalg.inv(Phi).T
+    sigma = jnp.abs(jnp.imag(lam_up))
+    zeta = -jnp.real(lam_up) / jnp.abs(lam_up)
+    y = Phi[:nu, :nu]
+    ph = y[jnp.argmax(jnp.abs(y), axis=0), jnp.arange(nu)]
+    shapes = y * (jnp.abs(ph) / ph)[None, :]
+    return _Solved(lam, sigma, zeta, shapes, Phi, left, B, jnp.zeros(nu, bool))
+
+
 # ----------------------------------------------------------------------------- entry point
 def _labels(shapes, part, coords, rigid, hinges_of):
     """One string per mode: the coordinates with the largest share, with ``+`` for motion in
@@ -312,9 +337,7 @@ def modes(
     elif kind == "gyroscopic":
         m = _gyroscopic_modes(I, J, K, P, B0, zeta, definite, traced, cdtype)
     else:
-        if traced:
-            raise ValueError("modes: the general case needs concrete arrays")
-        m = _general_modes(I, J, K)
+        m = _general_modes_traced(I, J, K) if traced else _general_modes(I, J, K)
 
     # participation: |phi_ij|^2 I_ii, normalized per mode (numpy when concrete: no eager dispatch)
     xp = jnp if traced else np
@@ -370,11 +393,8 @@ def _kind(I, J, K, kind: str | None, traced: bool, rtol: float) -> tuple[str, bo
     definite = True
     if traced:
         if kind is None:
-            raise ValueError("modes: pass kind='real' or 'gyroscopic' when I, J, K are traced (e.g. under jax.grad)")
-        if kind == "general":
             raise ValueError(
-                "modes: the general (non-gyroscopic) case needs concrete arrays; JAX's general eig "
-                "has no reliable derivative"
+                "modes: pass kind='real', 'gyroscopic' or 'general' when I, J, K are traced (e.g. under jax.grad)"
             )
     else:
         st = structure(I, J, K, rtol=rtol)
