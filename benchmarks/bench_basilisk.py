@@ -47,13 +47,13 @@ ARGS = _args()
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
-import jax  # noqa: E402
-import numpy as np  # noqa: E402
+import jax
+import numpy as np
 
-import jaxtree  # noqa: E402
-from jaxtree._src.peer_basilisk import basilisk_available, basilisk_run, basilisk_supports  # noqa: E402
+import jaxtree
+from jaxtree._src.peer_basilisk import basilisk_available, basilisk_run, basilisk_supports
 
-from _common import machine, timed, write_json  # noqa: E402
+from _common import machine, timed, write_json
 
 
 def say(*a):

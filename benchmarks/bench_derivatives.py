@@ -36,19 +36,19 @@ ARGS = _args()
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
+import jax
+import jax.numpy as jnp
+import numpy as np
 
-import jaxtree  # noqa: E402
-from jaxtree._src import dynamics  # noqa: E402
+import jaxtree
+from jaxtree._src import dynamics
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(HERE, "..", "tests"))
-from _common import machine, write_json  # noqa: E402
-from _peers import pinocchio_model  # noqa: E402
-from trees import deep_and_wide, random_tree  # noqa: E402
+from _common import machine, write_json
+from _peers import pinocchio_model
+from trees import deep_and_wide, random_tree
 
 
 def say(*a):

@@ -75,14 +75,14 @@ if __name__ == "__main__":
     _blas_threads_from_argv(sys.argv[1:])
     _cpu_emitters_from_argv(sys.argv[1:])
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
+import jax
+import jax.numpy as jnp
+import numpy as np
 
-import jaxtree  # noqa: E402  (turns on float64)
+import jaxtree
 
-from _common import write_json  # noqa: E402
-from _peers import MUJOCO_TINY_MASS, mjcf, pinocchio_model  # noqa: E402
+from _common import write_json
+from _peers import MUJOCO_TINY_MASS, mjcf, pinocchio_model
 
 SCENES = ("fig4", "chain50", "panels95", "chain200")
 GROWTH = (10, 25, 50, 100, 200)

@@ -34,7 +34,7 @@ import numpy as np
 import jaxtree
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _common import machine, timed, write_json  # noqa: E402
+from _common import machine, timed, write_json
 
 SCENES = ("fig4", "chain50", "panels95", "chain200")
 BATCHES = (1024, 8192, 65536)
@@ -73,7 +73,7 @@ def bench_forward(scenes, batches, max_gib, repeats):
     say(
         f"  {'scene':<9} {'dtype':<8} {'batch':>7} {'compile s':>10} {'batch ms':>10} {'ns/state':>10} {'states/s':>11}"
     )
-    fd = lambda m, C, w, q, qd: jaxtree.forward_dynamics(m, C, w, q, qd)  # noqa: E731
+    fd = lambda m, C, w, q, qd: jaxtree.forward_dynamics(m, C, w, q, qd)
     vf = jax.vmap(fd, in_axes=(None, 0, 0, 0, 0))
     rows = []
     for name in scenes:

@@ -37,20 +37,20 @@ import time
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
+import jax
+import jax.numpy as jnp
+import numpy as np
 
-import jaxtree  # noqa: E402
+import jaxtree
 
-from _common import machine, timed, write_json  # noqa: E402
+from _common import machine, timed, write_json
 
 HUB_GOAL, SMALL_GOAL = 1e-3, 1e-2
 
 
 def scenario(name, torque_scale):
     model = jaxtree.load_scene(name)
-    pulse = lambda t: jaxtree._src.loads.thruster_pulse(t, 1.0, 2.0, rise=0.1)  # noqa: E731
+    pulse = lambda t: jaxtree._src.loads.thruster_pulse(t, 1.0, 2.0, rise=0.1)
     if name in ("panels95", "flex95"):
         torque = np.array([15.0, 9.0, 0.0] if name == "flex95" else [5.0, 3.0, 0.0])
         small = tuple(k for k in range(1, model.n + 1) if model.names[k].startswith("wing"))
@@ -80,7 +80,7 @@ def pinocchio_rows(model, state, torque, ts, ref, S, tols, methods, repeats):
 
     model = eqx.tree_at(lambda m: m.initial, model.with_loads(None), state)
     # the scenario's pulse in numpy (a JAX call per right side would slow the peer by its dispatch)
-    pulse = lambda t: 0.5 * (np.tanh((t - 1.0) / 0.1) - np.tanh((t - 3.0) / 0.1))  # noqa: E731
+    pulse = lambda t: 0.5 * (np.tanh((t - 1.0) / 0.1) - np.tanh((t - 3.0) / 0.1))
     run = pinocchio_runner(model, np.asarray(ts), base_torque=lambda t: torque * pulse(t))
     rows = []
     for method in methods:

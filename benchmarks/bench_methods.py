@@ -23,14 +23,14 @@ import time
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-from bench_dynamics import chain_model  # noqa: E402
+import jax
+import jax.numpy as jnp
+import numpy as np
+from bench_dynamics import chain_model
 
-import jaxtree  # noqa: E402
+import jaxtree
 
-from _common import machine, write_json  # noqa: E402
+from _common import machine, write_json
 
 CHAINS = (10, 25, 50, 100, 200)
 

@@ -92,13 +92,13 @@ ARGS = _args()
 if not ARGS.default_xla and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
-import jax  # noqa: E402
-import numpy as np  # noqa: E402
+import jax
+import numpy as np
 
-import jaxtree  # noqa: E402
+import jaxtree
 
-from _common import write_json  # noqa: E402
-from _peers import MUJOCO_TINY_INERTIA, MUJOCO_TINY_MASS, mjcf, pinocchio_model  # noqa: E402
+from _common import write_json
+from _peers import MUJOCO_TINY_INERTIA, MUJOCO_TINY_MASS, mjcf, pinocchio_model
 
 
 def say(*a):

@@ -46,7 +46,7 @@ import jaxtree
 from _common import machine, timed, write_json
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
-from oracle import oracle_eom  # noqa: E402  (the independent derivation of the test suite)
+from oracle import oracle_eom
 
 
 def say(*a):

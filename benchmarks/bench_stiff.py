@@ -40,16 +40,16 @@ ARGS = _args()
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
-import diffrax as dfx  # noqa: E402
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
+import diffrax as dfx
+import jax
+import jax.numpy as jnp
+import numpy as np
 
-import jaxtree  # noqa: E402
-from jaxtree._src.peers import pinocchio_runner  # noqa: E402
+import jaxtree
+from jaxtree._src.peers import pinocchio_runner
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _common import machine, write_json  # noqa: E402
+from _common import machine, write_json
 
 TORQUE = np.array([15.0, 9.0, 0.0])
 

@@ -15,7 +15,7 @@ import jaxtree  # first: it sets the float64 and BLAS-thread defaults before JAX
 
 jax.config.update("jax_enable_x64", True)
 
-from helpers import scene_names  # noqa: E402
+from helpers import scene_names
 
 
 @pytest.fixture(scope="session")

@@ -50,7 +50,7 @@ def _state_jacobian(solve):
     @eqx.filter_jit
     def jac(model, state, t):
         acc = _accelerations(model, solve)
-        f = lambda w, g, gd: acc(model, jaxtree.State(state.dcm, w, g, gd), t)  # noqa: E731
+        f = lambda w, g, gd: acc(model, jaxtree.State(state.dcm, w, g, gd), t)
         return jnp.concatenate(jax.jacfwd(f, argnums=(0, 1, 2))(state.omega0, state.gamma, state.gamma_dot), 1)
 
     return jac
@@ -129,7 +129,7 @@ def test_parameter_derivatives_forward_and_reverse():
     rng = np.random.default_rng(3)
     base = random_tree(rng, deep_and_wide(rng, 12))
     state = random_state(base, rng)
-    params = lambda m: (m.mass, m.inertia, m.hinge_on_parent, m.stiffness, m.damping)  # noqa: E731
+    params = lambda m: (m.mass, m.inertia, m.hinge_on_parent, m.stiffness, m.damping)
     weights = jnp.asarray(rng.normal(size=base.n + 3))
     for method in ("dense", "articulated"):
         model = base.with_method(method, BLOCK)
@@ -164,7 +164,7 @@ def test_second_derivatives():
 
     def hess(solve):
         acc = _accelerations(model, solve)
-        f = lambda g: acc(model, state._replace(gamma=g), 0.0)  # noqa: E731
+        f = lambda g: acc(model, state._replace(gamma=g), 0.0)
         return jax.jit(jax.jacfwd(jax.jacfwd(f)))(state.gamma)
 
     assert rel(hess("rule"), hess("plain")) < RULE_RTOL

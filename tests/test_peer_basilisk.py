@@ -7,10 +7,10 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-import jaxtree  # noqa: E402
-from jaxtree._src.peer_basilisk import basilisk_available, basilisk_run, basilisk_supports  # noqa: E402
+import jaxtree
+from jaxtree._src.peer_basilisk import basilisk_available, basilisk_run, basilisk_supports
 
-from helpers import random_model, random_state  # noqa: E402
+from helpers import random_model, random_state
 
 TOL = 1e-12  # both integrators, relative and absolute
 AGREE = 1e-8  # the agreement asked of the two trajectories (reached: a few 1e-10, see below)

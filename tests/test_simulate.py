@@ -417,7 +417,7 @@ def test_nonfinite_start_under_vmap_fails_at_once_and_alone():
     """A NaN initial state in a vmapped batch: that member reports nonfinite_start with NaN
     histories, the batch does not run to max_steps, and the other members match lone runs."""
     model = coaxial(jaxtree.SpringDamper(3.0), gamma0=0.4)
-    run = lambda g: simulate(model, 3.0, y0=model.initial._replace(gamma=g[None]), throw=False)  # noqa: E731
+    run = lambda g: simulate(model, 3.0, y0=model.initial._replace(gamma=g[None]), throw=False)
     g0 = jnp.asarray([0.1, np.nan, 0.3])
     sol = jax.jit(jax.vmap(run))(g0)
     assert list(np.asarray(sol.failure)) == [0, 5, 0]

@@ -76,7 +76,7 @@ def complete(model: Model, t, state: State, dtype=None):
     keep = free_hinges(model)
     perm = order(keep, model.prescribed)
     k = index(keep)
-    merge = lambda full, pres: jnp.concatenate([full.astype(dtype)[k], pres])[perm]  # noqa: E731
+    merge = lambda full, pres: jnp.concatenate([full.astype(dtype)[k], pres])[perm]
     return state._replace(gamma=merge(state.gamma, g), gamma_dot=merge(state.gamma_dot, gd)), gdd
 
 

@@ -406,7 +406,7 @@ def failure_report(code, describe):
     msgs = []
     for b in bad[:3]:
         idx = np.unravel_index(b, code.shape) if code.ndim else ()
-        pick = lambda x, idx=idx: np.asarray(x)[idx]  # noqa: E731
+        pick = lambda x, idx=idx: np.asarray(x)[idx]
         prefix = f"[batch index {tuple(int(i) for i in idx)}] " if code.ndim else ""
         msgs.append(prefix + describe(KINDS[int(flat[b]) - 1], pick))
     if bad.size > 3:

@@ -73,8 +73,8 @@ def _result_names() -> tuple[str, ...]:
     """diffrax's result names by index (``RESULTS.max_steps_reached._value`` -> its name)."""
     global _RESULT_NAMES
     if _RESULT_NAMES is None:
-        items = dfx.RESULTS._name_to_item  # noqa: SLF001 (diffrax keeps the names there only)
-        names = {int(item._value): name for name, item in items.items()}  # noqa: SLF001
+        items = dfx.RESULTS._name_to_item
+        names = {int(item._value): name for name, item in items.items()}
         _RESULT_NAMES = tuple(names.get(i, f"result_{i}") for i in range(max(names) + 1))
     return _RESULT_NAMES
 
@@ -139,7 +139,7 @@ def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     return dict(
         hist,
         result=jnp.where(started, sol.result._value, -1),
-        diagnosis=diagnosis,  # noqa: SLF001
+        diagnosis=diagnosis,
         steps=sol.stats["num_steps"],
         rejected=sol.stats["num_rejected_steps"],
         rhs_evaluations=sol.stats["rhs_evaluations"],
@@ -206,7 +206,7 @@ def _sharded(fn, n_devices, group):
     """`fn` over a batch (vmapped), split over the first `n_devices` local devices when more than
     one (``shard_map``: each device runs its own integration loop, so a device does not wait for
     the other's slowest member); `group` members at a time per device (None: all at once)."""
-    one = lambda m, ts, t1, rtol, atol, cfg: fn(m, ts, t1, rtol, atol, cfg)  # noqa: E731
+    one = lambda m, ts, t1, rtol, atol, cfg: fn(m, ts, t1, rtol, atol, cfg)
 
     def batched(models, ts, t1, rtol, atol, cfg):
         size = jax.tree_util.tree_leaves(models)[0].shape[0]
@@ -223,7 +223,7 @@ def _sharded(fn, n_devices, group):
 
     def run(models, ts, t1, rtol, atol, cfg):
         dynamic, static = eqx.partition(models, eqx.is_array)
-        inner = lambda d, ts, t1, rtol, atol: batched(eqx.combine(d, static), ts, t1, rtol, atol, cfg)  # noqa: E731
+        inner = lambda d, ts, t1, rtol, atol: batched(eqx.combine(d, static), ts, t1, rtol, atol, cfg)
         return jax.shard_map(
             inner, mesh=mesh, in_specs=(P("run"), P(), P(), P(), P()), out_specs=P("run"), check_vma=False
         )(dynamic, ts, t1, rtol, atol)

@@ -799,7 +799,7 @@ class _FullPart:
         import numpy as np
 
         s = self.sol
-        take = lambda x: np.asarray(x)[:count]  # noqa: E731
+        take = lambda x: np.asarray(x)[:count]
         return dict(
             ts=take(s.ts),
             gamma=take(s.gamma),
@@ -901,7 +901,7 @@ class _HybridPart:
         import numpy as np
 
         s = self.sol
-        take = lambda x: np.asarray(x)[:count]  # noqa: E731
+        take = lambda x: np.asarray(x)[:count]
         att = np.asarray(s.ys)[:count, : self.hybrid.attitude.size]
         return dict(
             ts=take(s.ts),
@@ -934,7 +934,7 @@ def _state_from_part(ds, runner):
         if "resume_truncation" in ds:
             runner.truncation_state = jnp.asarray(ds["resume_truncation"].values, runner.dtype)
         return jnp.asarray(ds["resume_flat"].values, runner.dtype)
-    v = lambda k: jnp.asarray(ds[k].values, runner.dtype)  # noqa: E731
+    v = lambda k: jnp.asarray(ds[k].values, runner.dtype)
     if "resume_control" in ds and runner.control is not None:
         runner.set_control(ds["resume_control"].values)
     return State(v("resume_dcm"), v("resume_omega0"), v("resume_gamma"), v("resume_gamma_dot"))

@@ -517,11 +517,11 @@ def _solve_completed_jvp(primals, tangents):
         # to them all. The primal is the same solution as the recursion's to round-off, and the
         # recursion itself is not compiled a second time into every derivative.
         Ainv, pivots = spd_inverse(Auu)
-        solve_u = lambda r: Ainv @ r  # noqa: E731
+        solve_u = lambda r: Ainv @ r
         ok = _regular_pivots(pivots, Auu)
     else:
         L = jax.lax.linalg.cholesky(Auu, symmetrize_input=False)
-        solve_u = lambda r: _cho_apply(L, r)  # noqa: E731
+        solve_u = lambda r: _cho_apply(L, r)
         ok = _regular(L, Auu)
     acc = _from_matrix(model, A, rhs, gdd_p, lambda _, b: jnp.where(ok, solve_u(b), jnp.nan))
     x_u = jnp.concatenate([acc.omega0_dot, acc.gamma_ddot[rows_u[3:] - 3]])

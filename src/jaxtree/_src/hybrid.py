@@ -179,7 +179,7 @@ def _stacked_terms(t: dict, xp=np) -> dict:
     """The arrays of :class:`_Precomputed` from the per-term stacks of :func:`_build_pre`
     (numpy, leading axis p)."""
     p, uS, mS = t["w1"].shape
-    z = lambda *shape: xp.zeros((p, *shape))  # noqa: E731
+    z = lambda *shape: xp.zeros((p, *shape))
     iu, ju = _PAIRS
 
     def pairs(g):  # g : v v / 2 over the 21 products v_b v_c, b <= c
@@ -366,7 +366,7 @@ class HybridModel(eqx.Module):
 
     def _selectors(self, dtype):
         n = self.model.n
-        sel = lambda hs: selector(n, hs, dtype)  # noqa: E731
+        sel = lambda hs: selector(n, hs, dtype)
         return sel(self.small), sel(self.large), sel(self.model.prescribed)
 
     def _base(self, dtype):
@@ -778,7 +778,7 @@ def _solve(hm: HybridModel, t, y):
         pos = np.zeros(hm.u, np.int64)
         pos[order[order < hm.u]] = np.nonzero(order < hm.u)[0]
         s_in = hm.unpack(y)[4] * hm._keep_m().astype(y.dtype)
-        pad = lambda v: jnp.concatenate([v, jnp.zeros((1,), y.dtype)])  # noqa: E731
+        pad = lambda v: jnp.concatenate([v, jnp.zeros((1,), y.dtype)])
         kp = pad(ku)[order]
         Hinv = jnp.pad(hm.modal_inverse, ((0, 1), (0, 1)))[np.ix_(order, order)]
         rw = (rw + pad(hm.kin_rhs @ s_in)[order]) * kp
@@ -1013,7 +1013,7 @@ def _truncation_terms(systems, mds, form, owners, nu, dtype) -> _Truncation:
         lams.append(lam)
         d0s.append(D0)
         own.extend(o if form == "real" else o + o)
-    f = lambda x: jnp.asarray(xp.stack([xp.real(x), xp.imag(x)], -1), dtype)  # noqa: E731
+    f = lambda x: jnp.asarray(xp.stack([xp.real(x), xp.imag(x)], -1), dtype)
     if not cs:
         return _Truncation(
             f(np.zeros((nu, 0))), f(np.zeros((0, nu))), f(np.zeros(0)), f(np.zeros((0, 2 * nu))), jnp.zeros(0, int)

@@ -213,7 +213,7 @@ class ScheduledLoads(BodyLoads):
         self.profiles = tuple(profiles)
         self.bodies = tuple(sorted(set(self.rows)))
         self.vector = jnp.asarray(np.reshape(np.asarray(vectors, float), (m, 3)))
-        fill = lambda x, v: np.full(m, v) if x is None else np.asarray(x, float)  # noqa: E731
+        fill = lambda x, v: np.full(m, v) if x is None else np.asarray(x, float)
         self.start = jnp.asarray(fill(start, 0.0))
         self.duration = jnp.asarray(fill(duration, 0.0))
         self.rise = jnp.asarray(fill(rise, 1.0))

@@ -345,7 +345,7 @@ def modes(
     tot = xp.sum(w, axis=0, keepdims=True)
     part = jnp.asarray(w / xp.where(tot > 0, tot, 1.0))
     labs = () if traced else _labels(np.asarray(m.shapes), np.asarray(part), coords, np.asarray(m.rigid), hinges_of)
-    cast = lambda x, dt: jnp.asarray(xp.asarray(x).astype(dt))  # noqa: E731
+    cast = lambda x, dt: jnp.asarray(xp.asarray(x).astype(dt))
     return Modes(
         eigenvalues=cast(m.eigenvalues, cdtype),
         frequencies=m.frequencies,

@@ -236,7 +236,7 @@ def mjcf(model, *, timestep, integrator=None, springs=False):
     stiffness, damping = _laws(model)
     children = model.topology.children
     tiny = [k for k in range(model.n + 1) if mass[k] == 0.0]
-    f = lambda v: " ".join(f"{x:.17g}" for x in v)  # noqa: E731
+    f = lambda v: " ".join(f"{x:.17g}" for x in v)
 
     def inertial(k):
         m, J = (MUJOCO_TINY_MASS, MUJOCO_TINY_INERTIA * np.eye(3)) if k in tiny else (mass[k], inertia[k])

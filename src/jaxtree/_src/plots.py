@@ -86,7 +86,7 @@ def _series(result) -> dict:
         from .results import _model_of
 
         ds = result
-        get = lambda k: ds[k].values if k in ds else None  # noqa: E731
+        get = lambda k: ds[k].values if k in ds else None
         names = [str(s) for s in ds["hinge_name"].values] if "hinge_name" in ds.coords else None
         try:
             model = _model_of(ds)
@@ -110,7 +110,7 @@ def _series(result) -> dict:
     sol = result
     ts = np.asarray(sol.ts)
     keep = np.isfinite(ts)
-    a = lambda x: None if x is None else np.asarray(x)[keep]  # noqa: E731
+    a = lambda x: None if x is None else np.asarray(x)[keep]
     model = sol.problem.model
     return dict(
         t=ts[keep],

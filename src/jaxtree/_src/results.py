@@ -192,7 +192,7 @@ def simulation_dataset(
     xr = _xr()
     ts = np.asarray(ts, float)
     keep = np.isfinite(ts)
-    pick = lambda x: None if x is None else np.asarray(x)[keep]  # noqa: E731
+    pick = lambda x: None if x is None else np.asarray(x)[keep]
     ts = ts[keep]
     gamma, gamma_dot, omega0, dcm = (pick(x) for x in (gamma, gamma_dot, omega0, dcm))
     coords = _base_coords(model, ts)
@@ -344,7 +344,7 @@ def modes_dataset(model: Model, md, *, small=(), omega0=None, gamma=None, attrs:
         full[np.asarray(small) - 1] = np.real(turned)
     w = np.zeros(3) if omega0 is None else np.asarray(omega0, float)
     g = np.zeros(n) if gamma is None else np.asarray(gamma, float)
-    c = lambda x: np.asarray(x, np.complex128)  # noqa: E731
+    c = lambda x: np.asarray(x, np.complex128)
     coords = {
         "mode": ("mode", np.arange(1, nu + 1), {"long_name": "mode number (ascending frequency)"}),
         "coordinate": ("coordinate", np.arange(1, nu + 1), {"long_name": "small coordinate"}),
@@ -571,13 +571,13 @@ def _to_solution(ds):
 
     model = _model_of(ds)
     dtype = jnp.result_type(model.mass)
-    f = lambda name: jnp.asarray(ds[name].values, dtype)  # noqa: E731
+    f = lambda name: jnp.asarray(ds[name].values, dtype)
     T = ds.sizes["time"]
     att_name = str(ds.attrs.get("attitude", "quaternion"))
     att = get_attitude(att_name)
     problem = Problem(model, att, None, None, None, False, 0)
     gamma, gamma_dot, omega0, dcm = f("gamma"), f("gamma_dot"), f("omega0"), f("dcm")
-    nan = lambda *shape: jnp.full(shape, jnp.nan, dtype)  # noqa: E731
+    nan = lambda *shape: jnp.full(shape, jnp.nan, dtype)
     energy = f("energy") if "energy" in ds else nan(T)
     H = f("angular_momentum") if "angular_momentum" in ds else nan(T, 3)
     hold = f("hold_torque") if "hold_torque" in ds else jnp.zeros((T, len(model.prescribed)), dtype)
@@ -627,7 +627,7 @@ def _to_solution(ds):
 def _to_modes(ds):
     from .modes import Modes
 
-    c = lambda a, b: jnp.asarray(ds[a].values + 1j * ds[b].values)  # noqa: E731
+    c = lambda a, b: jnp.asarray(ds[a].values + 1j * ds[b].values)
     kind = str(ds.attrs.get("modes_kind", "real"))
     shapes = c("shape_real", "shape_imag")
     if kind == "real":

@@ -296,7 +296,7 @@ def laws_to_dict(model: Model) -> dict:
     """The scene keys ``orbit``, ``loads`` and ``control`` of `model` (only those it has).
 
     Raises ValueError for loads or laws that have no JSON form (a Python function)."""
-    f = lambda a: np.asarray(a, dtype=float).tolist()  # noqa: E731
+    f = lambda a: np.asarray(a, dtype=float).tolist()
     names = model.names
     out: dict = {}
     loads: list[dict] = []
@@ -361,7 +361,7 @@ def prescribed_joints(model: Model) -> dict[int, dict]:
 
     pres = model.prescription
     parts = [] if pres is None else list(pres.parts) if isinstance(pres, _PrescriptionGroup) else [pres]
-    f = lambda a: np.asarray(a, dtype=float).tolist()  # noqa: E731
+    f = lambda a: np.asarray(a, dtype=float).tolist()
     out: dict[int, dict] = {}
     for p in parts:
         for i, k in enumerate(p.hinges):

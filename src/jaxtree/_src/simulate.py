@@ -535,7 +535,7 @@ def _rhs_evaluations(solver, stats, dt0_given: bool):
 
 
 # (the round-off threshold of a Cholesky pivot: see jaxtree.dynamics.SINGULAR_PIVOT)
-from .dynamics import SINGULAR_PIVOT  # noqa: E402
+from .dynamics import SINGULAR_PIVOT
 
 
 def _singular(problem: Problem, t, y):
