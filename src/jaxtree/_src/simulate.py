@@ -221,7 +221,11 @@ class Problem(eqx.Module):
             dz, _ = ravel_pytree(self.controller.rate(t, state, z, self.params))
             parts.append(dz.astype(dtype))
         if self.translation:
-            parts += [Xd, mass_center_acceleration(self.model, state, t).astype(dtype)]
+            acc_X = mass_center_acceleration(self.model, state, t).astype(dtype)
+            if self.model.orbit is not None:  # Eq. (2) with the central body: -mu X / |X|^3 per unit mass
+                mu = jnp.asarray(self.model.orbit.mu, dtype)
+                acc_X = acc_X - mu * X / jnp.sum(X * X) ** 1.5
+            parts += [Xd, acc_X]
         dy = jnp.concatenate(parts)
         # A singular Eq. (1) matrix gives NaN accelerations. diffrax's step-size control turns a
         # NaN error estimate into a NaN step; a huge finite rate instead makes it reject and shrink
@@ -867,8 +871,10 @@ def simulate(
       appended to the ODE state (beside those of ``model.controller``: then ``control_state``
       is a pair, the model's first).
     - `params`: pytree passed to `law` and `controller` (traced; differentiable).
-    - `translation`: integrate Eq. (2) for the mass center: True (start at rest at the origin)
-      or ``(X0, X_dot0)`` in inertial components.
+    - `translation`: integrate Eq. (2) for the mass center: True (start at rest at the origin,
+      or on ``model.orbit`` at `t0` where the model has one) or ``(X0, X_dot0)`` in inertial
+      components. With ``model.orbit`` Eq. (2) has the central body's attraction ``-mu M X /
+      |X|^3`` beside the loads' net force.
     - `throw`: raise :class:`SimulationError` (time, state, diagnosis) if the run fails: at
       once when called eagerly, from a host callback at run time under ``jax.jit`` or
       ``jax.vmap``. With False, inspect ``sol.result`` / call ``sol.check()``.
@@ -901,6 +907,8 @@ def simulate(
     if isinstance(translation, tuple):
         X0, Xd0 = translation
         translation = True
+    elif translation and model.orbit is not None:  # start on the scene's orbit
+        X0, Xd0 = model.orbit.position(jnp.asarray(t0, dtype)), model.orbit.velocity(jnp.asarray(t0, dtype))
     problem = _problem(model, att, law, controller, params, bool(translation))
     if solver is None or isinstance(solver, str):
         solver, choice = choose_solver(model, t1, t0=t0, y0=y0, rtol=rtol, law=law, params=params)
