@@ -127,6 +127,7 @@ from ._integrate import (
     progress_meter,
     report_failures,
     result_code,
+    solver_statistics,
     warn_below_roundoff,
 )
 from ._math import build_jit
@@ -1602,7 +1603,8 @@ class HybridSolution(eqx.Module):
     small ones rebuilt from the modal coordinates (Eqs. 111-112), prescribed ones from the
     prescription; `modal` (T, m): the modal coordinates; `ys` (T, size): the flat states;
     `t_final` (where the run stopped: `t1` unless it failed), `result` (:class:`diffrax.RESULTS`),
-    `stats` (diffrax's step counts), `hybrid`, and at `t_final` the physical
+    `stats` (diffrax's step counts; with :class:`~jaxtree.Radau5` also its `jacobians`,
+    `factorizations`, `newton_iterations` and `rhs_evaluations`), `hybrid`, and at `t_final` the physical
     :class:`~jaxtree.State` `final` and the modal coordinates `final_modal`.
 
     For drift checks, at the saved times: `energy` (T,), the kinetic energy relative to the
@@ -1822,7 +1824,7 @@ def _solve_hybrid(
         ys=ys_h,
         t_final=t_final,
         result=sol.result,
-        stats=dict(sol.stats),
+        stats=dict(sol.stats, **solver_statistics(solver, sol)),
         hybrid=hybrid,
         final=final,
         final_modal=hybrid.modal(y_final),
