@@ -148,7 +148,7 @@ def main():
     # ladder: near the goal a factor 3 in tolerance is a factor ~1.5 in time, for every method
     implicit_tols = (1e-4, 3e-5) if args.quick else (1e-4, 5e-5, 3e-5, 2e-5, 1e-5, 1e-6)
     solvers = [("auto", "jaxtree full Eq. (1)")]
-    if args.scene == "flex95":
+    if args.scene in ("flex95", "chain200"):
         solvers.append((jaxtree.Radau5(), "jaxtree full, Radau5"))
     runs = [(x, tol) for x in solvers for tol in (implicit_tols if x[1].endswith("Radau5") else full_tols)]
     for (solver, label), tol in runs:
@@ -216,7 +216,7 @@ def main():
             print(rows[-1], flush=True)
     if not args.no_peers:
         try:
-            methods = ("DOP853", "Radau") if args.scene == "flex95" else ("DOP853",)
+            methods = ("DOP853", "Radau")
             tols = tuple(sorted(set(implicit_tols) | {1e-7}, reverse=True)) if not args.quick else (1e-5, 1e-6)
             rows += pinocchio_rows(model, state, torque, ts, ref, S, tols, methods, args.repeats)
         except ImportError as e:

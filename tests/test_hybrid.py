@@ -924,3 +924,34 @@ def test_simulate_hybrid_takes_radau5_and_reports_its_counters():
     np.testing.assert_allclose(np.asarray(sol.omega0), np.asarray(ref.omega0), atol=1e-6)
     assert int(sol.stats["jacobians"]) >= 1 and int(sol.stats["factorizations"]) >= 1
     assert int(sol.stats["newton_iterations"]) >= int(sol.stats["num_accepted_steps"])
+
+
+def test_substructure_terms_by_one_batch_and_by_parts_agree_with_nested_jacfwd():
+    """The Taylor coefficients of a substructure (jaxtree.substructure, Sec. III E) by the
+    polarization of the quadratic velocity terms, in one batch (small substructures) and by parts
+    (large ones, memory), against nested jacfwd / hessian of the same Gauss function at a bent
+    nominal: the second derivatives of b in (y', v) and (v, v) and their derivative in y."""
+    from jaxtree._src import substructure as sub
+    from jaxtree._src.topology import Topology
+
+    model = _wings()
+    grp = sub.substructures(model, (1, 2, 3, 4))[0]
+    topo = Topology(sub._local_topology(model, grp).parents)
+    d = sub._bodies(model, grp)
+    gbar = jnp.asarray([0.1, -0.2, 0.15, 0.05])
+    zn, z6 = jnp.zeros(4), jnp.zeros(6)
+    b = lambda y, yd, v: sub._gauss(topo, d, gbar + y, yd, v)[1]
+    hess_v = lambda y: jax.hessian(lambda v: b(y, zn, v))(z6)
+    ref = dict(
+        A0=sub._gauss(topo, d, gbar, zn, z6)[0],
+        A1=jax.jacfwd(lambda y: sub._gauss(topo, d, gbar + y, zn, z6)[0])(zn),
+        G0=hess_v(zn),
+        G1=jax.jacfwd(hess_v)(zn),
+        G2=jax.jacfwd(lambda yd: jax.jacfwd(lambda v: b(zn, yd, v))(z6))(zn),
+    )
+    for one_batch in (True, False):
+        tm = sub._terms(topo, d, gbar, one_batch)
+        for key, value in ref.items():
+            np.testing.assert_allclose(
+                np.asarray(getattr(tm, key)), np.asarray(value), rtol=0, atol=1e-12 * float(np.abs(value).max())
+            )

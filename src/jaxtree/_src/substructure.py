@@ -197,28 +197,43 @@ def _hessian_of_quadratic(values, k: int):
     return H.at[..., ia, ib].set(off).at[..., ib, ia].set(off)
 
 
+# Up to this many hinges a substructure's terms come from one batched evaluation of its Gauss
+# function, differentiated as a whole (the quickest to compile: flex95's build 3.9 s); beyond it
+# the rows that need no derivative are evaluated apart, since differentiating them makes memory
+# grow as nu^4 (35 GB for chain200's boom of 200 hinges).
+ONE_BATCH_HINGES = 64
+
+
 @build_jit
-def _terms(topo, d: _Bodies, gamma_bar):
+def _terms(topo, d: _Bodies, gamma_bar, one_batch: bool):
     # One compilation per substructure shape: identical wings share it. The velocity products are
     # exactly quadratic in (v, y'): their second derivatives come from b's values at sums of unit
-    # vectors (_hessian_of_quadratic), all in one batched evaluation of the Gauss function and one
-    # jacfwd of it, instead of nested jacfwd (whose compilation took 8 of a flex95 build's 24 s).
+    # vectors (_hessian_of_quadratic), not from nested jacfwd (whose compilation took 8 of a flex95
+    # build's 24 s). Rows (y', v): the 21 of V with y' = 0, then (e_k, e_a) for all k, a, then
+    # (e_k, 0) and (0, e_a); only A and the first 21 rows need the derivative in the angles.
     nu = gamma_bar.shape[0]
     dtype = gamma_bar.dtype
     zn = jnp.zeros(nu, dtype)
     _, _, V = _polarization(6)  # (21, 6): v = e_a, then e_a + e_b
     eye_n, eye_6 = np.eye(nu), np.eye(6)
-    # rows (y', v): the 21 of V with y' = 0, then (e_k, e_a) for all k, a, then (e_k, 0), (0, e_a)
-    yd_rows = np.concatenate([np.zeros((21, nu)), np.repeat(eye_n, 6, 0), eye_n, np.zeros((6, nu))])
-    v_rows = np.concatenate([V, np.tile(eye_6, (nu, 1)), np.zeros((nu, 6)), eye_6])
-    yd_rows, v_rows = jnp.asarray(yd_rows, dtype), jnp.asarray(v_rows, dtype)
+    yd_mixed = np.concatenate([np.repeat(eye_n, 6, 0), eye_n, np.zeros((6, nu))])
+    v_mixed = np.concatenate([np.tile(eye_6, (nu, 1)), np.zeros((nu, 6)), eye_6])
+    if one_batch:
+        yd_rows = jnp.asarray(np.concatenate([np.zeros((21, nu)), yd_mixed]), dtype)
+        v_rows = jnp.asarray(np.concatenate([V, v_mixed]), dtype)
+    else:
+        yd_rows, v_rows = jnp.zeros((21, nu), dtype), jnp.asarray(V, dtype)
 
-    def at(y):
-        A, b = jax.vmap(lambda yd, v: _gauss(topo, d, gamma_bar + y, yd, v))(yd_rows, v_rows)
-        out = (A[0], _hessian_of_quadratic(b[:21].T, 6), b[21:])
+    def at(y):  # A(y), the Hessian of b in the base's velocity (6+nu, 6, 6), [the mixed rows]
+        # A depends on the angles only: one unbatched copy (out_axes None), one _gauss in the program
+        A, b = jax.vmap(lambda yd, v: _gauss(topo, d, gamma_bar + y, yd, v), out_axes=(None, 0))(yd_rows, v_rows)
+        out = (A, _hessian_of_quadratic(b[:21].T, 6), b[21:])
         return out, out
 
     (A1, G1, _), (A0, G0, mixed) = jax.jacfwd(at, has_aux=True)(zn)
+    if not one_batch:
+        rows = (jnp.asarray(yd_mixed, dtype), jnp.asarray(v_mixed, dtype))
+        mixed = jax.vmap(lambda yd, v: _gauss(topo, d, gamma_bar, yd, v)[1])(*rows)
     # the mixed second derivative in (y', v) at y = 0: b(e_k, e_a) - b(e_k, 0) - b(0, e_a)
     both = mixed[: 6 * nu].reshape(nu, 6, -1)
     only_yd, only_v = mixed[6 * nu : 7 * nu], mixed[7 * nu :]
@@ -231,7 +246,7 @@ def terms(model, sub: Substructure, gamma_nominal) -> Terms:
     h = np.asarray(sub.hinges, np.int64) - 1
     topo = Topology(_local_topology(model, sub).parents)  # unnamed: equal shapes share a compilation
     g = gamma_nominal[h] if is_traced(gamma_nominal) else jnp.asarray(np.asarray(gamma_nominal)[h])
-    return _terms(topo, _bodies(model, sub), g)
+    return _terms(topo, _bodies(model, sub), g, len(sub.hinges) <= ONE_BATCH_HINGES)
 
 
 def held_base(t: Terms, v, c, stiffness, damping, xp=jnp):
