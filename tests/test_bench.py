@@ -220,7 +220,6 @@ def test_flex95_slew_case_drives_jaxtree_and_the_pinocchio_peer_with_the_same_bu
     time; over the first 2 s (the pulse's rise and top) Pinocchio + DOP853 with it follows jaxtree's
     run to 1e-7 of the hub rate's and wing angles' peaks (at 1e-10), while the same peer without it
     misses by more than 10 %; the peers that take no base torque are rows skipped with the reason."""
-    pytest.importorskip("pinocchio")
     from jaxtree._src import bench
     from jaxtree._src.peers import pinocchio_runner
 
