@@ -75,29 +75,31 @@ class PrescribedSine(Joint):
 
 
 @dataclasses.dataclass(frozen=True)
-class PrescribedRamp(Joint):
-    """Prescribed ``gamma_k(t) = initial + (final - initial) clip((t - start) / duration, 0, 1)``
-    (the scene's ``ramp``: constant rate inside, held before and after)."""
+class _PrescribedTransition(Joint):
+    """A prescribed move from `initial` to `final` over `duration` from `start` (the fields of
+    the scene's ``ramp`` and ``smooth_step``; the subclass names the profile)."""
 
     final: float
     duration: float
     initial: float = 0.0
     start: float = 0.0
     kind: ClassVar[str] = "prescribed"
+
+
+@dataclasses.dataclass(frozen=True)
+class PrescribedRamp(_PrescribedTransition):
+    """Prescribed ``gamma_k(t) = initial + (final - initial) clip((t - start) / duration, 0, 1)``
+    (the scene's ``ramp``: constant rate inside, held before and after)."""
+
     function: ClassVar[str] = "ramp"
 
 
 @dataclasses.dataclass(frozen=True)
-class PrescribedSmoothStep(Joint):
+class PrescribedSmoothStep(_PrescribedTransition):
     """Prescribed ``gamma_k(t) = initial + (final - initial) (10 s^3 - 15 s^4 + 6 s^5)``,
     ``s = clip((t - start) / duration, 0, 1)`` (the scene's ``smooth_step``: rate and
     acceleration zero at both ends)."""
 
-    final: float
-    duration: float
-    initial: float = 0.0
-    start: float = 0.0
-    kind: ClassVar[str] = "prescribed"
     function: ClassVar[str] = "smooth_step"
 
 
