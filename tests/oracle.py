@@ -254,6 +254,29 @@ def oracle_body_states(parents, mass, axis, hinge_on_parent, hinge_on_body, gamm
     return out
 
 
+def oracle_at(model, state, tau=None, F=None, T=None):
+    """``oracle_eom`` for a jaxtree model at a state: the tree (parents, masses, inertias, hinge
+    axes and points) read from `model`, the speeds and the attitude from `state` (anything with
+    ``dcm``, ``omega0``, ``gamma``, ``gamma_dot``, e.g. ``jaxtree.State``; the attitude enters only
+    the angular momentum). Springs and dampers are not read: pass their torques in `tau`. Duck-typed,
+    so this file still does not import jaxtree."""
+    return oracle_eom(
+        model.topology.parents,
+        np.asarray(model.mass),
+        np.asarray(model.inertia),
+        np.asarray(model.axis),
+        np.asarray(model.hinge_on_parent),
+        np.asarray(model.hinge_on_body),
+        np.asarray(state.omega0),
+        np.asarray(state.gamma),
+        np.asarray(state.gamma_dot),
+        tau=tau,
+        F=F,
+        T=T,
+        dcm=np.asarray(state.dcm),
+    )
+
+
 # ---------------------------------------------------------------------------------
 # Self-check: python3 tests/oracle.py
 # ---------------------------------------------------------------------------------

@@ -16,24 +16,13 @@ from jaxtree import State
 from jaxtree._src.barycentric import barycentric
 
 from helpers import ALL, PARENTS, appendix_c, planar_model, principal_moments, random_model
-from oracle import oracle_eom
+from oracle import oracle_at
 
 
 def oracle_residual(model, omega0, gamma, gamma_dot, acc):
     """Residual of Eq. (1), [a] x - rhs, from the independent Lagrange oracle (springs/dampers as tau)."""
     tau = -np.asarray(model.stiffness) * gamma - np.asarray(model.damping) * gamma_dot
-    o = oracle_eom(
-        model.topology.parents,
-        model.mass,
-        model.inertia,
-        model.axis,
-        model.hinge_on_parent,
-        model.hinge_on_body,
-        omega0,
-        gamma,
-        gamma_dot,
-        tau=tau,
-    )
+    o = oracle_at(model, State(np.eye(3), omega0, gamma, gamma_dot), tau=tau)
     return np.asarray(o["mass_matrix"]) @ acc - np.asarray(o["rhs"])
 
 
