@@ -226,7 +226,7 @@ def test_no_subcommand_runs_the_sample_problem(monkeypatch):
     import jaxtree.__main__ as entry
 
     calls = []
-    monkeypatch.setattr(entry, "sample", lambda argv: calls.append(list(argv)) or 0)
+    monkeypatch.setattr(cli, "sample", lambda argv: calls.append(list(argv)) or 0)
     assert entry.main([]) == 0 and cli.main(["--duration", "5", "--no-plot"]) == 0 and cli.main(["sample"]) == 0
     assert calls == [[], ["--duration", "5", "--no-plot"], []]
 
