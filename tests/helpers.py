@@ -1,7 +1,8 @@
 """Helpers shared by the tests (imported as ``from helpers import ...``; pytest puts this folder
 on the import path): random states, the reference scenes, the Appendix C system with its
-closed-form parameters. The independent derivation of Eq. (1) lives in ``oracle.py``, random
-trees in ``trees.py``."""
+closed-form parameters. The independent derivation of Eq. (1) lives in ``oracle.py`` (with
+``oracle_at``, the one way the tests call it on a model), random trees in ``trees.py``
+(``random_tree``, the one builder)."""
 
 import pathlib
 
@@ -10,7 +11,6 @@ import jax
 import numpy as np
 
 import jaxtree
-from jaxtree import Body, SpringDamper
 
 SHARED_SCENES = pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 
@@ -61,60 +61,6 @@ def appendix_c():
     extra = 2 * m * (r**2 + 2 * r * L + 4.0 / 3.0 * L**2)  # (C-52)
     I1, I2, I3 = I0[0] + extra, I0[1], I0[2] + extra
     return model, dict(M=M, R=R, J=Jc, c=c, r=r, k=k, I1=I1, I2=I2, I3=I3)
-
-
-# ----------------------------------------------------------------------------- random trees with springs
-def principal_moments(rng):
-    """Principal moments of some mass distribution (they satisfy the triangle inequality)."""
-    x = rng.uniform(0.2, 1.0, 3)
-    return np.array([x[1] + x[2], x[0] + x[2], x[0] + x[1]])
-
-
-def random_inertia(rng):
-    Q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
-    return Q @ np.diag(principal_moments(rng)) @ Q.T
-
-
-def random_model(rng, parents, axes=None, hop=None, hob=None, inertia=None, damping=0.0, prescribe=()):
-    """A tree with random masses/inertias/geometry and springs (stiffness 20..60) on every hinge."""
-    n = len(parents)
-    bodies = []
-    for k in range(n + 1):
-        J = random_inertia(rng) if inertia is None else inertia[k]
-        mass = rng.uniform(1.0, 3.0) if k else rng.uniform(20.0, 40.0)
-        if k == 0:
-            bodies.append(Body("base", mass, J))
-            continue
-        ax = rng.normal(size=3) if axes is None else axes[k - 1]
-        joint = SpringDamper(rng.uniform(20.0, 60.0), damping)
-        if k in prescribe:
-            joint = jaxtree.PrescribedSine(0.1, 1.0)
-        bodies.append(
-            Body(
-                f"link{k}",
-                mass,
-                J,
-                parent=parents[k - 1],
-                axis=ax,
-                hinge_on_parent=rng.normal(size=3) if hop is None else hop[k - 1],
-                hinge_on_body=rng.normal(size=3) if hob is None else hob[k - 1],
-                joint=joint,
-            )
-        )
-    return jaxtree.build_model(bodies)
-
-
-# One tree shape for most tests, so that the jitted linearization (keyed on the model structure and the
-# set A) and the oracle compile once: b0 - 1 - 2 - 3, b0 - 4 - 5, 1 - 6.
-PARENTS = [0, 1, 2, 0, 4, 1]
-ALL = (1, 2, 3, 4, 5, 6)
-
-
-def planar_model(rng, parents, g, positions):
-    """Hinge axes all `g`; hinge points and mass centers given by `positions(k)` (hop, hob)."""
-    n = len(parents)
-    hop, hob = zip(*[positions(k) for k in range(1, n + 1)])
-    return random_model(rng, parents, axes=[g] * n, hop=hop, hob=hob)
 
 
 # ----------------------------------------------------------------------------- the seed's Tables 1-2 (Fig. 4)

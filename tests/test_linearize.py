@@ -15,8 +15,9 @@ import jaxtree
 from jaxtree import State
 from jaxtree._src.barycentric import barycentric
 
-from helpers import ALL, PARENTS, appendix_c, planar_model, principal_moments, random_model
+from helpers import appendix_c
 from oracle import oracle_at
+from trees import ALL, PARENTS, planar_model, principal_moments, sprung_tree
 
 
 def oracle_residual(model, omega0, gamma, gamma_dot, acc):
@@ -96,7 +97,7 @@ def test_ijk_against_finite_differences_of_oracle():
     independent oracle, with the nominal motion held: spinning, large angles away from zero, springs and
     dampers (Eqs. 45-46), a set A that is not a terminal appendage."""
     rng = np.random.default_rng(7)
-    model = random_model(rng, PARENTS, damping=0.7)
+    model = sprung_tree(rng, PARENTS, damping=0.7)
     small = (2, 3, 4, 6)  # not a terminal appendage: hinge 5 (large) is outboard of hinge 4
     omega0 = rng.normal(size=3)
     gamma = rng.normal(size=model.n) * 0.6
@@ -119,7 +120,7 @@ def test_external_loads_enter_through_the_derivative():
     K from jacfwd equals central differences of jaxtree's nonlinear Eq. (1) with the loads; K is then
     not symmetric and structure() says so."""
     rng = np.random.default_rng(3)
-    base = random_model(rng, [0, 1, 2])
+    base = sprung_tree(rng, [0, 1, 2])
     g2 = np.asarray(base.axis[1])
 
     def fn(t, state):
@@ -151,7 +152,7 @@ def test_nonspinning_elastic_eq51_and_36d():
     """omega0 = 0, elastic hinges, no loads: J = 0 and K = diag(k_i) (Eq. 51), also with large angles
     away from zero; I from Eq. (36d) with all C_bar = U, written out with Defs. 35-36."""
     rng = np.random.default_rng(11)
-    model = random_model(rng, PARENTS)
+    model = sprung_tree(rng, PARENTS)
     small = (2, 3, 4, 6)
     for gamma in (np.zeros(model.n), rng.normal(size=model.n) * (1 - np.isin(np.arange(1, 7), small))):
         I, J, K = (np.asarray(x) for x in jaxtree.linearize(model, small, gamma=gamma))
@@ -244,7 +245,7 @@ def test_meridional_case_eqs_66_67():
     hop = [sign[k] * rng.uniform(0.2, 0.8) * b3 for k in range(1, 7)]
     hob = [-sign[k] * rng.uniform(0.2, 0.8) * b3 for k in range(1, 7)]
     inertia = [np.diag(principal_moments(rng)) for _ in range(7)]
-    model = random_model(rng, parents, axes=[b2] * 6, hop=hop, hob=hob, inertia=inertia)
+    model = sprung_tree(rng, parents, axes=[b2] * 6, hinge_on_parent=hop, hinge_on_body=hob, inertia=inertia)
     Omega = 1.7
     I, J, K = (np.asarray(x) for x in jaxtree.linearize(model, ALL, omega0=[Omega, 0.0, 0.0]))
     st = jaxtree.structure(I, J, K)

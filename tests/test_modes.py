@@ -18,7 +18,8 @@ from scipy.spatial.transform import Rotation
 import jaxtree
 from jaxtree import Body, SpringDamper
 
-from helpers import ALL, PARENTS, appendix_c, planar_model, random_model
+from helpers import appendix_c
+from trees import ALL, PARENTS, planar_model, sprung_tree
 
 
 def check_biorthogonality(md, tol=1e-10):
@@ -216,7 +217,7 @@ def test_general_case_with_dampers():
     """Hinge dampers make J non-skew: the general path. Eigenvalues equal an independent eigensolver's,
     Phi'^T P Phi = U and Phi'^T Q Phi = Lambda (Eqs. 89-90), 0 < zeta < 1."""
     rng = np.random.default_rng(7)
-    model = random_model(rng, PARENTS, damping=0.7)
+    model = sprung_tree(rng, PARENTS, damping=0.7)
     lin = jaxtree.linearize(model, (2, 3, 4, 6), omega0=[0.2, -0.1, 0.5])
     md = jaxtree.modes(lin)
     assert md.kind == "general"

@@ -10,7 +10,8 @@ import numpy as np
 import jaxtree
 from jaxtree._src.peer_basilisk import basilisk_available, basilisk_run, basilisk_supports
 
-from helpers import random_model, random_state
+from helpers import random_state
+from trees import sprung_tree
 
 TOL = 1e-12  # both integrators, relative and absolute
 AGREE = 1e-8  # the agreement asked of the two trajectories (reached: a few 1e-10, see below)
@@ -43,7 +44,7 @@ def test_random_chains_agree_with_jaxtree():
     a non-identity attitude and large hinge angles: two chains (1-2-3, 4-5) with springs and
     dampers. Checks every geometric convention of the mapping, not just those `wings` exercises."""
     rng = np.random.default_rng(7)
-    model = random_model(rng, [0, 1, 2, 0, 4], damping=0.5)
+    model = sprung_tree(rng, [0, 1, 2, 0, 4], damping=0.5)
     state = random_state(model, rng, scale=0.5)
     model = eqx.tree_at(lambda m: m.initial, model, state)
     err = _compare(model, 1.0, np.linspace(0.0, 1.0, 11))
