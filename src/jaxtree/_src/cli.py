@@ -34,7 +34,10 @@ import pathlib
 import signal
 import sys
 import time
-from typing import Any
+
+from .chunked import ChunkedRunError, chunked_config, parse_hinges, simulate_to_file
+from .chunked import solver_named as solver_named
+from .results import command_line
 
 SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "bench", "sample")
 EXIT_USAGE, EXIT_FAILED, EXIT_INTERRUPTED = 2, 1, 130
@@ -56,16 +59,6 @@ SOLVERS = {
     "radau5": "Radau5",
 }
 ATTITUDES = ("quaternion", "dcm", "euler123")
-
-
-def solver_named(name: str):
-    """A new solver of the class `name` (a value of :data:`SOLVERS` other than "auto"): jaxtree's
-    :class:`~jaxtree.Radau5` or a diffrax solver."""
-    import diffrax
-
-    from .radau import Radau5
-
-    return Radau5() if name == "Radau5" else getattr(diffrax, name)()
 
 
 class UserError(Exception):
@@ -166,32 +159,10 @@ def _vector3():
 
 def _hinges(model, text, option):
     """Hinges named in `text`: 'all', or comma-separated indices 1..n, body names or ranges a-b."""
-    from .linearize import resolve_hinges
-
-    text = text.strip()
-    if text == "all":
-        items = list(model.unknown_hinges)
-        if not items:
-            raise UserError(f"{option}: the scene has no hinge that can be small")
-        return tuple(items)
-    items = []
-    for part in (p.strip() for p in text.split(",")):
-        if not part:
-            continue
-        if "-" in part and all(s.strip().isdigit() for s in part.split("-", 1)):
-            a, b = (int(s) for s in part.split("-", 1))
-            items += list(range(a, b + 1))
-        elif part.isdigit():
-            items.append(int(part))
-        else:
-            items.append(part)
-    if not items:
-        raise UserError(f"{option}: no hinge given")
     try:
-        return resolve_hinges(model, items)
-    except (ValueError, KeyError, TypeError) as e:
-        msg = str(e.args[0]) if e.args else str(e)
-        raise UserError(f"{option}: {msg.removeprefix('linearize: ')}") from None
+        return parse_hinges(model, text)
+    except ValueError as e:
+        raise UserError(f"{option}: {e}") from None
 
 
 def _load_scene(path):
@@ -603,44 +574,25 @@ def cmd_check(args) -> int:
 
 # ----------------------------------------------------------------------------- simulate
 def _config(args, model):
-    """The run's configuration, stored in every part (a resumed run must match it)."""
-    import jax.numpy as jnp
-
-    from ._integrate import default_tolerance
-    from .results import _scene_json
-
-    tol = default_tolerance(jnp.result_type(model.mass))
-    points = _save_points(args, model)
-    solver, why = SOLVERS[args.solver], "given (--solver)"
-    if solver == "auto":
-        from .autosolver import choose_solver
-
-        _, choice = choose_solver(model, args.t1, t0=args.t0, rtol=args.rtol or tol)
-        solver, why = choice.name, f"auto: {choice.reason}"
-    cfg = {
-        "scene": _scene_json(model),
-        "t0": float(args.t0),
-        "t1": float(args.t1),
-        "points": points,
-        "chunks": int(args.chunks),
-        "solver": solver,
-        "solver_choice": why,
-        "rtol": float(args.rtol or tol),
-        "atol": float(args.atol or tol),
-        "attitude": args.attitude,
-        "max_steps": int(args.max_steps),
-    }
-    if args.hybrid_small is not None:
-        cfg.update(
-            hybrid_small=args.hybrid_small,
-            n_modes=-1 if args.modes is None else -2 if args.modes == "auto" else int(args.modes),
-            cutoff=-1.0 if args.cutoff is None else float(args.cutoff),
-            modal_damping=-1.0 if args.modal_damping is None else float(args.modal_damping),
-            spin=list(map(float, args.spin if args.spin is not None else model.initial.omega0)),
-        )
-        if args.modes == "auto":
-            cfg["modes_tol"] = 1e-2 if args.modes_tol is None else float(args.modes_tol)
-    return cfg
+    """The run's configuration (:func:`~jaxtree._src.chunked.chunked_config` of the options)."""
+    return chunked_config(
+        model,
+        args.t1,
+        t0=args.t0,
+        points=_save_points(args, model),
+        chunks=args.chunks,
+        solver=SOLVERS[args.solver],
+        rtol=args.rtol,
+        atol=args.atol,
+        attitude=args.attitude,
+        max_steps=args.max_steps,
+        hybrid_small=args.hybrid_small,
+        modes=args.modes,
+        modes_tol=args.modes_tol,
+        cutoff=args.cutoff,
+        spin=args.spin,
+        modal_damping=args.modal_damping,
+    )
 
 
 def _save_points(args, model) -> int:
@@ -664,319 +616,36 @@ def _save_points(args, model) -> int:
     return points
 
 
-def _chunk_bounds(points, chunks):
-    """Save-grid index ranges [a, b] of the parts, and the rows of a padded part."""
-    intervals = points - 1
-    per = max(1, math.ceil(intervals / chunks))
-    bounds = [(a, min(a + per, intervals)) for a in range(0, intervals, per)]
-    return bounds, per + 1
+class _Meter:
+    """The progress of `simulate`: a bar on a terminal (where tqdm is installed), and the pause
+    after each part that CHUNK_DELAY_ENV asks for."""
+
+    def __init__(self, args):
+        self.show = not args.no_progress and sys.stderr.isatty()
+        self.delay = float(os.environ.get(CHUNK_DELAY_ENV, "0") or 0)
+        self.bar = None
+        self.started = False
+
+    def __call__(self, done, total):
+        if not self.started:
+            self.bar = _progress_bar(total, done) if self.show else None
+        elif self.bar is not None:
+            self.bar.update(done - self.bar.n)
+        if self.started and self.delay:
+            time.sleep(self.delay)
+        self.started = True
+        if done >= total:
+            self.close()
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
 
 
-class _Runner:
-    """Runs the parts of one configuration: the full equations or the hybrid ones."""
-
-    def __init__(self, args, model, cfg):
-        import jax.numpy as jnp
-
-        self.model, self.cfg = model, cfg
-        self.solver = solver_named(cfg["solver"])
-        self.hybrid = None
-        self.dtype = jnp.result_type(model.mass)
-        if "hybrid_small" in cfg:
-            from .hybrid import hybrid_model
-
-            if model.law is not None or model.controller is not None:
-                raise UserError(
-                    "--hybrid-small: the scene's 'control' laws are not part of the hybrid equations; "
-                    "run it without --hybrid-small"
-                )
-            from .modes import ModalError
-
-            small = _hinges(model, cfg["hybrid_small"], "--hybrid-small")
-            try:
-                self.hybrid = hybrid_model(
-                    model,
-                    small,
-                    None if cfg["n_modes"] == -1 else "auto" if cfg["n_modes"] == -2 else cfg["n_modes"],
-                    tol=cfg.get("modes_tol", 1e-2),
-                    cutoff=None if cfg["cutoff"] < 0 else cfg["cutoff"],
-                    omega0=jnp.asarray(cfg["spin"], self.dtype),
-                    damping=None if cfg["modal_damping"] < 0 else cfg["modal_damping"],
-                    attitude=cfg["attitude"],
-                )
-            except ModalError as e:
-                raise UserError(f"--hybrid-small: {e}") from None
-            except ValueError as e:
-                raise UserError(f"--hybrid-small/--modes: {str(e).removeprefix('hybrid_model: ')}") from None
-            self._diag = _hybrid_diagnostics()
-        self.truncation_state = None  # the neglected modes' state where the last hybrid part ended
-
-        # a scene's controller (internal states) continues from part to part: its states where
-        # the last part ended are the next part's z0 (always an array: one compiled program)
-        self.control = None
-        if model.controller is not None and hasattr(model.controller, "z0"):
-            from jax.flatten_util import ravel_pytree
-
-            self.control = ravel_pytree(model.controller.initial())
-
-    def initial(self):
-        # the hybrid runs pack the physical start themselves, and see its neglected modes' content
-        if self.control is not None:
-            self.set_control(self.control[0])
-        return self.model.initial
-
-    def set_control(self, flat):
-        """Start the next part's controller from the flat internal states `flat`."""
-        import equinox as eqx
-        import jax.numpy as jnp
-
-        assert self.control is not None
-        z0 = self.control[1](jnp.asarray(flat, self.dtype))
-        self.model = eqx.tree_at(lambda m: m.controller.z0, self.model, z0, is_leaf=lambda x: x is None)
-
-    def run(self, ts, y0, rtol, atol):
-        """One part: integrate from ts[0] to ts[-1] saving at `ts` (padded: repeated end time)."""
-        import jax.numpy as jnp
-
-        from .simulate import simulate
-
-        ts = jnp.asarray(ts, self.dtype)
-        if self.hybrid is None:
-            sol = simulate(
-                self.model,
-                ts[-1],
-                t0=ts[0],
-                y0=y0,
-                saveat=ts,
-                solver=self.solver,
-                rtol=rtol,
-                atol=atol,
-                attitude=self.cfg["attitude"],
-                max_steps=self.cfg["max_steps"],
-                throw=False,
-            )
-            part = _FullPart(sol)
-            if self.control is not None:  # the next part's controller continues from here
-                self.set_control(part.end_state()["resume_control"][1])
-            return part
-        from .hybrid import simulate_hybrid
-
-        sol = simulate_hybrid(
-            self.hybrid,
-            ts[-1],
-            t0=ts[0],
-            y0=y0,
-            saveat=ts,
-            solver=self.solver,
-            rtol=rtol,
-            atol=atol,
-            max_steps=self.cfg["max_steps"],
-            throw=False,
-            truncation_start=self.truncation_state,
-        )
-        self.truncation_state = sol.truncation_state
-        return _HybridPart(sol, self.hybrid, self._diag)
-
-
-class _FullPart:
-    def __init__(self, sol):
-        import numpy as np
-
-        from ._integrate import SimulationError, failure_kind
-
-        self.sol = sol
-        self.kind = failure_kind(sol.failure)
-        self.message = None
-        if self.kind is not None:
-            try:
-                sol.check()
-            except SimulationError as e:
-                self.message = str(e)
-        st = sol.stats
-        self.steps = (
-            int(np.asarray(st["num_accepted_steps"])),
-            int(np.asarray(st["num_rejected_steps"])),
-            int(np.asarray(st["rhs_evaluations"])),
-        )
-        self.t_final = float(np.asarray(sol.t_final))
-
-    def rows(self, count):
-        import numpy as np
-
-        s = self.sol
-        take = lambda x: np.asarray(x)[:count]
-        return dict(
-            ts=take(s.ts),
-            gamma=take(s.gamma),
-            gamma_dot=take(s.gamma_dot),
-            omega0=take(s.omega0),
-            dcm=take(s.dcm),
-            energy=take(s.energy),
-            angular_momentum=take(s.angular_momentum),
-            attitude=take(s.attitude),
-            attitude_name=s.problem.attitude.name,
-            hold_torque=take(s.hold_torque),
-            orthogonality=take(s.orthogonality),
-        )
-
-    def end_state(self):
-        """The state the next part starts from (exactly as written to the part)."""
-        import numpy as np
-
-        f = self.sol.final
-        return {
-            "resume_dcm": (("row", "column"), np.asarray(f.dcm)),
-            "resume_omega0": (("axis",), np.asarray(f.omega0)),
-            "resume_gamma": (("hinge",), np.asarray(f.gamma)),
-            "resume_gamma_dot": (("hinge",), np.asarray(f.gamma_dot)),
-            **self._control_end(),
-        }
-
-    def _control_end(self):
-        """The controller's internal states at the end (flat), where the run has a controller."""
-        import numpy as np
-        from jax.flatten_util import ravel_pytree
-
-        z = self.sol.final_control_state
-        if z is None:
-            return {}
-        return {"resume_control": (("control_state",), np.asarray(ravel_pytree(z)[0]))}
-
-
-def _hybrid_diagnostics():
-    import equinox as eqx
-    import jax
-    import jax.numpy as jnp
-
-    from .dynamics import angular_momentum, kinetic_energy
-
-    @eqx.filter_jit
-    def diag(model, states):
-        def row(s):
-            return (kinetic_energy(model, s) + 0.5 * jnp.sum(model.stiffness * s.gamma**2), angular_momentum(model, s))
-
-        return jax.vmap(row)(states)
-
-    return diag
-
-
-class _HybridPart:
-    def __init__(self, sol, hybrid, diag):
-        import diffrax
-        import numpy as np
-
-        from .model import State
-
-        self.sol, self.hybrid = sol, hybrid
-        result = sol.result
-        R = diffrax.RESULTS
-        if result == R.successful:
-            self.kind = None
-        elif result == R.max_steps_reached:
-            self.kind = "max_steps"
-        elif result == R.dt_min_reached:
-            self.kind = "dt_min"
-        else:
-            self.kind = "other"
-        self.t_final = float(np.asarray(sol.t_final))
-        self.message = None
-        if self.kind is not None:
-            from ._integrate import MESSAGES as _MESSAGES
-
-            f = sol.final
-            self.message = (
-                f"jaxtree.simulate_hybrid: {_MESSAGES[self.kind]}.\n  stopped at t = {self.t_final:.9g}\n"
-                f"  omega0 = {np.asarray(f.omega0)}\n  gamma = {np.asarray(f.gamma)}\n"
-                f"  modal coordinates = {np.asarray(sol.final_modal)}"
-            )
-        st = sol.stats
-        acc, rej = int(np.asarray(st["num_accepted_steps"])), int(np.asarray(st["num_rejected_steps"]))
-        self.steps = (acc, rej, -1)
-        states = State(sol.dcm, sol.omega0, sol.gamma, sol.gamma_dot)
-        self.energy, self.H = diag(hybrid.model, states)
-        S = np.asarray(hybrid.small, int) - 1
-        ok = np.isfinite(np.asarray(sol.ts))
-        self.truncation = (
-            float(np.max(np.asarray(sol.truncation_error)[ok], initial=0.0)),
-            float(np.max(np.abs(np.asarray(sol.truncation_static)[ok]), initial=0.0)),
-            float(np.max(np.abs(np.asarray(sol.gamma)[ok][:, S] - np.asarray(hybrid.gamma_nominal)[S]), initial=0.0)),
-        )
-
-    def rows(self, count):
-        import numpy as np
-
-        s = self.sol
-        take = lambda x: np.asarray(x)[:count]
-        att = np.asarray(s.ys)[:count, : self.hybrid.attitude.size]
-        return dict(
-            ts=take(s.ts),
-            gamma=take(s.gamma),
-            gamma_dot=take(s.gamma_dot),
-            omega0=take(s.omega0),
-            dcm=take(s.dcm),
-            energy=take(self.energy),
-            angular_momentum=take(self.H),
-            attitude=att,
-            attitude_name=self.hybrid.attitude.name,
-            modal=take(s.modal),
-        )
-
-    def end_state(self):
-        import numpy as np
-
-        out: dict[str, tuple[tuple[str, ...], Any]] = {"resume_flat": (("flat_state",), np.asarray(self.sol.ys)[-1])}
-        if self.sol.truncation_state is not None:
-            out["resume_truncation"] = (("truncation_coordinate", "re_im"), np.asarray(self.sol.truncation_state))
-        return out
-
-
-def _state_from_part(ds, runner):
-    import jax.numpy as jnp
-
-    from .model import State
-
-    if runner.hybrid is not None:
-        if "resume_truncation" in ds:
-            runner.truncation_state = jnp.asarray(ds["resume_truncation"].values, runner.dtype)
-        return jnp.asarray(ds["resume_flat"].values, runner.dtype)
-    v = lambda k: jnp.asarray(ds[k].values, runner.dtype)
-    if "resume_control" in ds and runner.control is not None:
-        runner.set_control(ds["resume_control"].values)
-    return State(v("resume_dcm"), v("resume_omega0"), v("resume_gamma"), v("resume_gamma_dot"))
-
-
-def _part_dataset(runner, part, count, skip_first, attrs):
-    import numpy as np
-
-    from .results import body_positions, simulation_dataset
-
-    r = part.rows(None)  # every row of the (padded) part: one shape, one compiled geometry
-    r["positions"] = body_positions(runner.model, r["gamma"])
-    first = 1 if skip_first else 0
-    r: dict[str, Any] = {
-        k: (
-            v[first:count]
-            if isinstance(v, np.ndarray)
-            else tuple(x[first:count] for x in v)
-            if isinstance(v, tuple)
-            else v
-        )
-        for k, v in r.items()
-    }
-    ts = r.pop("ts")
-    ds = simulation_dataset(
-        runner.model, ts, r.pop("gamma"), r.pop("gamma_dot"), r.pop("omega0"), r.pop("dcm"), **r, attrs=attrs
-    )
-    for name, (dims, data) in part.end_state().items():
-        ds[name] = (dims, data, {"long_name": "state where this part ended (to resume from)"})
-    return ds
-
-
-def _progress(args, total, initial):
-    if args.no_progress or not sys.stderr.isatty():
-        return None
+def _progress_bar(total, initial):
     try:
-        from tqdm import tqdm
+        from tqdm import tqdm  # optional: no bar without it
     except ImportError:
         return None
     return tqdm(
@@ -989,11 +658,24 @@ def _progress(args, total, initial):
     )
 
 
-def cmd_simulate(args) -> int:
-    import numpy as np
+@contextlib.contextmanager
+def _interrupts():
+    """SIGTERM interrupts like Ctrl-C; Ctrl-C interrupts even where the command was started with
+    SIGINT ignored, as a shell does for background jobs (Python keeps the inherited disposition)."""
 
-    from .results import ChunkedResult, command_line
+    def terminate(signum, frame):
+        raise _Interrupted()
 
+    old = signal.signal(signal.SIGTERM, terminate)
+    old_int = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+        signal.signal(signal.SIGINT, old_int)
+
+
+def _check_simulate_options(args):
     if args.t1 == args.t0:
         raise UserError("--t1 equals --t0: nothing to integrate")
     if args.t1 < args.t0:
@@ -1013,135 +695,38 @@ def cmd_simulate(args) -> int:
                 raise UserError(f"{opt} needs --hybrid-small (the hinges in modal coordinates)")
     elif args.modes_tol is not None and args.modes != "auto":
         raise UserError("--modes-tol needs --modes auto")
+
+
+def _option_error(e: ChunkedRunError) -> UserError:
+    """The library's complaint about an argument, as one about the option that gave it."""
+    options = "/".join("--" + name.replace("_", "-") for name in e.option.split("/"))
+    return UserError(f"{options}: {e.reason}")
+
+
+def cmd_simulate(args) -> int:
+    _check_simulate_options(args)
     start_wall = time.perf_counter()
     model = _load_scene(args.scene)
     out = pathlib.Path(args.out if args.out else f"{model.name or pathlib.Path(args.scene).stem}.nc")
     if out.exists() and out.is_dir():
         raise UserError(f"--out {str(out)!r} is a folder; give a file name such as run.nc")
-    cfg = _config(args, model)
-    writer = ChunkedResult(out)
-    bounds, rows_per_part = _chunk_bounds(cfg["points"], cfg["chunks"])
-    grid = np.linspace(cfg["t0"], cfg["t1"], cfg["points"])
-
-    start = 0
-    parts = []  # the part datasets: read back when resuming, then as written
-    if args.resume:
-        parts = writer.load_parts()
-        if not parts:
-            if out.is_file():
-                raise UserError(f"--resume: {out} is a finished run (no parts of an interrupted run beside it)")
-            raise UserError(f"--resume: no interrupted run to continue ({writer.parts_dir} does not exist)")
-        saved = parts[0].attrs
-        for key, value in cfg.items():
-            have = saved.get(key)
-            same = (
-                np.allclose(np.asarray(have, float), np.asarray(value, float), rtol=0, atol=0)
-                if isinstance(value, (int, float, list)) and have is not None
-                else have == value
-            )
-            if not same:
-                what = "the scene" if key == "scene" else key
-                raise UserError(
-                    f"--resume: {what} differs from the interrupted run "
-                    f"({'changed' if key == 'scene' else f'{have!r} there, {value!r} here'})"
-                )
-        start = len(parts)
-        if int(parts[-1].attrs.get("result_code", 0)) != 0:
-            raise UserError(
-                f"--resume: the interrupted run had failed at t = {parts[-1].attrs.get('t_final')}; nothing to continue"
-            )
-    else:
-        if writer.parts():
-            raise UserError(
-                f"{writer.parts_dir} holds parts of an interrupted run: continue it with --resume, "
-                "or remove that folder"
-            )
-
-    runner = _Runner(args, model, cfg)
-    y0 = runner.initial() if start == 0 else _state_from_part(parts[-1], runner)
-    attrs = {**cfg, "command": command_line(), "complete": 0}
-    attrs.pop("scene")  # simulation_dataset stores the scene
-    delay = float(os.environ.get(CHUNK_DELAY_ENV, "0") or 0)
-
-    def terminate(signum, frame):
-        raise _Interrupted()
-
-    old = signal.signal(signal.SIGTERM, terminate)
-    # Ctrl-C interrupts (saving the parts) even when the command was started with SIGINT ignored,
-    # as a shell does for background jobs (Python then keeps the inherited disposition)
-    old_int = signal.signal(signal.SIGINT, signal.default_int_handler)
-    bar = None
-    what = "hybrid equations" if runner.hybrid is not None else "Eq. (1)"
-    _say(
-        f"jaxtree simulate: {model.name or args.scene}, {what}, t = {cfg['t0']:g} .. {cfg['t1']:g} s in "
-        f"{len(bounds)} parts" + (f", resuming after part {start}" if start else "") + " (compiling first)"
-    )
-    failed = None
-    compile_time = None
-    truncation = [0.0, 0.0, 0.0]  # hybrid runs: estimate, its quasi-static part, peak small angle
     try:
-        bar = _progress(args, abs(cfg["t1"] - cfg["t0"]), abs(grid[bounds[start - 1][1]] - cfg["t0"]) if start else 0.0)
-        for c in range(start, len(bounds)):
-            a, b = bounds[c]
-            ts = np.concatenate([grid[a : b + 1], np.full(rows_per_part - (b - a + 1), grid[b])])
-            t_start = time.perf_counter()
-            part = runner.run(ts, y0, cfg["rtol"], cfg["atol"])
-            if compile_time is None:
-                compile_time = time.perf_counter() - t_start
-            count = b - a + 1
-            if part.kind is not None:
-                count = int(np.sum(np.isfinite(np.asarray(part.rows(count)["ts"]))))
-            pattrs = {
-                **attrs,
-                "chunk": c,
-                "chunk_t0": float(grid[a]),
-                "chunk_t1": float(grid[b]),
-                "steps_accepted": part.steps[0],
-                "steps_rejected": part.steps[1],
-                "rhs_evaluations": part.steps[2],
-                "result": "ok" if part.kind is None else part.kind,
-                "result_code": 0 if part.kind is None else 1 + _kinds().index(part.kind),
-                "t_final": part.t_final,
-            }
-            if isinstance(part, _HybridPart):
-                truncation = [max(x, y) for x, y in zip(truncation, part.truncation)]
-            ds = _part_dataset(runner, part, count, c > 0, pattrs)
-            writer.write_part(c, ds)
-            parts.append(ds)
-            if part.kind is not None:
-                failed = part
-                break
-            # the next part starts from the state as written (float64 round-trips exactly), as a
-            # resumed run does
-            y0 = _state_from_part(ds, runner)
-            if bar is not None:
-                bar.update(abs(float(grid[b] - grid[a])))
-            if delay:
-                time.sleep(delay)
-        if bar is not None:
-            bar.close()
-            bar = None
-        extra: dict[str, Any] = {}
-        if failed is None and not args.no_error_estimate:
-            _say("jaxtree simulate: error estimate (the run again at 10x the tolerances)")
-            extra = _error_estimate(runner, writer.merged(parts=parts), bounds, rows_per_part, grid, cfg)
-        if runner.hybrid is not None:
-            extra.update(
-                truncation_error=truncation[0],
-                truncation_error_static=truncation[1],
-                truncation_peak_small_angle=truncation[2],
-                truncation_error_meaning="estimated largest error of the small angles from the neglected modes "
-                "(their response to the unbalanced force of the hybrid motion; rad)"
-                + (", parts before --resume not included" if start else ""),
+        cfg = _config(args, model)
+        with _interrupts(), contextlib.closing(_Meter(args)) as meter:
+            run = simulate_to_file(
+                out,
+                model,
+                cfg,
+                resume=args.resume,
+                error_estimate=not args.no_error_estimate,
+                attrs={"command": command_line()},
+                log=lambda message: _say(f"jaxtree simulate: {message}"),
+                progress=meter,
             )
-        # complete: the command ran to its end (a failed run too: its result code says how it ended)
-        ds = writer.merge(complete=True, attrs=extra, parts=parts)
-    except KeyboardInterrupt:
-        if bar is not None:
-            bar.close()
-        signal.signal(signal.SIGTERM, old)
-        signal.signal(signal.SIGINT, old_int)
-        ds = writer.merge(complete=False, parts=parts)
+    except ChunkedRunError as e:
+        raise _option_error(e) from None
+    except KeyboardInterrupt as e:
+        ds = getattr(e, "dataset", None)
         if ds is None:
             _say("jaxtree simulate: interrupted before the first part was written; nothing saved")
         else:
@@ -1150,16 +735,10 @@ def cmd_simulate(args) -> int:
                 f"are in {out} (complete = 0). Continue with the same command and --resume."
             )
         return EXIT_INTERRUPTED
-    finally:
-        if bar is not None:
-            bar.close()
-        signal.signal(signal.SIGTERM, old)
-        signal.signal(signal.SIGINT, old_int)
-
-    written = [str(out)] + (_exports(args, out, ds) if failed is None else [])
-    print(_summary(model, cfg, ds, written, runner, failed, time.perf_counter() - start_wall, compile_time))
-    if failed is not None:
-        _say(failed.message or "the run failed")
+    written = [str(out)] + (_exports(args, out, run.dataset) if run.ok else [])
+    print(_summary(model, run, written, time.perf_counter() - start_wall))
+    if not run.ok:
+        _say(run.failure)
         return EXIT_FAILED
     return 0
 
@@ -1176,42 +755,6 @@ def _per_substructure(hyb, cfg) -> str:
     if cfg.get("n_modes") == -2:
         how += f", chosen for --modes-tol {cfg['modes_tol']:g}"
     return how
-
-
-def _kinds():
-    from ._integrate import KINDS as _KINDS
-
-    return _KINDS
-
-
-def _error_estimate(runner, ds, bounds, rows_per_part, grid, cfg):
-    """Differences between this run and the same run at 10x the tolerances, over all saved
-    times: an estimate of the looser run's global error, hence an upper estimate of this run's
-    (the error of an adaptive run falls with its tolerance)."""
-    import numpy as np
-
-    y = runner.initial()
-    runner.truncation_state = None
-    rows = {"gamma": [], "gamma_dot": [], "omega0": [], "dcm": []}
-    for c, (a, b) in enumerate(bounds):
-        ts = np.concatenate([grid[a : b + 1], np.full(rows_per_part - (b - a + 1), grid[b])])
-        part = runner.run(ts, y, 10 * cfg["rtol"], 10 * cfg["atol"])
-        if part.kind is not None:
-            return {"error_estimate": "unavailable: the run at 10x the tolerances failed"}
-        r = part.rows(b - a + 1)
-        for k in rows:
-            rows[k].append(r[k][1:] if c else r[k])
-        if runner.hybrid is not None:
-            y = part.sol.ys[-1]
-        else:
-            y = part.sol.final
-    d = {k: float(np.max(np.abs(np.concatenate(v) - ds[k].values))) for k, v in rows.items()}
-    return {
-        "error_estimate_gamma": d["gamma"],
-        "error_estimate_rates": max(d["gamma_dot"], d["omega0"]),
-        "error_estimate_dcm": d["dcm"],
-        "error_estimate": "max differences from the same run at 10x the tolerances (rad, rad/s, 1)",
-    }
 
 
 def _exports(args, out, ds):
@@ -1236,15 +779,16 @@ def _exports(args, out, ds):
     return written
 
 
-def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
+def _summary(model, run, written, wall):
     import numpy as np
 
+    cfg, ds, compile_time = run.config, run.dataset, run.compile_time
     a = ds.attrs
 
     def fmt(values):
         return np.array2string(values, precision=6, suppress_small=True, max_line_width=150)
 
-    hyb = runner.hybrid
+    hyb = run.hybrid
     lines = [
         f"scene {model.name!r}: {model.n + 1} bodies; "
         + (
@@ -1258,7 +802,7 @@ def _summary(model, cfg, ds, written, runner, failed, wall, compile_time):
     ]
     lines.append(
         f"  result: {a.get('result')} at t = {float(a.get('t_final')):.6g} s"
-        + (" (the run stopped early)" if failed is not None else "")
+        + ("" if run.ok else " (the run stopped early)")
     )
     rhs = int(a.get("rhs_evaluations", -1))
     lines.append(
