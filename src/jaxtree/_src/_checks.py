@@ -18,6 +18,7 @@ import difflib
 import os
 import sys
 import warnings
+from typing import NamedTuple
 
 import jax
 import numpy as np
@@ -158,65 +159,69 @@ def rotation(C, what: str, tol: float = 1e-9) -> np.ndarray:
     return C
 
 
-# ----------------------------------------------------------------------------- functions
-def _model(name, model):
-    from .model import Model
-    from .scene import validate_model
+# ----------------------------------------------------------------------------- hinge sets
+class Errors(NamedTuple):
+    """The exception classes a check raises: for a bad value, an unknown name, a wrong type."""
 
-    if not isinstance(model, Model):
-        raise SceneTypeError(
-            f"{name}: model must be a jaxtree.Model (load_scene / build_model), got {type(model).__name__}"
-        )
-    if not is_traced(model):
-        validate_model(model)
+    value: type[Exception]
+    key: type[Exception]
+    type: type[Exception]
 
 
-def _small(name, model, small):
-    """The set A: hinge indices 1..n or body names, none repeated, none prescribed; the checks
-    of :func:`jaxtree.linearize.resolve_hinges`, raising SceneErrors."""
+SCENE_ERRORS = Errors(SceneError, SceneKeyError, SceneTypeError)
+BUILTIN_ERRORS = Errors(ValueError, KeyError, TypeError)
+
+
+def hinge_set(model, small, name: str, errors: Errors = SCENE_ERRORS) -> tuple[int, ...]:
+    """The set A of `model` (``n``, ``names``, ``prescribed``) as an ascending tuple of hinge
+    indices 1..n: `small` holds hinge indices or body names (hinge k is named by body k), none
+    repeated, none prescribed. Raises the classes of `errors` with messages that begin with `name`."""
     if isinstance(small, (str, int, np.integer)):
         small = (small,)
     try:
         items = list(small)
     except TypeError:
-        raise SceneTypeError(
+        raise errors.type(
             f"{name}: small must be hinge indices 1..{model.n} or body names, got {short(small)}"
         ) from None
     if not items:
-        raise SceneError(f"{name}: the set A of small hinges is empty")
-    seen = set()
+        raise errors.value(f"{name}: the set A of small hinges is empty")
+    out: list[int] = []
     for item in items:
         if isinstance(item, str):
             if item not in model.names:
-                raise SceneKeyError(
+                raise errors.key(
                     f"{name}: no body named {item!r}; hinges are named by their outboard body: {model.names[1:]}"
                 )
             k = model.names.index(item)
             if k == 0:
-                raise SceneError(f"{name}: {item!r} is the reference body b_0, which has no hinge")
+                raise errors.value(f"{name}: {item!r} is the reference body b_0, which has no hinge")
         elif isinstance(item, (bool, np.bool_)) or not isinstance(item, (int, np.integer)):
-            raise SceneTypeError(f"{name}: hinges are given by index 1..{model.n} or by body name, got {short(item)}")
+            raise errors.type(f"{name}: hinges are given by index 1..{model.n} or by body name, got {short(item)}")
         else:
             k = int(item)
             if not 1 <= k <= model.n:
-                raise SceneError(f"{name}: hinge index {k} is not in 1..{model.n} (hinge k joins body k to its parent)")
-        if k in seen:
-            raise SceneError(f"{name}: hinge {k} ({model.names[k]!r}) is listed twice in the set A")
+                raise errors.value(
+                    f"{name}: hinge index {k} is not in 1..{model.n} (hinge k joins body k to its parent)"
+                )
+        if k in out:
+            raise errors.value(f"{name}: hinge {k} ({model.names[k]!r}) is listed twice in the set A")
         if k in model.prescribed:
-            raise SceneError(
+            raise errors.value(
                 f"{name}: hinge {k} ({model.names[k]!r}) is kinematically prescribed; it cannot be a "
                 "small (linearized) variable. Leave it out of the set A: it is then held at its "
                 "nominal angle."
             )
-        seen.add(k)
+        out.append(k)
+    return tuple(sorted(out))
 
 
-def _nominal(name, model, omega0, gamma, dcm, t):
+def nominal_motion(name: str, n: int, omega0, gamma, dcm, t) -> None:
     """The nominal motion's omega0 (3,), gamma (n,), dcm (a rotation) and t: concrete ones
-    finite and of the right shape."""
+    finite and of the right shape (None and traced values are left alone)."""
     for label, value, shape in (
         ("omega0", omega0, (3,)),
-        ("gamma", gamma, (model.n,)),
+        ("gamma", gamma, (n,)),
         ("dcm", dcm, (3, 3)),
         ("t", t, ()),
     ):
@@ -228,42 +233,29 @@ def _nominal(name, model, omega0, gamma, dcm, t):
             as_float(value, f"{name}: {label}", shape)
 
 
-def linearize_args(name, model, small=None, *, omega0=None, gamma=None, dcm=None, t=0.0):
-    """Arguments of :func:`jaxtree.linearize` and :func:`jaxtree.linearize_vehicle`."""
-    _model(name, model)
-    if small is not None:
-        _small(name, model, small)
-    _nominal(name, model, omega0, gamma, dcm, t)
+def tolerance(name: str, rtol, label: str = "rtol") -> float:
+    """A relative tolerance in [0, 1)."""
+    r = float(as_float(rtol, f"{name}: {label}", ()))
+    if not 0.0 <= r < 1.0:
+        raise SceneError(f"{name}: {label} must be in [0, 1), got {r}")
+    return r
 
 
-def linearized_equations_args(model, small, state, omega0_dot=None, gamma_ddot=None, t=0.0):
-    """Arguments of :func:`jaxtree.linearized_equations`."""
-    from .model import State
-
-    name = "linearized_equations"
-    _model(name, model)
-    _small(name, model, small)
-    if not isinstance(state, State):
-        raise SceneTypeError(f"{name}: state must be a jaxtree.State, got {type(state).__name__}")
-    shapes = {"dcm": (3, 3), "omega0": (3,), "gamma": (model.n,), "gamma_dot": (model.n,)}
-    for field, shape in shapes.items():
-        value = getattr(state, field)
-        if not is_traced(value):
-            as_float(value, f"{name}: state.{field}", shape)
-    for label, value, shape in (("omega0_dot", omega0_dot, (3,)), ("gamma_ddot", gamma_ddot, (model.n,)), ("t", t, ())):
-        if value is not None and not is_traced(value):
-            as_float(value, f"{name}: {label}", shape)
+# ----------------------------------------------------------------------------- functions
+def _matrices(I, J, K):
+    """``(I, J, K)``, or those of a :class:`jaxtree.linearize.LinearSystem` given as `I` (known by
+    its fields: this module imports nothing of the package)."""
+    if all(hasattr(I, field) for field in ("I", "J", "K", "coordinates", "hinges")):
+        return I.I, I.J, I.K
+    return I, J, K
 
 
 def modes_args(I, J=None, K=None, damping=None, kind=None, labels=None, rtol=1e-9):
     """Arguments of :func:`jaxtree.modes`: I, J, K square float matrices of one size (finite
     when concrete), `damping` a non-negative scalar or one per coordinate, `kind` known,
     `labels` one string per coordinate, `rtol` in [0, 1)."""
-    from .linearize import LinearSystem
-
     name = "modes"
-    if isinstance(I, LinearSystem):
-        I, J, K = I.I, I.J, I.K
+    I, J, K = _matrices(I, J, K)
     if J is None or K is None:
         raise SceneTypeError(f"{name}: give I, J, K (or a LinearSystem)")
     sizes = []
@@ -296,13 +288,7 @@ def modes_args(I, J=None, K=None, damping=None, kind=None, labels=None, rtol=1e-
             raise SceneTypeError(f"{name}: labels must be a sequence of {nu} names, got {short(labels)}") from None
         if len(labels) != nu:
             raise SceneError(f"{name}: {len(labels)} labels for {nu} coordinates")
-    _tolerance(name, rtol)
-
-
-def _tolerance(name, rtol, label="rtol"):
-    r = float(as_float(rtol, f"{name}: {label}", ()))
-    if not 0.0 <= r < 1.0:
-        raise SceneError(f"{name}: {label} must be in [0, 1), got {r}")
+    tolerance(name, rtol)
 
 
 def hybrid_model_args(
@@ -323,7 +309,8 @@ def hybrid_model_args(
     tol=1e-2,
 ):
     """Arguments of :func:`jaxtree.hybrid_model`, checked before the linearization is traced."""
-    from .attitude import _BY_NAME, AbstractAttitude
+    from .attitude import attitude_argument
+    from .linearize import linearize_args
 
     name = "hybrid_model"
     linearize_args(name, model, small, omega0=omega0, gamma=gamma, dcm=dcm)
@@ -368,8 +355,5 @@ def hybrid_model_args(
         raise SceneError(f"{name}: form must be 'real', 'first_order' or None, got {short(form)}")
     if precompute is not None and not isinstance(precompute, (bool, np.bool_)):
         raise SceneTypeError(f"{name}: precompute must be True, False or None, got {short(precompute)}")
-    if not isinstance(attitude, AbstractAttitude) and not (isinstance(attitude, str) and attitude.lower() in _BY_NAME):
-        raise SceneError(
-            f"{name}: attitude must be one of {sorted(_BY_NAME)} or an AbstractAttitude, got {short(attitude)}"
-        )
-    _tolerance(name, rtol)
+    attitude_argument(name, attitude)
+    tolerance(name, rtol)

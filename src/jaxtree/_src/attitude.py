@@ -32,6 +32,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ._checks import SceneError, short
 from .kinematics import tilde
 
 
@@ -220,3 +221,13 @@ def get_attitude(attitude: str | AbstractAttitude) -> AbstractAttitude:
     if isinstance(attitude, str) and attitude.lower() in _BY_NAME:
         return _BY_NAME[attitude.lower()]()
     raise ValueError(f"attitude: expected one of {sorted(_BY_NAME)} or an AbstractAttitude, got {attitude!r}")
+
+
+def attitude_argument(name: str, attitude) -> AbstractAttitude:
+    """The `attitude` argument of the public function `name` (a name of :func:`get_attitude` or an
+    instance) as attitude variables, or :class:`SceneError` naming the function."""
+    if isinstance(attitude, AbstractAttitude) or (isinstance(attitude, str) and attitude.lower() in _BY_NAME):
+        return get_attitude(attitude)
+    raise SceneError(
+        f"{name}: attitude must be one of {sorted(_BY_NAME)} or an AbstractAttitude, got {short(attitude)}"
+    )

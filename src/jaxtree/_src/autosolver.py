@@ -141,11 +141,13 @@ def samples_per_period(points: int, span: float, rate: float) -> float:
     return (points - 1) * 2 * math.pi / (abs(span) * rate)
 
 
-def _eigenvalues(model: Model, y0: State, t0, law, params) -> np.ndarray:
-    """Eigenvalues of the first-order form of the linearized equations at `y0`."""
-    from .linearize import linearize_vehicle
+def _eigenvalues(model: Model, y0: State, t0, law, params, checked: bool) -> np.ndarray:
+    """Eigenvalues of the first-order form of the linearized equations at `y0` (the model and
+    `y0` checked by :func:`jaxtree.linearize_vehicle` unless `checked`)."""
+    from .linearize import linearize_vehicle, vehicle_linearization
 
-    lin = linearize_vehicle(model, omega0=y0.omega0, gamma=y0.gamma, dcm=y0.dcm, t=t0)
+    linearization = vehicle_linearization if checked else linearize_vehicle
+    lin = linearization(model, omega0=y0.omega0, gamma=y0.gamma, dcm=y0.dcm, t=t0)
     I, J, K = (np.array(x, float) for x in (lin.I, lin.J, lin.K))  # writable copies
     if law is not None:
         hinges = np.asarray(lin.hinges[3:]) - 1
@@ -182,6 +184,18 @@ def choose_solver(
     """The solver for a run of `model` from `t0` to `t1` at `rtol` (see the module's text):
     ``(diffrax solver, SolverChoice)``. Dopri8 unless the linearized equations at `y0` (default
     ``model.initial``) are stiff, then :class:`jaxtree.Radau5`."""
+    return _choose(model, t1, t0, y0, rtol, law, params, checked=False)
+
+
+def choose_checked(
+    model: Model, t1, *, t0: float | jax.Array = 0.0, y0: State | None = None, rtol=None, law=None, params=None
+) -> tuple[dfx.AbstractSolver, SolverChoice]:
+    """:func:`choose_solver` for a caller that has checked the model and `y0` (:func:`jaxtree.simulate`):
+    its linearization does not validate them again."""
+    return _choose(model, t1, t0, y0, rtol, law, params, checked=True)
+
+
+def _choose(model: Model, t1, t0, y0, rtol, law, params, checked: bool):
     from ._integrate import default_tolerance
 
     y0 = model.initial if y0 is None else y0
@@ -203,7 +217,7 @@ def choose_solver(
             else f"the fastest hinge law ({screen:.3g} rad/s alone) is far from stiff over {span:g} s"
         )
         return dfx.Dopri8(), SolverChoice("Dopri8", True, why, screen, span * screen / R_STABILITY)
-    lam = _eigenvalues(model, y0, t0, law, params)
+    lam = _eigenvalues(model, y0, t0, law, params, checked)
     mag = np.abs(lam)
     fastest = float(mag.max()) if mag.size else 0.0
     steps = span * fastest / R_STABILITY

@@ -42,11 +42,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checks
+from ._checks import BUILTIN_ERRORS, SceneTypeError, as_float, hinge_set, is_traced, nominal_motion
 from ._hinges import selector
 from .dynamics import rotational_equations
 from .kinematics import full_precision, tilde
 from .model import Model, State
+from .scene import check_model
 
 
 class LinearSystem(eqx.Module):
@@ -140,37 +141,36 @@ def resolve_hinges(model: Model, small) -> tuple[int, ...]:
     ``KeyError`` with a clear message for an unknown name, an index outside 1..n, the
     reference body, a repeated hinge or a kinematically prescribed hinge.
     """
-    if isinstance(small, (str, int, np.integer)):
-        small = (small,)
-    items = list(small)
-    if not items:
-        raise ValueError("linearize: the set A of small hinges is empty")
-    n = model.n
-    out = []
-    for item in items:
-        if isinstance(item, str):
-            if item not in model.names:
-                raise KeyError(
-                    f"linearize: no body named {item!r}; hinges are named by their outboard body: {model.names[1:]}"
-                )
-            k = model.names.index(item)
-            if k == 0:
-                raise ValueError(f"linearize: {item!r} is the reference body b_0, which has no hinge")
-        elif isinstance(item, (bool, np.bool_)) or not isinstance(item, (int, np.integer)):
-            raise TypeError(f"linearize: hinges are given by index 1..{n} or by body name, got {item!r}")
-        else:
-            k = int(item)
-            if not 1 <= k <= n:
-                raise ValueError(f"linearize: hinge index {k} is not in 1..{n} (hinge k joins body k to its parent)")
-        if k in out:
-            raise ValueError(f"linearize: hinge {k} ({model.names[k]!r}) is listed twice in the set A")
-        if k in model.prescribed:
-            raise ValueError(
-                f"linearize: hinge {k} ({model.names[k]!r}) is kinematically prescribed; it cannot be a small "
-                "(linearized) variable. Leave it out of the set A: it is then held at its nominal angle."
-            )
-        out.append(k)
-    return tuple(sorted(out))
+    return hinge_set(model, small, "linearize", BUILTIN_ERRORS)
+
+
+def linearize_args(name: str, model, small=None, *, omega0=None, gamma=None, dcm=None, t=0.0) -> tuple[int, ...] | None:
+    """The arguments of :func:`linearize`, :func:`linearize_vehicle` (and the linearization of
+    :func:`jaxtree.hybrid_model`), checked before tracing with :class:`SceneError` naming the
+    function `name`: the model (validated when concrete), the set A and the nominal motion.
+    Returns the set A as :func:`resolve_hinges` does (None when `small` is None)."""
+    check_model(name, model)
+    hinges = None if small is None else hinge_set(model, small, name)
+    nominal_motion(name, model.n, omega0, gamma, dcm, t)
+    return hinges
+
+
+def _linearized_equations_args(model, small, state, omega0_dot, gamma_ddot, t) -> tuple[int, ...]:
+    """The arguments of :func:`linearized_equations`, checked before tracing; returns the set A."""
+    name = "linearized_equations"
+    check_model(name, model)
+    hinges = hinge_set(model, small, name)
+    if not isinstance(state, State):
+        raise SceneTypeError(f"{name}: state must be a jaxtree.State, got {type(state).__name__}")
+    shapes = {"dcm": (3, 3), "omega0": (3,), "gamma": (model.n,), "gamma_dot": (model.n,)}
+    for field, shape in shapes.items():
+        value = getattr(state, field)
+        if not is_traced(value):
+            as_float(value, f"{name}: state.{field}", shape)
+    for label, value, shape in (("omega0_dot", omega0_dot, (3,)), ("gamma_ddot", gamma_ddot, (model.n,)), ("t", t, ())):
+        if value is not None and not is_traced(value):
+            as_float(value, f"{name}: {label}", shape)
+    return hinges
 
 
 def _nominal(model, omega0, gamma, dcm):
@@ -231,8 +231,7 @@ def linearized_equations(
 
     **Returns:** :class:`PartialLinearization` (all n + 3 rows of Eq. 1).
     """
-    _checks.linearized_equations_args(model, small, state, omega0_dot, gamma_ddot, t)
-    hinges = resolve_hinges(model, small)
+    hinges = _linearized_equations_args(model, small, state, omega0_dot, gamma_ddot, t)
     dtype = model.mass.dtype
     n = model.n
     w0d = jnp.zeros(3, dtype) if omega0_dot is None else jnp.asarray(omega0_dot, dtype)
@@ -281,8 +280,9 @@ def linearize(model: Model, small, *, omega0=None, gamma=None, dcm=None, t=0.0) 
 
     **Returns:** :class:`LinearSystem` (unpacks as ``I, J, K``).
     """
-    _checks.linearize_args("linearize", model, small, omega0=omega0, gamma=gamma, dcm=dcm, t=t)
-    hinges = resolve_hinges(model, small)
+    hinges = linearize_args("linearize", model, small, omega0=omega0, gamma=gamma, dcm=dcm, t=t)
+    if hinges is None:  # small=None: a TypeError
+        hinges = resolve_hinges(model, small)
     w, g, C = _nominal(model, omega0, gamma, dcm)
     I, J, K, bias = _held(model, hinges, C, w, g, jnp.asarray(t, g.dtype))
     return LinearSystem(I, J, K, bias, tuple(model.names[k] for k in hinges), hinges)
@@ -329,13 +329,19 @@ def linearize_vehicle(model: Model, *, omega0=None, gamma=None, dcm=None, t=0.0,
     rigid rotations (about the spin axis when spinning; all three at rest) have zero
     stiffness, and :func:`jaxtree.modes` reports them as zero-frequency rigid-body modes.
     """
-    _checks.linearize_args("linearize_vehicle", model, small, omega0=omega0, gamma=gamma, dcm=dcm, t=t)
-    if small is None:
+    hinges = linearize_args("linearize_vehicle", model, small, omega0=omega0, gamma=gamma, dcm=dcm, t=t)
+    return vehicle_linearization(model, hinges, omega0=omega0, gamma=gamma, dcm=dcm, t=t)
+
+
+@full_precision
+def vehicle_linearization(model: Model, hinges=None, *, omega0=None, gamma=None, dcm=None, t=0.0) -> LinearSystem:
+    """:func:`linearize_vehicle` of arguments that the caller has checked (:func:`linearize_args`;
+    :func:`jaxtree.simulate` through :func:`jaxtree.choose_solver`): `hinges` the set A as
+    :func:`resolve_hinges` gives it, or None for every hinge that is not prescribed."""
+    if hinges is None:
         hinges = model.unknown_hinges
         if not hinges:
             raise ValueError("linearize_vehicle: the model has no hinge that is not prescribed")
-    else:
-        hinges = resolve_hinges(model, small)
     w, g, C = _nominal(model, omega0, gamma, dcm)
     I, J, K, bias = _vehicle(model, hinges, C, w, g, jnp.asarray(t, g.dtype))
     b0 = model.names[0]

@@ -619,8 +619,30 @@ def validate_model(model: Model) -> Model:
             "validate_model needs concrete arrays: call it on the model (or batch of models) "
             "before jax.jit / jax.vmap, not inside"
         )
-    n, names = model.n, model.names
-    tails = {
+    check = _LeafCheck(model, _batch_axes(model))
+    check.bodies()
+    if model.n == 0:
+        return model
+    check.hinges()
+    _validate_leaves_of(model)
+    return model
+
+
+def check_model(name: str, model) -> Model:
+    """The `model` argument of the public function `name`: a :class:`~jaxtree.Model`
+    (:class:`SceneTypeError` naming the function), validated (:func:`validate_model`) when concrete."""
+    if not isinstance(model, Model):
+        raise SceneTypeError(
+            f"{name}: model must be a jaxtree.Model (load_scene / build_model), got {type(model).__name__}"
+        )
+    if not is_traced(model):
+        validate_model(model)
+    return model
+
+
+# the array leaves of a Model that validate_model checks, and the shape each ends in
+def _leaf_tails(n: int) -> dict[str, tuple[int, ...]]:
+    return {
         "mass": (n + 1,),
         "inertia": (n + 1, 3, 3),
         "axis": (n, 3),
@@ -629,6 +651,12 @@ def validate_model(model: Model) -> Model:
         "stiffness": (n,),
         "damping": (n,),
     }
+
+
+def _batch_axes(model: Model) -> tuple[int, ...]:
+    """The leading batch axes of a model's array leaves (() for one model), once each leaf is
+    checked to be a floating-point array ending in its shape."""
+    tails = _leaf_tails(model.n)
     for k in tails:
         x = getattr(model, k)
         kind = x.dtype if isinstance(x, (np.ndarray, jax.Array)) else None
@@ -642,88 +670,103 @@ def validate_model(model: Model) -> Model:
         if shapes[k][len(shapes[k]) - len(tail) :] != tail:
             raise SceneError(f"model: field {k!r} must end in shape {tail}, got {shapes[k]}")
     try:
-        batch = np.broadcast_shapes(*(shapes[k][: len(shapes[k]) - len(t)] for k, t in tails.items()))
+        return np.broadcast_shapes(*(shapes[k][: len(shapes[k]) - len(t)] for k, t in tails.items()))
     except ValueError:
         raise SceneError(f"model: the batch axes of the leaves do not match: {shapes}") from None
-    leaf = lambda x, tail: np.broadcast_to(np.asarray(x, dtype=float), batch + tail)
-    mass = leaf(model.mass, (n + 1,))
-    J = leaf(model.inertia, (n + 1, 3, 3))
-    axis = leaf(model.axis, (n, 3))
 
-    def fail(bad, message, body_offset=0):
+
+class _LeafCheck:
+    """The checks of :func:`validate_model` on the leaves of a model, broadcast to its batch axes."""
+
+    def __init__(self, model: Model, batch: tuple[int, ...]):
+        self.model, self.batch = model, batch
+        # relative tolerance of the checks: 1e-9 as in build_model, or the rounding of a float32 model
+        self.rel = max(1e-9, 100 * float(np.finfo(np.asarray(model.mass).dtype).eps))
+
+    def leaf(self, field: str):
+        """The leaf `field` as float, broadcast to the batch axes."""
+        return np.broadcast_to(
+            np.asarray(getattr(self.model, field), dtype=float), self.batch + _leaf_tails(self.model.n)[field]
+        )
+
+    def fail(self, bad, message, body_offset=0):
         """Raise for the first True of `bad` (batch + (bodies,)) with message(run, body)."""
         hit = np.argwhere(bad)
         if len(hit):
             run, k = tuple(int(i) for i in hit[0][:-1]), int(hit[0][-1]) + body_offset
-            prefix = f"run {run}: " if batch else ""
-            raise SceneError(prefix + f"{_where(k, names[k])}: " + message(run, k))
+            prefix = f"run {run}: " if self.batch else ""
+            raise SceneError(prefix + f"{_where(k, self.model.names[k])}: " + message(run, k))
 
-    fail(~np.isfinite(mass), lambda r, k: f"field 'mass' must be finite, got {mass[r][k]}")
-    fail(mass < 0, lambda r, k: f"field 'mass' must be >= 0, got {mass[r][k]}")
-    fail(~np.isfinite(J).all((-1, -2)), lambda r, k: "field 'inertia' must be finite")
-    # relative tolerance of the checks: 1e-9 as in build_model, or the rounding of a float32 model
-    rel = max(1e-9, 100 * float(np.finfo(np.asarray(model.mass).dtype).eps))
-    scale = np.maximum(np.abs(J).max((-1, -2)), 1e-300)
-    tol = rel * scale
-    fail(
-        np.abs(J - np.swapaxes(J, -1, -2)).max((-1, -2)) > tol,
-        lambda r, k: f"field 'inertia' is not symmetric: {J[r][k].tolist()}",
-    )
-    massless = np.ones(n + 1, dtype=bool)
-    massless[list(model.massive)] = False
-    fail(
-        massless & ((mass != 0) | (np.abs(J).max((-1, -2)) > 0)),
-        lambda r, k: (
-            f"fields 'mass' / 'inertia' must stay zero: the model was built with this body massless "
-            f"(mass {mass[r][k]}); rebuild it with build_model to give the body mass"
-        ),
-    )
-    fail(
-        (mass == 0) & (np.abs(J).max((-1, -2)) > 0),
-        lambda r, k: f"a massless body must have zero 'inertia', got {J[r][k].tolist()}",
-    )
-    ev = np.linalg.eigvalsh(0.5 * (J + np.swapaxes(J, -1, -2)))
-    fail(
-        ev[..., 0] < -tol,
-        lambda r, k: f"field 'inertia' is not positive semidefinite (eigenvalues {ev[r][k].tolist()})",
-    )
-    fail(
-        ev[..., 0] + ev[..., 1] < ev[..., 2] - tol,
-        lambda r, k: (
-            f"field 'inertia' violates the triangle inequality of principal moments ({ev[r][k].tolist()}); "
-            "no mass distribution has it"
-        ),
-    )
-    total = mass.sum(-1)
-    if np.any(total <= 0):
-        run = tuple(int(i) for i in np.argwhere(total <= 0)[0])
-        raise SceneError((f"run {run}: " if batch else "") + "bodies: the total mass must be positive")
-    if n == 0:
-        return model
-    fail(~np.isfinite(axis).all(-1), lambda r, k: f"field 'axis' must be finite, got {axis[r][k - 1].tolist()}", 1)
-    fail(
-        np.abs(np.linalg.norm(axis, axis=-1) - 1) > rel,
-        lambda r, k: (
-            f"field 'axis' must be a unit vector (Eq. 4), got {axis[r][k - 1].tolist()} of norm "
-            f"{np.linalg.norm(axis[r][k - 1]):.12g}"
-        ),
-        1,
-    )
-    for field in ("hinge_on_parent", "hinge_on_body"):
-        v = leaf(getattr(model, field), (n, 3))
+    def bodies(self) -> None:
+        """Masses and inertias: finite, mass >= 0, inertia symmetric, positive semidefinite, with
+        principal moments that a mass distribution can have; zero for a body built massless."""
+        model, fail = self.model, self.fail
+        mass, J = self.leaf("mass"), self.leaf("inertia")
+        fail(~np.isfinite(mass), lambda r, k: f"field 'mass' must be finite, got {mass[r][k]}")
+        fail(mass < 0, lambda r, k: f"field 'mass' must be >= 0, got {mass[r][k]}")
+        fail(~np.isfinite(J).all((-1, -2)), lambda r, k: "field 'inertia' must be finite")
+        tol = self.rel * np.maximum(np.abs(J).max((-1, -2)), 1e-300)
         fail(
-            ~np.isfinite(v).all(-1),
-            lambda r, k, v=v, f=field: f"field {f!r} must be finite, got {v[r][k - 1].tolist()}",
+            np.abs(J - np.swapaxes(J, -1, -2)).max((-1, -2)) > tol,
+            lambda r, k: f"field 'inertia' is not symmetric: {J[r][k].tolist()}",
+        )
+        massless = np.ones(model.n + 1, dtype=bool)
+        massless[list(model.massive)] = False
+        fail(
+            massless & ((mass != 0) | (np.abs(J).max((-1, -2)) > 0)),
+            lambda r, k: (
+                f"fields 'mass' / 'inertia' must stay zero: the model was built with this body massless "
+                f"(mass {mass[r][k]}); rebuild it with build_model to give the body mass"
+            ),
+        )
+        fail(
+            (mass == 0) & (np.abs(J).max((-1, -2)) > 0),
+            lambda r, k: f"a massless body must have zero 'inertia', got {J[r][k].tolist()}",
+        )
+        ev = np.linalg.eigvalsh(0.5 * (J + np.swapaxes(J, -1, -2)))
+        fail(
+            ev[..., 0] < -tol,
+            lambda r, k: f"field 'inertia' is not positive semidefinite (eigenvalues {ev[r][k].tolist()})",
+        )
+        fail(
+            ev[..., 0] + ev[..., 1] < ev[..., 2] - tol,
+            lambda r, k: (
+                f"field 'inertia' violates the triangle inequality of principal moments ({ev[r][k].tolist()}); "
+                "no mass distribution has it"
+            ),
+        )
+        total = mass.sum(-1)
+        if np.any(total <= 0):
+            run = tuple(int(i) for i in np.argwhere(total <= 0)[0])
+            raise SceneError((f"run {run}: " if self.batch else "") + "bodies: the total mass must be positive")
+
+    def hinges(self) -> None:
+        """Hinge axes finite unit vectors, hinge points finite, springs and dampers finite and
+        (where sprung) >= 0."""
+        model, fail, rel = self.model, self.fail, self.rel
+        axis = self.leaf("axis")
+        fail(~np.isfinite(axis).all(-1), lambda r, k: f"field 'axis' must be finite, got {axis[r][k - 1].tolist()}", 1)
+        fail(
+            np.abs(np.linalg.norm(axis, axis=-1) - 1) > rel,
+            lambda r, k: (
+                f"field 'axis' must be a unit vector (Eq. 4), got {axis[r][k - 1].tolist()} of norm "
+                f"{np.linalg.norm(axis[r][k - 1]):.12g}"
+            ),
             1,
         )
-    sprung = np.zeros(n, dtype=bool)
-    sprung[np.asarray(model.sprung, dtype=np.int64) - 1] = True
-    for field in ("stiffness", "damping"):
-        v = leaf(getattr(model, field), (n,))
-        fail(~np.isfinite(v), lambda r, k, v=v, f=field: f"field 'joint.{f}' must be finite, got {v[r][k - 1]}", 1)
-        fail(sprung & (v < 0), lambda r, k, v=v, f=field: f"field 'joint.{f}' must be >= 0, got {v[r][k - 1]}", 1)
-    _validate_leaves_of(model)
-    return model
+        for field in ("hinge_on_parent", "hinge_on_body"):
+            v = self.leaf(field)
+            fail(
+                ~np.isfinite(v).all(-1),
+                lambda r, k, v=v, f=field: f"field {f!r} must be finite, got {v[r][k - 1].tolist()}",
+                1,
+            )
+        sprung = np.zeros(model.n, dtype=bool)
+        sprung[np.asarray(model.sprung, dtype=np.int64) - 1] = True
+        for field in ("stiffness", "damping"):
+            v = self.leaf(field)
+            fail(~np.isfinite(v), lambda r, k, v=v, f=field: f"field 'joint.{f}' must be finite, got {v[r][k - 1]}", 1)
+            fail(sprung & (v < 0), lambda r, k, v=v, f=field: f"field 'joint.{f}' must be >= 0, got {v[r][k - 1]}", 1)
 
 
 def _validate_leaves_of(model: Model) -> None:

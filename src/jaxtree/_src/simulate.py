@@ -32,7 +32,6 @@ from jax.flatten_util import ravel_pytree
 
 from . import _hinges
 from ._checks import SceneError, SceneTypeError, as_float, short
-from ._checks import _model as check_model
 from ._integrate import (
     DEFAULT_MAX_STEPS,
     DEFAULT_SAVE_POINTS,
@@ -55,7 +54,7 @@ from ._integrate import (
     warn_below_roundoff,
 )
 from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
-from .autosolver import choose_solver, given
+from .autosolver import choose_checked, given
 from .control import AbstractController, with_model_laws
 from .dynamics import (
     SINGULAR_CONDITION,
@@ -72,6 +71,7 @@ from .dynamics import (
 from .kinematics import full_precision
 from .model import Model, State
 from .radau import Radau5
+from .scene import check_model
 
 
 def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw):
@@ -911,7 +911,7 @@ def simulate(
         X0, Xd0 = model.orbit.position(jnp.asarray(t0, dtype)), model.orbit.velocity(jnp.asarray(t0, dtype))
     problem = _problem(model, att, law, controller, params, bool(translation))
     if solver is None or isinstance(solver, str):
-        solver, choice = choose_solver(model, t1, t0=t0, y0=y0, rtol=rtol, law=law, params=params)
+        solver, choice = choose_checked(model, t1, t0=t0, y0=y0, rtol=rtol, law=law, params=params)
     else:
         choice = given(solver)
     if adjoint is None:
