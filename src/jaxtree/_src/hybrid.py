@@ -137,7 +137,7 @@ from .dynamics import _unbalanced, configuration, mass_matrix, rotational_equati
 from .kinematics import ancestor_sum, body_rotations, cross, full_precision, mm, mv
 from .linearize import linearize, resolve_hinges
 from .model import Model, State
-from .modes import ModalError
+from .modes import ModalError, _check_modal_damping
 from .modes import modes as _modes
 from .topology import Topology
 
@@ -1071,13 +1071,7 @@ def _zeta(damping, k, kind):
         )
     zeta = np.zeros(k) if damping is None else np.broadcast_to(np.asarray(damping, float), (k,)).copy()
     if damping is not None:
-        if np.any(zeta < 0) or not np.all(np.isfinite(zeta)):
-            raise ValueError(f"hybrid_model: modal damping ratios must be finite and >= 0, got {zeta.tolist()}")
-        if kind == "general":
-            raise ModalError(
-                "hybrid_model: modal damping (Sec. III E) applies to undamped real or gyroscopic "
-                "modes; the modes of this set A already have a general J"
-            )
+        _check_modal_damping(zeta, kind, "hybrid_model", "Sec. III E", "the modes of this set A already have")
     return zeta
 
 

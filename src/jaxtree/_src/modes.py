@@ -40,8 +40,8 @@ matrix ``Gamma' = B Gamma`` of the damped system.
 from __future__ import annotations
 
 import functools
+from collections import namedtuple
 from collections.abc import Sequence
-from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -420,28 +420,23 @@ def _modal_damping(damping, nu: int, dtype, kind: str, traced: bool) -> jax.Arra
         return jnp.asarray(np.zeros(nu, dtype))
     zeta = jnp.broadcast_to(jnp.asarray(damping, dtype), (nu,))
     if not traced and damping is not None:
-        zn = np.asarray(zeta)
-        if np.any(zn < 0) or not np.all(np.isfinite(zn)):
-            raise ValueError(f"modes: modal damping ratios must be finite and >= 0, got {zn.tolist()}")
-        if kind == "general":
-            raise ModalError(
-                "modes: modal damping (Eq. 104 / Sec. III E) applies to undamped real or gyroscopic "
-                "modes; this system already has a general J"
-            )
+        _check_modal_damping(np.asarray(zeta), kind, "modes", "Eq. 104 / Sec. III E", "this system already has")
     return zeta
 
 
-class _Solved(NamedTuple):
-    """What each case computes, in the fields of :class:`Modes` (before the dtype casts)."""
+def _check_modal_damping(zeta: np.ndarray, kind: str, who: str, where: str, system: str) -> None:
+    """Modal damping ratios (`where` in the report) are finite and >= 0, and apply to undamped real
+    or gyroscopic modes only: not to those of a `system` with a general J (errors from `who`)."""
+    if np.any(zeta < 0) or not np.all(np.isfinite(zeta)):
+        raise ValueError(f"{who}: modal damping ratios must be finite and >= 0, got {zeta.tolist()}")
+    if kind == "general":
+        raise ModalError(
+            f"{who}: modal damping ({where}) applies to undamped real or gyroscopic modes; {system} a general J"
+        )
 
-    eigenvalues: jax.Array
-    frequencies: jax.Array
-    damping_ratios: jax.Array
-    shapes: jax.Array
-    right: jax.Array
-    left: jax.Array
-    B: jax.Array
-    rigid: jax.Array
+
+# What each case computes: the fields of :class:`Modes` that it fills (before the dtype casts).
+_Solved = namedtuple("_Solved", "eigenvalues frequencies damping_ratios shapes right left B rigid")
 
 
 def _real_modes(I, K, zeta, traced: bool, cdtype) -> _Solved:
