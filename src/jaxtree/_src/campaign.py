@@ -568,11 +568,62 @@ def monte_carlo(
     (``sum(steps) / (size * max(steps))``: the share of the vmapped work that was not spent
     waiting for a chunk's slowest member).
     """
-    import xarray as xr
+    start = _time.perf_counter()
+    s = _settings(model, sample, n, t1, saveat, rtol, atol, chunk_size, order, dt, max_steps, attitude)
+    models = _draw(model, sample, s.n, key)
+    t_pilot = s.t1 * float(pilot_fraction) if order == "pilot" else None
+    cfg = _Config(len(s.ts), s.max_steps, attitude, s.dt, t_pilot)
+    store = None
+    if out is not None:
+        store = _Store(out, _fingerprint(models, s.ts, s.t1, s.rtol, s.atol, cfg, s.chunk_size), s.n_chunks)
+    runs = _Chunks(model, models, s, cfg, client=client, devices=devices, store=store, progress=progress)
+    finished = set() if store is None else store.done()
+    pilot_s = runs.pilot(finished) if order == "pilot" else 0.0
+    runs.run([k for k in range(s.n_chunks) if k not in finished])
+    ds = runs.dataset()
+    ds.attrs.update(
+        {
+            "model": model.name,
+            "t1": s.t1,
+            "rtol": s.rtol,
+            "atol": s.atol,
+            "n": s.n,
+            "chunk_size": s.chunk_size,
+            "chunks": s.n_chunks,
+            "chunks_run": len(runs.stats),
+            "order": order or "index",
+            "fixed_step": s.dt if s.dt is not None else "none",
+            "dtype": jnp.dtype(s.dtype).name,
+            "where": "dask" if client is not None else f"in-process ({jax.default_backend()})",
+            "chunk_efficiency": [runs.stats[k]["efficiency"] for k in sorted(runs.stats)],
+            "chunk_wall_s": [runs.stats[k]["wall_s"] for k in sorted(runs.stats)],
+            "pilot_s": pilot_s,
+            "wall_s": _time.perf_counter() - start,
+        }
+    )
+    ds.attrs.pop("jaxtree_campaign", None)
+    return ds
 
+
+class _Settings(NamedTuple):
+    """A campaign's checked settings (:func:`_settings`)."""
+
+    n: int
+    t1: float
+    ts: np.ndarray
+    rtol: float
+    atol: float
+    dt: float | None
+    max_steps: int
+    chunk_size: int
+    n_chunks: int
+    dtype: Any
+
+
+def _settings(model, sample, n, t1, saveat, rtol, atol, chunk_size, order, dt, max_steps, attitude) -> _Settings:
+    """monte_carlo's arguments checked, with their defaults filled in."""
     from ._integrate import DEFAULT_MAX_STEPS, default_tolerance
 
-    start = _time.perf_counter()
     n = int(n)
     if n < 1:
         raise ValueError(f"monte_carlo: n must be at least 1, got {n}")
@@ -605,7 +656,12 @@ def monte_carlo(
         raise ValueError(f"monte_carlo: chunk_size must be at least 1, got {chunk_size}")
     if isinstance(attitude, str) is False:
         raise TypeError("monte_carlo: attitude must be a name ('quaternion', 'dcm', 'euler123')")
+    return _Settings(n, t1, ts, rtol, atol, dt, max_steps, chunk_size, -(-n // chunk_size), dtype)
 
+
+def _draw(model: Model, sample, n: int, key):
+    """The `n` dispersed vehicles: ``sample`` vmapped over the members' keys, every array leaf
+    as a numpy array with a leading run axis (a leaf the sample did not touch repeated)."""
     keys = jax.random.split(key, n)
     models = eqx.filter_vmap(sample, in_axes=(0, None))(keys, model)
     if jax.tree_util.tree_structure(jax.tree_util.tree_map(lambda x: None, models)) != jax.tree_util.tree_structure(
@@ -616,121 +672,109 @@ def monte_carlo(
             "joints, prescription and loads); only array values may change"
         )
     models = jax.tree_util.tree_map(lambda x: np.asarray(x) if eqx.is_array(x) else x, models)
-    models = jax.tree_util.tree_map(
+    return jax.tree_util.tree_map(
         lambda x: np.broadcast_to(x, (n,) + x.shape).copy() if eqx.is_array(x) and x.shape[:1] != (n,) else x, models
     )
-    params = _dispersed(models, n)
 
-    t_pilot = t1 * float(pilot_fraction) if order == "pilot" else None
-    cfg = _Config(len(ts), max_steps, attitude, dt, t_pilot)
-    n_chunks = -(-n // chunk_size)
-    store = None if out is None else _Store(out, _fingerprint(models, ts, t1, rtol, atol, cfg, chunk_size), n_chunks)
-    finished = set() if store is None else store.done()
 
-    def submit(chunk_models, pilot=False):
-        args = (chunk_models, ts, t1, rtol, atol, cfg, pilot, devices)
-        if client is None:
+class _Chunks:
+    """A campaign's chunks: the members each one holds (in the order of the members, by index or
+    by the pilot's steps), where they run, and what they gave (datasets, efficiencies, the store)."""
+
+    def __init__(self, model: Model, models, s: _Settings, cfg: _Config, *, client, devices, store, progress):
+        self.model, self.models, self.s, self.cfg = model, models, s, cfg
+        self.client, self.devices, self.store, self.progress = client, devices, store, progress
+        self.n_chunks = s.n_chunks
+        self.params = _dispersed(models, s.n)
+        self.order = np.arange(s.n)
+        self.template = None
+        self.results: dict[int, Any] = {}
+        self.stats: dict[int, dict] = {}
+
+    def members(self, k):
+        """Chunk k's members, and the same padded to the chunk size (with its first member)."""
+        size = self.s.chunk_size
+        idx = self.order[k * size : (k + 1) * size]
+        return idx, np.concatenate([idx, np.full(size - len(idx), idx[0])])
+
+    def submit(self, k, pilot=False):
+        """Run chunk k (the pilot's part of the flight with `pilot`): its outputs, or a Dask future."""
+        s = self.s
+        args = (_take(self.models, self.members(k)[1]), s.ts, s.t1, s.rtol, s.atol, self.cfg, pilot, self.devices)
+        if self.client is None:
             return run_chunk(*args)
-        return client.submit(run_chunk, *args, pure=False)
+        return self.client.submit(run_chunk, *args, pure=False)
 
-    def chunk_members(k, order_):
-        idx = order_[k * chunk_size : (k + 1) * chunk_size]
-        padded = np.concatenate([idx, np.full(chunk_size - len(idx), idx[0])])
-        return idx, padded
-
-    # the order of the members (pilot: by the steps of the first part of the flight)
-    order_ = np.arange(n)
-    pilot_s = 0.0
-    if order == "pilot" and len(finished) < n_chunks:
+    def pilot(self, finished) -> float:
+        """order="pilot": the members ordered by the steps of the first part of the flight (unless
+        every chunk is done already); the pilot's wall time."""
+        if len(finished) >= self.n_chunks:
+            return 0.0
         t = _time.perf_counter()
-        jobs = [submit(_take(models, chunk_members(k, order_)[1]), pilot=True) for k in range(n_chunks)]
-        if client is not None:
-            jobs = client.gather(jobs)
-        steps = np.concatenate([np.asarray(j["steps"])[: len(chunk_members(k, order_)[0])] for k, j in enumerate(jobs)])
-        order_ = np.argsort(steps, kind="stable")
-        pilot_s = _time.perf_counter() - t
+        jobs = [self.submit(k, pilot=True) for k in range(self.n_chunks)]
+        if self.client is not None:
+            jobs = self.client.gather(jobs)
+        steps = np.concatenate([np.asarray(j["steps"])[: len(self.members(k)[0])] for k, j in enumerate(jobs)])
+        self.order = np.argsort(steps, kind="stable")
+        return _time.perf_counter() - t
 
-    template = None
-    results: dict[int, Any] = {}
-    stats: dict[int, dict] = {}
-
-    def finish(k, res, wall):
-        idx, _ = chunk_members(k, order_)
-        res = jax.tree_util.tree_map(lambda v: np.array(v)[: len(idx)], res)
-        _diagnose_failures(res, _take(models, idx), model)
-        ds = _chunk_dataset(
-            res,
-            np.arange(k * chunk_size, k * chunk_size + len(idx)),
-            {name: x[idx] for name, x in params.items()},
-            ts,
-            model,
-        )
-        ds = ds.assign(member=(("run",), idx.astype(np.int64)))
-        steps = res["steps"].astype(float)
-        stats[k] = dict(efficiency=float(steps.sum() / (chunk_size * max(steps.max(), 1))), wall_s=wall)
-        if store is not None:
-            nonlocal template
-            if template is None:
-                template = _template(ds, n)
-            store.write(k, ds, template)
-        results[k] = ds
-        if progress:
-            print(
-                f"monte_carlo: chunk {k + 1}/{n_chunks} done ({wall:.2f} s, efficiency {stats[k]['efficiency']:.2f})",
-                flush=True,
-            )
-
-    todo = [k for k in range(n_chunks) if k not in finished]
-    if client is None:
-        for k in todo:
-            t = _time.perf_counter()
-            res = submit(_take(models, chunk_members(k, order_)[1]))
-            finish(k, res, _time.perf_counter() - t)
-    else:
+    def run(self, todo) -> None:
+        """Run the chunks `todo`, each finished as it completes."""
+        if self.client is None:
+            for k in todo:
+                t = _time.perf_counter()
+                res = self.submit(k)
+                self.finish(k, res, _time.perf_counter() - t)
+            return
         from distributed import as_completed
 
         t = _time.perf_counter()
-        futures = {submit(_take(models, chunk_members(k, order_)[1])): k for k in todo}
+        futures = {self.submit(k): k for k in todo}
         for future in as_completed(list(futures)):
-            finish(futures[future], future.result(), _time.perf_counter() - t)
+            self.finish(futures[future], future.result(), _time.perf_counter() - t)
 
-    if store is not None:
-        ds = store.read()
-    else:
-        ds = xr.concat(
-            [results[k] for k in sorted(results)],
-            dim="run",
-            data_vars="minimal",
-            coords="minimal",
-            compat="override",
-            join="override",
+    def finish(self, k, res, wall) -> None:
+        """Chunk k's outputs as a dataset (its failures diagnosed), kept and written to the store."""
+        s = self.s
+        idx, _ = self.members(k)
+        res = jax.tree_util.tree_map(lambda v: np.array(v)[: len(idx)], res)
+        _diagnose_failures(res, _take(self.models, idx), self.model)
+        ds = _chunk_dataset(
+            res,
+            np.arange(k * s.chunk_size, k * s.chunk_size + len(idx)),
+            {name: x[idx] for name, x in self.params.items()},
+            s.ts,
+            self.model,
         )
-    ds = ds.assign_coords(run=np.asarray(ds["member"].values, np.int64)).drop_vars("member").sortby("run")
-    ds = ds.drop_vars([v for v in list(ds.data_vars) if v == "chunk_done"])
-    done_stats = [stats[k] for k in sorted(stats)]
-    eff = [s["efficiency"] for s in done_stats]
-    ds.attrs.update(
-        {
-            "model": model.name,
-            "t1": t1,
-            "rtol": rtol,
-            "atol": atol,
-            "n": n,
-            "chunk_size": chunk_size,
-            "chunks": n_chunks,
-            "chunks_run": len(done_stats),
-            "order": order or "index",
-            "fixed_step": dt if dt is not None else "none",
-            "dtype": jnp.dtype(dtype).name,
-            "where": "dask" if client is not None else f"in-process ({jax.default_backend()})",
-            "chunk_efficiency": eff,
-            "chunk_wall_s": [s["wall_s"] for s in done_stats],
-            "pilot_s": pilot_s,
-            "wall_s": _time.perf_counter() - start,
-        }
-    )
-    ds.attrs.pop("jaxtree_campaign", None)
-    return ds
+        ds = ds.assign(member=(("run",), idx.astype(np.int64)))
+        steps = res["steps"].astype(float)
+        self.stats[k] = dict(efficiency=float(steps.sum() / (s.chunk_size * max(steps.max(), 1))), wall_s=wall)
+        if self.store is not None:
+            if self.template is None:
+                self.template = _template(ds, s.n)
+            self.store.write(k, ds, self.template)
+        self.results[k] = ds
+        if self.progress:
+            eff = self.stats[k]["efficiency"]
+            print(f"monte_carlo: chunk {k + 1}/{self.n_chunks} done ({wall:.2f} s, efficiency {eff:.2f})", flush=True)
+
+    def dataset(self):
+        """The campaign's dataset, runs by member index: the store's, or the chunks' concatenated."""
+        import xarray as xr
+
+        if self.store is not None:
+            ds = self.store.read()
+        else:
+            ds = xr.concat(
+                [self.results[k] for k in sorted(self.results)],
+                dim="run",
+                data_vars="minimal",
+                coords="minimal",
+                compat="override",
+                join="override",
+            )
+        ds = ds.assign_coords(run=np.asarray(ds["member"].values, np.int64)).drop_vars("member").sortby("run")
+        return ds.drop_vars([v for v in list(ds.data_vars) if v == "chunk_done"])
 
 
 def _template(ds, n):
