@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import io
 import math
 import os
@@ -35,9 +36,26 @@ import signal
 import sys
 import time
 
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxtree
+
+from . import output, plots
+from .autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
+from .bench import CASES as BENCH_CASES
+from .bench import SOLVERS as BENCH_SOLVERS
+from .bench import BenchReport, bench_case, work_precision
 from .chunked import ChunkedRunError, chunked_config, parse_hinges, simulate_to_file
 from .chunked import solver_named as solver_named
-from .results import command_line
+from .diagnostics import check_scene
+from .linearize import linearize, structure
+from .modes import ModalError, modes
+from .results import _model_of as model_of_result
+from .results import _to_solution, command_line, load_result, modes_dataset, save_result, versions, write_netcdf
+from .scene import SceneError, list_scenes, load_scene
+from .simulate import simulate
 
 SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "bench", "sample")
 EXIT_USAGE, EXIT_FAILED, EXIT_INTERRUPTED = 2, 1, 130
@@ -93,30 +111,32 @@ def _say(*args):
 
 
 # ----------------------------------------------------------------------------- argument types
-def _positive():
+def _number(convert, ok, need):
+    """An argparse type: the number `convert` reads from the text, where `ok` holds of it."""
+    kind = "an integer" if convert is int else "a number"
+
     def parse(text):
         try:
-            x = float(text)
+            x = convert(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
-        if not math.isfinite(x) or x <= 0:
-            raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+            raise argparse.ArgumentTypeError(f"must be {kind}, got {text!r}") from None
+        if not ok(x):
+            raise argparse.ArgumentTypeError(f"must be {need}, got {x if convert is int else repr(text)}")
         return x
 
     return parse
+
+
+def _positive():
+    return _number(float, lambda x: math.isfinite(x) and x > 0, "a positive number")
 
 
 def _finite():
-    def parse(text):
-        try:
-            x = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
-        if not math.isfinite(x):
-            raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
-        return x
+    return _number(float, math.isfinite, "finite")
 
-    return parse
+
+def _count(least=1):
+    return _number(int, lambda x: x >= least, f"at least {least}")
 
 
 def _modes_arg(text):
@@ -124,19 +144,6 @@ def _modes_arg(text):
     if text.strip().lower() == "auto":
         return "auto"
     return _count()(text)
-
-
-def _count(least=1):
-    def parse(text):
-        try:
-            x = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
-        if x < least:
-            raise argparse.ArgumentTypeError(f"must be at least {least}, got {x}")
-        return x
-
-    return parse
 
 
 def _vector3():
@@ -166,14 +173,10 @@ def _hinges(model, text, option):
 
 
 def _load_scene(path):
-    from .scene import SceneError, load_scene
-
     p = pathlib.Path(path)
     try:
         return load_scene(path)
     except FileNotFoundError:
-        from .scene import list_scenes
-
         if p.suffix == "" and p.parent == pathlib.Path("."):
             raise UserError(
                 f"scene {path!r}: no such file, and no bundled scene of that name (bundled: {', '.join(list_scenes())})"
@@ -191,8 +194,6 @@ def _load_scene(path):
 
 
 def _load_result(path):
-    from .results import load_result
-
     try:
         return load_result(path, as_dataset=True)
     except FileNotFoundError:
@@ -206,17 +207,15 @@ def _load_result(path):
 
 
 def _model_of(ds, path):
-    from .results import _model_of
-
     try:
-        return _model_of(ds)
+        return model_of_result(ds)
     except (ValueError, KeyError) as e:
         raise UserError(f"{path}: {e}") from None
 
 
 def _matplotlib():
     try:
-        import matplotlib
+        import matplotlib  # optional (jaxtree[plot]) and slow to import: only where a plot is drawn
 
         matplotlib.use("Agg")
         return True
@@ -234,26 +233,67 @@ def _parser():
     )
     p.add_argument("--version", action="store_true", help="print the versions and exit")
     sub = p.add_subparsers(dest="command", metavar="SUBCOMMAND", parser_class=_Parser)
+    for add in (_simulate_parser, _modes_parser, _animate_parser, _check_parser, _plot_parser, _bench_parser):
+        add(sub)
+    sub.add_parser("sample", help="the seed's sample problem (the default without a subcommand)", add_help=False)
+    return p
 
-    s = sub.add_parser(
-        "simulate",
-        help="integrate a scene and write a NetCDF result",
-        description="Integrate Eq. (1) (or the hybrid-coordinate equations with --hybrid-small) "
+
+# the subcommands: one-line help (in `jaxtree --help`) and description (in their own help)
+_COMMANDS = {
+    "simulate": (
+        "integrate a scene and write a NetCDF result",
+        "Integrate Eq. (1) (or the hybrid-coordinate equations with --hybrid-small) "
         "and write the time histories to a NetCDF result file, in parts as the run "
         "goes (an interrupted run is readable and --resume continues it).",
-    )
+    ),
+    "modes": (
+        "modes of the linearized small hinges: table, result file, shape plot",
+        "Linearize the small hinges about a nominal motion (Eqs. 40-44) and print their "
+        "modes (Eqs. 70-104): frequencies, damping, the coordinates that dominate each; "
+        "write a modes result file and a plot of the mode shapes.",
+    ),
+    "animate": (
+        "an HTML page animating a result",
+        "Write an HTML page animating a simulation result, or one mode of a modes result.",
+    ),
+    "check": (
+        "validate a scene and describe it",
+        "Validate a scene; print its tree, the seed's Tables 1-2 (network and path "
+        "elements), masses and the condition number of Eq. (1) at the initial state.",
+    ),
+    "plot": (
+        "plots of a result file",
+        "Plot a result: time histories and drift (simulation) or mode shapes (modes).",
+    ),
+    "bench": (
+        "error against run time: solvers, formulations and peers",
+        "Work-precision report: for each case, formulation (full Eq. 1, Eq. 30, hybrid) and solver, "
+        "the error against a tight reference by a different solver and the run time, with the installed peers "
+        "(Pinocchio + scipy, MuJoCo, Basilisk) in the same run. Writes OUT/work_precision.csv, .md and one "
+        "PNG per case. Cases: " + ", ".join(BENCH_CASES) + " (default: all; --quick: wings).",
+    ),
+}
+
+
+def _subparser(sub, name):
+    short, description = _COMMANDS[name]
+    return sub.add_parser(name, help=short, description=description)
+
+
+def _simulate_parser(sub):
+    s = _subparser(sub, "simulate")
     s.add_argument("scene", metavar="SCENE", help="scene JSON file (jaxtree-scene/1) or a bundled scene name")
     s.add_argument("--t1", type=_finite(), required=True, help="end time (s)")
     s.add_argument("--t0", type=_finite(), default=0.0, help="start time (s; default 0)")
     s.add_argument(
         "--points",
         type=_count(2),
-        default=None,
         help="number of evenly spaced save times (default: 20 per period of the fastest sprung hinge that "
         "still rings, at least 101)",
     )
-    s.add_argument("--rtol", type=_positive(), default=None, help="relative tolerance (default 1e-9)")
-    s.add_argument("--atol", type=_positive(), default=None, help="absolute tolerance (default 1e-9)")
+    s.add_argument("--rtol", type=_positive(), help="relative tolerance (default 1e-9)")
+    s.add_argument("--atol", type=_positive(), help="absolute tolerance (default 1e-9)")
     s.add_argument(
         "--solver",
         default="auto",
@@ -270,61 +310,13 @@ def _parser():
         help="attitude variables of b0 (default quaternion)",
     )
     s.add_argument("--max-steps", type=_count(), default=200_000, help="step limit of each part (default 200000)")
+    _hybrid_options(s)
     s.add_argument(
-        "--hybrid-small",
-        metavar="HINGES",
-        default=None,
-        help="hybrid coordinates (Eqs. 105-123): the small hinges (indices, names, ranges a-b, or 'all') "
-        "replaced by truncated modal coordinates",
+        "--out", "-o", metavar="RESULT", help="result file (NetCDF; default SCENENAME.nc in the current folder)"
     )
-    s.add_argument(
-        "--modes",
-        type=_modes_arg,
-        default=None,
-        metavar="K",
-        help="with --hybrid-small: modes retained per substructure (each connected group of small "
-        "hinges, e.g. one wing; the lowest first, a repeated frequency kept whole), or 'auto': per "
-        "substructure the fewest whose neglected share of the quasi-static response to the base's "
-        "motion is at most --modes-tol (default all)",
-    )
-    s.add_argument(
-        "--modes-tol",
-        type=_positive(),
-        default=None,
-        metavar="TOL",
-        help="with --modes auto: the neglected share allowed (default 0.01)",
-    )
-    s.add_argument(
-        "--cutoff",
-        type=_positive(),
-        default=None,
-        help="with --hybrid-small: retain modes up to this frequency (rad/s)",
-    )
-    s.add_argument(
-        "--spin",
-        type=_vector3(),
-        default=None,
-        help="with --hybrid-small: nominal omega0 of the modes, wx,wy,wz in {b0} (rad/s; default the "
-        "scene's initial omega0)",
-    )
-    s.add_argument(
-        "--modal-damping",
-        type=_finite(),
-        default=None,
-        metavar="ZETA",
-        help="with --hybrid-small: modal damping ratio of the retained modes",
-    )
-    s.add_argument(
-        "--out",
-        "-o",
-        default=None,
-        metavar="RESULT",
-        help="result file (NetCDF; default SCENENAME.nc in the current folder)",
-    )
-    s.add_argument("--csv", default=None, metavar="FILE", help="also export the histories as CSV")
+    s.add_argument("--csv", metavar="FILE", help="also export the histories as CSV")
     s.add_argument(
         "--plot",
-        default=None,
         metavar="PREFIX",
         help="plots PREFIX_histories.png and PREFIX_drift.png (default: the result's name without .nc)",
     )
@@ -340,13 +332,48 @@ def _parser():
     )
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    m = sub.add_parser(
-        "modes",
-        help="modes of the linearized small hinges: table, result file, shape plot",
-        description="Linearize the small hinges about a nominal motion (Eqs. 40-44) and print their "
-        "modes (Eqs. 70-104): frequencies, damping, the coordinates that dominate each; "
-        "write a modes result file and a plot of the mode shapes.",
+
+def _hybrid_options(s):
+    """The options of `simulate` --hybrid-small."""
+    s.add_argument(
+        "--hybrid-small",
+        metavar="HINGES",
+        help="hybrid coordinates (Eqs. 105-123): the small hinges (indices, names, ranges a-b, or 'all') "
+        "replaced by truncated modal coordinates",
     )
+    s.add_argument(
+        "--modes",
+        type=_modes_arg,
+        metavar="K",
+        help="with --hybrid-small: modes retained per substructure (each connected group of small "
+        "hinges, e.g. one wing; the lowest first, a repeated frequency kept whole), or 'auto': per "
+        "substructure the fewest whose neglected share of the quasi-static response to the base's "
+        "motion is at most --modes-tol (default all)",
+    )
+    s.add_argument(
+        "--modes-tol",
+        type=_positive(),
+        metavar="TOL",
+        help="with --modes auto: the neglected share allowed (default 0.01)",
+    )
+    s.add_argument("--cutoff", type=_positive(), help="with --hybrid-small: retain modes up to this frequency (rad/s)")
+    _nominal_options(
+        s,
+        "--modal-damping",
+        spin="with --hybrid-small: nominal omega0 of the modes, wx,wy,wz in {b0} (rad/s; default the "
+        "scene's initial omega0)",
+        damping="with --hybrid-small: modal damping ratio of the retained modes",
+    )
+
+
+def _nominal_options(p, damping_flag, *, spin, damping):
+    """--spin and a damping ratio: the nominal motion of modes (`modes`, `simulate --hybrid-small`)."""
+    p.add_argument("--spin", type=_vector3(), help=spin)
+    p.add_argument(damping_flag, type=_finite(), metavar="ZETA", help=damping)
+
+
+def _modes_parser(sub):
+    m = _subparser(sub, "modes")
     m.add_argument("scene", metavar="SCENE", help="scene JSON file or a bundled scene name")
     m.add_argument(
         "--small",
@@ -355,91 +382,60 @@ def _parser():
         help="the small hinges: indices, names, ranges a-b, or 'all' (default: every hinge that is not "
         "prescribed or inert)",
     )
-    m.add_argument(
-        "--spin",
-        type=_vector3(),
-        default=None,
-        help="nominal omega0, one number (about b0's axis 3) or wx,wy,wz in {b0} (rad/s; default 0)",
-    )
-    m.add_argument(
+    _nominal_options(
+        m,
         "--damping",
-        type=_finite(),
-        default=None,
-        metavar="ZETA",
-        help="modal damping ratio added to every mode (Eq. 104)",
+        spin="nominal omega0, one number (about b0's axis 3) or wx,wy,wz in {b0} (rad/s; default 0)",
+        damping="modal damping ratio added to every mode (Eq. 104)",
     )
-    m.add_argument("--out", "-o", default=None, metavar="RESULT", help="modes result file (default SCENENAME_modes.nc)")
-    m.add_argument("--plot", default=None, metavar="PNG", help="mode-shape plot (default: the result's name, .png)")
+    m.add_argument("--out", "-o", metavar="RESULT", help="modes result file (default SCENENAME_modes.nc)")
+    m.add_argument("--plot", metavar="PNG", help="mode-shape plot (default: the result's name, .png)")
     m.add_argument("--no-plot", action="store_true", help="write no plot")
     m.add_argument("--show", type=_count(), default=6, metavar="K", help="modes drawn in the plot (default 6)")
 
-    a = sub.add_parser(
-        "animate",
-        help="an HTML page animating a result",
-        description="Write an HTML page animating a simulation result, or one mode of a modes result.",
-    )
+
+def _animate_parser(sub):
+    a = _subparser(sub, "animate")
     a.add_argument("result", metavar="RESULT", help="result file of 'jaxtree simulate' or 'jaxtree modes'")
     a.add_argument("-o", "--out", required=True, metavar="PAGE", help="HTML file to write")
     a.add_argument(
-        "--mode",
-        type=_count(),
-        default=None,
-        metavar="K",
-        help="with a modes result: the mode to animate (1 = lowest; default 1)",
+        "--mode", type=_count(), metavar="K", help="with a modes result: the mode to animate (1 = lowest; default 1)"
     )
-    a.add_argument(
-        "--amplitude", type=_positive(), default=None, help="with --mode: largest hinge angle of the oscillation (rad)"
-    )
-    a.add_argument("--title", default=None, help="page title")
+    a.add_argument("--amplitude", type=_positive(), help="with --mode: largest hinge angle of the oscillation (rad)")
+    a.add_argument("--title", help="page title")
 
-    c = sub.add_parser(
-        "check",
-        help="validate a scene and describe it",
-        description="Validate a scene; print its tree, the seed's Tables 1-2 (network and path "
-        "elements), masses and the condition number of Eq. (1) at the initial state.",
-    )
+
+def _check_parser(sub):
+    c = _subparser(sub, "check")
     c.add_argument("scene", metavar="SCENE", help="scene JSON file or a bundled scene name")
     c.add_argument("--tables", action="store_true", help="print Tables 1-2 for any number of hinges")
 
-    pl = sub.add_parser(
-        "plot",
-        help="plots of a result file",
-        description="Plot a result: time histories and drift (simulation) or mode shapes (modes).",
-    )
-    pl.add_argument("result", metavar="RESULT", help="result file")
-    pl.add_argument(
-        "-o", "--out", default=None, metavar="PREFIX", help="file name prefix (default: RESULT without .nc)"
-    )
 
-    b = sub.add_parser(
-        "bench",
-        help="error against run time: solvers, formulations and peers",
-        description="Work-precision report: for each case, formulation (full Eq. 1, Eq. 30, hybrid) and solver, "
-        "the error against a tight reference by a different solver and the run time, with the installed peers "
-        "(Pinocchio + scipy, MuJoCo, Basilisk) in the same run. Writes OUT/work_precision.csv, .md and one "
-        "PNG per case. Cases: " + ", ".join(_bench_cases()) + " (default: all; --quick: wings).",
-    )
+def _plot_parser(sub):
+    pl = _subparser(sub, "plot")
+    pl.add_argument("result", metavar="RESULT", help="result file")
+    pl.add_argument("-o", "--out", metavar="PREFIX", help="file name prefix (default: RESULT without .nc)")
+
+
+def _bench_parser(sub):
+    b = _subparser(sub, "bench")
     b.add_argument("cases", metavar="CASE", nargs="*", help="bench cases (see above), or stiff_<scale>")
     b.add_argument(
         "-o", "--out", default="work_precision", metavar="DIR", help="output folder (default work_precision)"
     )
     b.add_argument("--quick", action="store_true", help="a short run: wings, four solvers, two tolerances")
-    b.add_argument("--solvers", nargs="+", metavar="NAME", default=None, help="solver names (default all)")
-    b.add_argument("--tols", nargs="+", type=_positive(), default=None, metavar="TOL", help="tolerance ladder")
+    b.add_argument("--solvers", nargs="+", metavar="NAME", help="solver names (default all)")
+    b.add_argument("--tols", nargs="+", type=_positive(), metavar="TOL", help="tolerance ladder")
     b.add_argument("--no-peers", action="store_true", help="leave the peers out")
     b.add_argument("--no-plots", action="store_true", help="CSV and Markdown only")
-    b.add_argument("--repeats", type=_count(1), default=None, help="timed calls after the first (default 3)")
+    b.add_argument("--repeats", type=_count(1), help="timed calls after the first (default 3)")
     b.add_argument("--no-progress", action="store_true", help="no progress bar")
     b.add_argument(
         "--merge",
         nargs="+",
         metavar="DIR",
-        default=None,
         help="merge the reports saved in these folders (runs of parts of the cases) into --out; runs nothing",
     )
-
-    sub.add_parser("sample", help="the seed's sample problem (the default without a subcommand)", add_help=False)
-    return p
 
 
 # ----------------------------------------------------------------------------- main
@@ -460,8 +456,6 @@ def main(argv=None) -> int:
         args.argv = argv
         if args.version:
             _fast_cpu_compiler()
-            from .results import versions
-
             print(
                 " ".join(f"{k.removesuffix('_version')} {v}" for k, v in versions().items() if k.endswith("_version"))
             )
@@ -484,12 +478,6 @@ def main(argv=None) -> int:
 
 
 # ----------------------------------------------------------------------------- bench
-def _bench_cases():
-    from .bench import CASES
-
-    return CASES
-
-
 def _wrote(paths, existed) -> str:
     """``wrote a, b`` with the files that were there before named as overwritten."""
     over = [str(q) for q in paths if str(q) in existed]
@@ -501,9 +489,6 @@ def _existing(paths) -> set[str]:
 
 
 def cmd_bench(args) -> int:
-    from .bench import SOLVERS as BENCH_SOLVERS
-    from .bench import bench_case, work_precision
-
     cases = []
     for name in args.cases:
         try:
@@ -521,8 +506,6 @@ def cmd_bench(args) -> int:
         _matplotlib()
     command = "jaxtree " + " ".join(getattr(args, "argv", ["bench"]))
     if args.merge:
-        from .bench import BenchReport
-
         parts = []
         for d in args.merge:
             try:
@@ -559,10 +542,6 @@ def cmd_bench(args) -> int:
 
 # ----------------------------------------------------------------------------- check
 def cmd_check(args) -> int:
-    import dataclasses
-
-    from .diagnostics import check_scene
-
     model = _load_scene(args.scene)
     src = pathlib.Path(args.scene)
     report = dataclasses.replace(
@@ -597,8 +576,6 @@ def _config(args, model):
 
 def _save_points(args, model) -> int:
     """--points, or by default enough for the fastest motion that rings; a note where too few."""
-    from .autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
-
     span = float(args.t1 - args.t0)
     default, rate = save_points(model, span)
     points = default if args.points is None else int(args.points)
@@ -761,17 +738,12 @@ def _exports(args, out, ds):
     """The CSV export and the plots of a finished run; returns the files written."""
     written = []
     if args.csv:
-        from .output import save_csv
-        from .results import _to_solution
-
-        save_csv(args.csv, _to_solution(ds))
+        output.save_csv(args.csv, _to_solution(ds))
         written.append(args.csv)
     if not args.no_plot:
         if not _matplotlib():
             _say("matplotlib is not installed: no plots (pip install 'jaxtree[plot]')")
             return written
-        from . import plots
-
         prefix = args.plot if args.plot else str(out.with_suffix("")) if out.suffix == ".nc" else str(out)
         plots.plot_histories(ds, f"{prefix}_histories.png")
         plots.plot_drift(ds, f"{prefix}_drift.png")
@@ -780,8 +752,6 @@ def _exports(args, out, ds):
 
 
 def _summary(model, run, written, wall):
-    import numpy as np
-
     cfg, ds, compile_time = run.config, run.dataset, run.compile_time
     a = ds.attrs
 
@@ -864,13 +834,6 @@ def _summary(model, run, written, wall):
 
 # ----------------------------------------------------------------------------- modes
 def cmd_modes(args) -> int:
-    import jax.numpy as jnp
-    import numpy as np
-
-    from .linearize import linearize, structure
-    from .modes import ModalError, modes
-    from .results import command_line, modes_dataset, write_netcdf
-
     model = _load_scene(args.scene)
     small = _hinges(model, args.small, "--small")
     spin = np.zeros(3) if args.spin is None else np.asarray(args.spin, float)
@@ -913,10 +876,8 @@ def cmd_modes(args) -> int:
     wrote = [str(out)]
     if not args.no_plot:
         if _matplotlib():
-            from .plots import plot_mode_shapes
-
             png = args.plot if args.plot else str(out.with_suffix(".png"))
-            plot_mode_shapes(model, ds, path=png, modes=list(range(min(args.show, md.nu))))
+            plots.plot_mode_shapes(model, ds, path=png, modes=list(range(min(args.show, md.nu))))
             wrote.append(png)
         else:
             _say("matplotlib is not installed: no mode-shape plot (pip install 'jaxtree[plot]')")
@@ -927,15 +888,13 @@ def cmd_modes(args) -> int:
 # ----------------------------------------------------------------------------- animate, plot
 def _viewer():
     try:
-        from . import viewer
+        from . import viewer  # looked up when used: an installation may lack it (a test stands one in)
     except ImportError:
         raise UserError("the 3D viewer (jaxtree.write_animation) is not available in this installation") from None
     return viewer
 
 
 def cmd_animate(args) -> int:
-    import numpy as np
-
     existed = _existing([args.out])
     ds = _load_result(args.result)
     model = _model_of(ds, args.result)
@@ -988,8 +947,6 @@ def cmd_plot(args) -> int:
     ds = _load_result(args.result)
     if not _matplotlib():
         raise UserError("matplotlib is not installed (pip install 'jaxtree[plot]')")
-    from . import plots
-
     res = pathlib.Path(args.result)
     prefix = args.out if args.out else str(res.with_suffix("") if res.suffix == ".nc" else res)
     if ds.attrs.get("kind") == "modes":
@@ -1046,15 +1003,6 @@ def sample(argv=None) -> int:
     _fast_cpu_compiler()
     start = time.perf_counter()
 
-    import jax
-    import numpy as np
-
-    import jaxtree
-    from jaxtree._src import output
-    from jaxtree._src.results import command_line, save_result
-
-    from .autosolver import save_points
-
     model = _load_scene(args.scene)
     # a progress bar on a terminal only: redrawn into a log it is kilobytes of noise
     show_progress = not args.no_progress and sys.stderr.isatty()
@@ -1072,13 +1020,13 @@ def sample(argv=None) -> int:
         kw = dict(attitude=att, saveat=points, rtol=args.rtol, atol=args.atol)
         print(f"-- {att}: compiling and running")
         t0 = time.perf_counter()
-        sol = jaxtree.simulate(model, args.duration, progress=show_progress, **kw)
+        sol = simulate(model, args.duration, progress=show_progress, **kw)
         jax.block_until_ready(sol.gamma)
         first = time.perf_counter() - t0
         # Again, now compiled, for the run time alone (same configuration, meter output muted).
         with contextlib.redirect_stdout(io.StringIO()):
             t0 = time.perf_counter()
-            sol = jaxtree.simulate(model, args.duration, progress=show_progress, **kw)
+            sol = simulate(model, args.duration, progress=show_progress, **kw)
             jax.block_until_ready(sol.gamma)
             jax.effects_barrier()
             wall = time.perf_counter() - t0
