@@ -98,7 +98,7 @@ import numpy as np
 import jaxtree
 
 from _common import write_json
-from _peers import MUJOCO_TINY_INERTIA, MUJOCO_TINY_MASS, mjcf, pinocchio_model
+from _peers import MUJOCO_TINY_INERTIA, MUJOCO_TINY_MASS, mjcf, pinocchio_initial, pinocchio_rhs
 
 
 def say(*a):
@@ -194,46 +194,16 @@ def jaxtree_runs(model, ref, tols, repeats, first):
 
 # ----------------------------------------------------------------------------- peers
 def pinocchio_runs(model, ref, tols, repeats):
-    import pinocchio as pin
+    import pinocchio  # noqa: F401  (imported before the build is timed; ImportError: the peer is skipped)
     from scipy.integrate import solve_ivp
 
     t0 = time.perf_counter()
-    pm, _, iq, iv, _ = pinocchio_model(model)
-    data = pm.createData()
-    sprung = np.asarray(model.sprung, int) - 1
-    stiffness = np.zeros(model.n)
-    damping = np.zeros(model.n)
-    stiffness[sprung] = np.asarray(model.stiffness, float)[sprung]
-    damping[sprung] = np.asarray(model.damping, float)[sprung]
+    rhs = pinocchio_rhs(model)
     n = model.n
     build = time.perf_counter() - t0
-
-    # State x = (omega0, gamma, gamma_dot, v): omega0 and v the angular and linear velocity of the
-    # free flyer (body 0's mass center) in its own frame, whose derivatives ABA returns. Without
-    # gravity nothing depends on the position or attitude of body 0, so they are not integrated.
-    q = pin.neutral(pm)
-    v = np.zeros(pm.nv)
-    tau = np.zeros(pm.nv)
-    aba = pin.aba
-
-    def rhs(t, x):
-        w, g, gd, lin = x[:3], x[3 : 3 + n], x[3 + n : 3 + 2 * n], x[3 + 2 * n :]
-        q[iq] = g
-        v[:3], v[3:6], v[iv] = lin, w, gd
-        tau[iv] = -stiffness * g - damping * gd
-        a = aba(pm, data, q, v, tau)
-        return np.concatenate([a[3:6], gd, a[iv], a[:3]])
-
-    s = model.initial
-    # body 0's mass center is at rest at t = 0: the vehicle's momentum is zero and only the rotor
-    # spins, about an axis through its own mass center
-    # body 0's mass center moves with the system's at rest: its velocity relative to the system
-    # mass center (zero for fig4_free, where only the rotor spins about its own mass center)
-    from jaxtree._src.dynamics import _configuration, _velocities
-
-    cfg, omega = _configuration(model, s.gamma, s.omega0, s.gamma_dot)
-    v0 = np.asarray(_velocities(model, cfg, omega)[0])
-    x0 = np.concatenate([np.asarray(s.omega0), np.asarray(s.gamma), np.asarray(s.gamma_dot), v0])
+    # body 0's mass center moves with the system's at rest: x0 holds its velocity relative to the
+    # system mass center (zero for fig4_free, where only the rotor spins about its own mass center)
+    x0 = pinocchio_initial(model)
     ts = np.linspace(0.0, T_END, N_SAVE)
 
     def run(tol):
@@ -333,6 +303,76 @@ def table(name, rows):
         say(f"    {r['setting']:28s} {r['error']:10.2e} {1e3 * r['wall_s']:10.2f} {r.get('rhs', 0):10d}")
 
 
+def peer_sweeps(model, ref, tols, repeats, reference_tol, large, results):
+    """The peers' sweeps (those installed): ``{name: rows}``, their figures put in `results`."""
+    peers = {}
+    try:
+        build, prow, prun = pinocchio_runs(model, ref, tols, repeats)
+        r = prun(reference_tol)
+        check = error(r.y.T[:, :3], r.y.T[:, 3 : 3 + model.n], ref)
+        say(
+            f"pinocchio: model built in {build * 1e3:.1f} ms; reference check (DOP853 at {reference_tol:g} vs "
+            f"jaxtree reference): {check:.2e}"
+        )
+        table("Pinocchio ABA + scipy DOP853", prow)
+        peers["pinocchio+scipy"] = prow
+        results["pinocchio"] = {"build_s": build, "rows": prow, "reference_check": check}
+    except ImportError:
+        say("pinocchio is not installed (pip install pin): skipped")
+    try:
+        if large:
+            raise ImportError  # MuJoCo's converter has no hinge damping: fig4_free only
+        build, mrow, tiny = mujoco_runs(model, ref, QUICK_STEPS if ARGS.quick else MUJOCO_STEPS_PER_SAVE, repeats)
+        say(
+            f"mujoco: model built in {build * 1e3:.1f} ms; massless bodies {tiny} given mass {MUJOCO_TINY_MASS:g} kg "
+            f"and inertia {MUJOCO_TINY_INERTIA:g} kg m^2"
+        )
+        table("MuJoCo RK4", mrow)
+        peers["mujoco-rk4"] = mrow
+        results["mujoco"] = {"build_s": build, "rows": mrow, "tiny_mass_bodies": tiny}
+    except ImportError:
+        say("mujoco: not installed (pip install mujoco) or not this scene: skipped")
+    return peers
+
+
+def summary(methods, scene, results):
+    """Time to each target error, the cheapest setting of each sweep timed again, and the goal checks."""
+    say(
+        "summary: wall time to reach the error, cheapest setting of each sweep (fewest right sides), timed again interleaved"
+    )
+    checks = []
+    for target in TARGETS:
+        choices = {name: fastest(r, target) for name, r in methods.items()}
+        reached = {name: row for name, row in choices.items() if row is not None}
+        times = retime(reached, rounds=3 if ARGS.quick else 7)
+        mine = times.get("jaxtree")
+        parts = []
+        for name in methods:
+            if name not in times:
+                parts.append(f"{name} -")
+                continue
+            part = f"{name} {times[name] * 1e3:.1f} ms ({reached[name]['setting']})"
+            if name != "jaxtree" and mine is not None:
+                part += f" = {times[name] / mine:.2f} x jaxtree"
+            parts.append(part)
+        say(f"  error <= {target:g}: " + "; ".join(parts))
+        peer_times = [t for name, t in times.items() if name != "jaxtree"]
+        results[f"time_to_{target:g}"] = {name: t for name, t in times.items()}
+        goal = GOALS.get(scene, (None, None))[TARGETS.index(target)]
+        if peer_times and goal is not None:
+            best_peer = min(peer_times)
+            factor = goal
+            ok = mine is not None and mine <= factor * best_peer
+            checks.append(
+                (
+                    f"jaxtree reaches {target:g} in <= {factor:g} x the best peer's time "
+                    f"({factor * best_peer * 1e3:.1f} ms): {'-' if mine is None else f'{mine * 1e3:.1f} ms'}",
+                    ok,
+                )
+            )
+    return checks
+
+
 def scene_model(name):
     """A bundled scene, or ``humanoid``: Pinocchio's sample humanoid (``from_pinocchio``; needs
     the peers extra), tumbling: omega0 and the hinge rates drawn uniformly in [-0.3, 0.3] rad/s (seed 0; at 1 rad/s the 10 s motion is chaotic: the peers' references disagree by 0.1)."""
@@ -385,68 +425,8 @@ def main():
     )
     table("jaxtree (diffrax Dopri8, PI control)", rows)
 
-    peers = {}
-    try:
-        build, prow, prun = pinocchio_runs(model, ref, tols, repeats)
-        r = prun(reference_tol)
-        check = error(r.y.T[:, :3], r.y.T[:, 3 : 3 + model.n], ref)
-        say(
-            f"pinocchio: model built in {build * 1e3:.1f} ms; reference check (DOP853 at {reference_tol:g} vs "
-            f"jaxtree reference): {check:.2e}"
-        )
-        table("Pinocchio ABA + scipy DOP853", prow)
-        peers["pinocchio+scipy"] = prow
-        results["pinocchio"] = {"build_s": build, "rows": prow, "reference_check": check}
-    except ImportError:
-        say("pinocchio is not installed (pip install pin): skipped")
-    try:
-        if large:
-            raise ImportError  # MuJoCo's converter has no hinge damping: fig4_free only
-        build, mrow, tiny = mujoco_runs(model, ref, QUICK_STEPS if ARGS.quick else MUJOCO_STEPS_PER_SAVE, repeats)
-        say(
-            f"mujoco: model built in {build * 1e3:.1f} ms; massless bodies {tiny} given mass {MUJOCO_TINY_MASS:g} kg "
-            f"and inertia {MUJOCO_TINY_INERTIA:g} kg m^2"
-        )
-        table("MuJoCo RK4", mrow)
-        peers["mujoco-rk4"] = mrow
-        results["mujoco"] = {"build_s": build, "rows": mrow, "tiny_mass_bodies": tiny}
-    except ImportError:
-        say("mujoco: not installed (pip install mujoco) or not this scene: skipped")
-
-    say(
-        "summary: wall time to reach the error, cheapest setting of each sweep (fewest right sides), timed again interleaved"
-    )
-    checks = []
-    methods = {"jaxtree": rows, **peers}
-    for target in TARGETS:
-        choices = {name: fastest(r, target) for name, r in methods.items()}
-        reached = {name: row for name, row in choices.items() if row is not None}
-        times = retime(reached, rounds=3 if ARGS.quick else 7)
-        mine = times.get("jaxtree")
-        parts = []
-        for name in methods:
-            if name not in times:
-                parts.append(f"{name} -")
-                continue
-            part = f"{name} {times[name] * 1e3:.1f} ms ({reached[name]['setting']})"
-            if name != "jaxtree" and mine is not None:
-                part += f" = {times[name] / mine:.2f} x jaxtree"
-            parts.append(part)
-        say(f"  error <= {target:g}: " + "; ".join(parts))
-        peer_times = [t for name, t in times.items() if name != "jaxtree"]
-        results[f"time_to_{target:g}"] = {name: t for name, t in times.items()}
-        goal = GOALS.get(scene, (None, None))[TARGETS.index(target)]
-        if peer_times and goal is not None:
-            best_peer = min(peer_times)
-            factor = goal
-            ok = mine is not None and mine <= factor * best_peer
-            checks.append(
-                (
-                    f"jaxtree reaches {target:g} in <= {factor:g} x the best peer's time "
-                    f"({factor * best_peer * 1e3:.1f} ms): {'-' if mine is None else f'{mine * 1e3:.1f} ms'}",
-                    ok,
-                )
-            )
+    peers = peer_sweeps(model, ref, tols, repeats, reference_tol, large, results)
+    checks = summary({"jaxtree": rows, **peers}, scene, results)
     limit = 10.0 if scene == "chain200" else 5.0
     checks.append((f"compile time {compile_s:.2f} s <= {limit:g} s", compile_s <= limit))
     for label, ok in checks:

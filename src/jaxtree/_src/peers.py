@@ -154,23 +154,19 @@ def from_pinocchio(pin_model, *, initial=None, name: str = "", method: str = "au
     return build_model(bodies, initial, name=name, method=method)
 
 
-def pinocchio_runner(model, ts, base_torque=None):
-    """``run(method, rtol, atol) -> (omega0 (T, 3), gamma (T, n), wall seconds, right sides)``:
-    Pinocchio's ABA integrated by ``scipy.integrate.solve_ivp`` (``"DOP853"``, ``"RK45"``,
-    ``"Radau"`` ...) over the save times `ts`. The time is that of ``solve_ivp`` alone.
-    `base_torque`: optional ``t -> (3,)``, a torque on body 0 in its own axes (the free flyer's
-    generalized force), for a slew; the model's own loads are not translated."""
-    from scipy.integrate import solve_ivp
-
+def pinocchio_rhs(model, base_torque=None):
+    """``rhs(t, x)``: Pinocchio's ABA as the right side of a first-order system in
+    ``x = (omega0, gamma, gamma_dot, v)`` (:func:`pinocchio_initial`): omega0 and v the angular
+    and linear velocity of the free flyer (body 0's mass center) in its own frame, whose
+    derivatives ABA returns. Without gravity nothing depends on the position or attitude of body 0,
+    so they are not integrated. `base_torque`: optional ``t -> (3,)``, a torque on body 0 in its
+    own axes (the free flyer's generalized force); the model's own loads are not translated."""
     pin = _pinocchio()
 
     pm, _, iq, iv, _ = pinocchio_model(model)
     data = pm.createData()
     stiffness, damping = _laws(model)
     n = model.n
-    # State x = (omega0, gamma, gamma_dot, v): omega0 and v the angular and linear velocity of the
-    # free flyer (body 0's mass center) in its own frame, whose derivatives ABA returns. Without
-    # gravity nothing depends on the position or attitude of body 0, so they are not integrated.
     q = pin.neutral(pm)
     v = np.zeros(pm.nv)
     tau = np.zeros(pm.nv)
@@ -186,8 +182,26 @@ def pinocchio_runner(model, ts, base_torque=None):
         a = aba(pm, data, q, v, tau)
         return np.concatenate([a[3:6], gd, a[iv], a[:3]])
 
+    return rhs
+
+
+def pinocchio_initial(model) -> np.ndarray:
+    """The state ``x`` of :func:`pinocchio_rhs` at the model's initial state: v is body 0's
+    velocity relative to the system mass center (:func:`base_velocity`)."""
     s = model.initial
-    x0 = np.concatenate([np.asarray(s.omega0), np.asarray(s.gamma), np.asarray(s.gamma_dot), base_velocity(model)])
+    return np.concatenate([np.asarray(s.omega0), np.asarray(s.gamma), np.asarray(s.gamma_dot), base_velocity(model)])
+
+
+def pinocchio_runner(model, ts, base_torque=None):
+    """``run(method, rtol, atol) -> (omega0 (T, 3), gamma (T, n), wall seconds, right sides)``:
+    Pinocchio's ABA (:func:`pinocchio_rhs`) integrated by ``scipy.integrate.solve_ivp``
+    (``"DOP853"``, ``"RK45"``, ``"Radau"`` ...) over the save times `ts`. The time is that of
+    ``solve_ivp`` alone. `base_torque`: optional ``t -> (3,)``, a torque on body 0 in its own axes
+    (the free flyer's generalized force), for a slew; the model's own loads are not translated."""
+    from scipy.integrate import solve_ivp
+
+    rhs, x0 = pinocchio_rhs(model, base_torque), pinocchio_initial(model)
+    n = model.n
     ts = np.asarray(ts, float)
 
     def jac(t, x):
