@@ -1,0 +1,112 @@
+"""The main entry points compile once per shape: called again with the same shapes and other
+values (initial state, spring constants, spin rate, end time) they neither trace nor compile
+anything. Counted with JAX's public monitoring events (``jax.monitoring``): one
+``jaxpr_trace_duration`` event per trace of a jitted function, one ``backend_compile_duration``
+event per XLA compilation (eager operations included). The smallest bundled scene,
+``appendix_c`` (two hinges), keeps the first compilations short (the module takes about 25 s
+of CPU, most of it the hybrid model's build and first run)."""
+
+import collections
+import contextlib
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxtree
+
+_EVENTS = {
+    "/jax/core/compile/jaxpr_trace_duration": "traces",
+    "/jax/core/compile/backend_compile_duration": "compiles",
+}
+
+
+@contextlib.contextmanager
+def compilations():
+    """Counts the traces and XLA compilations inside, as a Counter {"traces": .., "compiles": ..}."""
+    counts = collections.Counter()
+
+    def listen(event, duration, **kwargs):
+        if event in _EVENTS:
+            counts[_EVENTS[event]] += 1
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        yield counts
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """appendix_c and the same scene with other values: initial state and spring constants."""
+    model = jaxtree.load_scene("appendix_c")
+    s = model.initial
+    other = eqx.tree_at(
+        lambda m: (m.initial.omega0, m.initial.gamma, m.initial.gamma_dot, m.stiffness),
+        model,
+        (s.omega0 * 1.2 + jnp.array([0.05, -0.03, 0.0]), s.gamma * -1.5, s.gamma_dot + 0.02, model.stiffness * 1.3),
+    )
+    return model, other
+
+
+def test_the_counter_sees_a_compilation():
+    """A new shape is traced and compiled once, and counted (the tests below are not vacuous)."""
+    f = jax.jit(lambda x: jnp.sin(x) * 3.0)
+    x, y = np.ones(17), np.full(17, 2.0)  # numpy: strong float64, no weak type
+    with compilations() as c:
+        f(x)
+    assert c["traces"] >= 1 and c["compiles"] >= 1, dict(c)
+    with compilations() as c:
+        f(y)
+    assert not c, dict(c)
+
+
+def test_simulate(scene):
+    model, other = scene
+    first = jaxtree.simulate(model, 1.0)
+    with compilations() as c:
+        second = jax.block_until_ready(jaxtree.simulate(other, 1.5))
+    assert not c, dict(c)
+    assert second.stats["solver"].name == first.stats["solver"].name  # the same path, other numbers
+    assert float(second.ts[-1]) == 1.5 and not np.allclose(second.gamma, first.gamma)
+
+
+def test_forward_dynamics_jitted(scene):
+    model, other = scene
+
+    @eqx.filter_jit
+    @eqx.debug.assert_max_traces(max_traces=1)
+    def accelerations(model, state):
+        return jaxtree.forward_dynamics(model, *state)
+
+    first = accelerations(model, model.initial)
+    with compilations() as c:
+        second = jax.block_until_ready(accelerations(other, other.initial))
+    assert not c, dict(c)
+    assert not np.allclose(second[1], first[1])  # (omega0_dot, gamma_ddot)
+
+
+def test_linearize_and_modes(scene):
+    model, other = scene
+    spin = np.array([0.0, 0.0, 1.0])
+    first = jaxtree.modes(jaxtree.linearize(model, (1, 2), omega0=spin))
+    with compilations() as c:
+        lin = jaxtree.linearize(other, (1, 2), omega0=1.4 * spin)
+        second = jax.block_until_ready(jaxtree.modes(lin))
+    assert not c, dict(c)
+    assert second.kind == first.kind
+    assert not np.allclose(second.frequencies, first.frequencies)
+
+
+def test_simulate_hybrid(scene):
+    """One hybrid model (building it is the costly part), run from two initial states to two end times."""
+    model, other = scene
+    hybrid = jaxtree.hybrid_model(model, (1, 2), omega0=[0.0, 0.0, 1.0], basis="set")
+    first = jaxtree.simulate_hybrid(hybrid, 1.0)
+    with compilations() as c:
+        second = jax.block_until_ready(jaxtree.simulate_hybrid(hybrid, 1.5, y0=other.initial))
+    assert not c, dict(c)
+    assert not np.allclose(second.gamma, first.gamma)
