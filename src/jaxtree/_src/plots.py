@@ -79,6 +79,12 @@ def _scene_has_dampers(text: str) -> bool:
     return any(float((b.get("joint") or {}).get("damping", 0.0) or 0.0) != 0.0 for b in bodies)
 
 
+# the histories a plot reads: its key, and the name in a Solution or a result Dataset
+_HISTORIES = dict(
+    gamma="gamma", gamma_dot="gamma_dot", omega0="omega0", dcm="dcm", energy="energy", H="angular_momentum"
+)
+
+
 def _series(result) -> dict:
     """Arrays of a Solution or a result Dataset: t, gamma, gamma_dot, omega0, dcm, energy, H, names,
     and the model (None where a result does not carry its scene)."""
@@ -94,12 +100,7 @@ def _series(result) -> dict:
             model = None
         out: dict[str, Any] = dict(
             t=ds["time"].values,
-            gamma=get("gamma"),
-            gamma_dot=get("gamma_dot"),
-            omega0=get("omega0"),
-            dcm=get("dcm"),
-            energy=get("energy"),
-            H=get("angular_momentum"),
+            **{key: get(name) for key, name in _HISTORIES.items()},
             names=names,
             title=str(ds.attrs.get("scene_name", "")),
             prescribed=tuple(int(k) for k in ds["prescribed_hinge"].values) if "prescribed_hinge" in ds.coords else (),
@@ -114,12 +115,7 @@ def _series(result) -> dict:
     model = sol.problem.model
     return dict(
         t=ts[keep],
-        gamma=a(sol.gamma),
-        gamma_dot=a(sol.gamma_dot),
-        omega0=a(sol.omega0),
-        dcm=a(sol.dcm),
-        energy=a(sol.energy),
-        H=a(sol.angular_momentum),
+        **{key: a(getattr(sol, name)) for key, name in _HISTORIES.items()},
         names=list(model.names[1:]),
         title=model.name,
         prescribed=tuple(model.prescribed),
