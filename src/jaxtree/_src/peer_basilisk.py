@@ -153,63 +153,17 @@ def basilisk_run(
     dt_ns, save_ns, nsteps = _steps(float(t1), ts, dt)
 
     t_setup = _time.perf_counter()
-    from Basilisk.simulation import spacecraft, spinningBodyNDOFStateEffector  # pyright: ignore[reportMissingImports]  (optional: bsk)
-    from Basilisk.utilities import RigidBodyKinematics, SimulationBaseClass  # pyright: ignore[reportMissingImports]  (optional: bsk)
-
-    mass = np.asarray(model.mass, float)
-    inertia = np.asarray(model.inertia, float)
-    axis = np.asarray(model.axis, float)
-    hop = np.asarray(model.hinge_on_parent, float)
-    hob = np.asarray(model.hinge_on_body, float)
-    stiffness = np.asarray(model.stiffness, float)
-    damping = np.asarray(model.damping, float)
-    sprung = set(model.sprung)
-    init = model.initial
-    gamma0 = np.asarray(init.gamma, float)
-    gamma_dot0 = np.asarray(init.gamma_dot, float)
-    col = lambda v: [[float(x)] for x in v]  # Basilisk's setters take column vectors
+    from Basilisk.utilities import SimulationBaseClass  # pyright: ignore[reportMissingImports]  (optional: bsk)
 
     sim = SimulationBaseClass.SimBaseClass()
     proc = sim.CreateNewProcess("dynamics")
     proc.addTask(sim.CreateNewTask("task", dt_ns))
-
-    sc = spacecraft.Spacecraft()
-    sc.ModelTag = "jaxtree"
-    sc.hub.mHub = float(mass[0])
-    sc.hub.r_BcB_B = col(np.zeros(3))
-    sc.hub.IHubPntBc_B = inertia[0].tolist()
-    sc.hub.r_CN_NInit = col(np.zeros(3))
-    sc.hub.v_CN_NInit = col(np.zeros(3))
-    sc.hub.sigma_BNInit = col(RigidBodyKinematics.C2MRP(np.asarray(init.dcm, float)))
-    sc.hub.omega_BN_BInit = col(np.asarray(init.omega0, float))
-
+    sc = _spacecraft(model)
     chains = _chains(model)
     assert not isinstance(chains, str)
-    parents = model.topology.parents
-    effectors, keep = [], []
-    for c, chain in enumerate(chains):
-        eff = spinningBodyNDOFStateEffector.SpinningBodyNDOFStateEffector()
-        eff.ModelTag = f"chain{c}"
-        eff.setNameOfThetaState(f"theta{c}")
-        eff.setNameOfThetaDotState(f"thetaDot{c}")
-        for k in chain:
-            p = parents[k - 1]
-            body = spinningBodyNDOFStateEffector.SpinningBody()
-            body.setMass(float(mass[k]))
-            body.setISPntSc_S(inertia[k].tolist())
-            body.setDCM_S0P(np.eye(3).tolist())
-            body.setR_SP_P(col(hop[k - 1] if p == 0 else hop[k - 1] - hob[p - 1]))
-            body.setR_ScS_S(col(-hob[k - 1]))
-            body.setSHat_S(col(axis[k - 1]))
-            body.setThetaInit(float(gamma0[k - 1]))
-            body.setThetaDotInit(float(gamma_dot0[k - 1]))
-            if k in sprung:
-                body.setK(float(stiffness[k - 1]))
-                body.setC(float(damping[k - 1]))
-            eff.addSpinningBody(body)
-            keep.append(body)
+    effectors, keep = _effectors(model, chains)  # keep: the spinning bodies, alive while the run needs them
+    for eff in effectors:
         sc.addStateEffector(eff)
-        effectors.append(eff)
     sc.setIntegrator(_integrator(integrator, sc, rtol, atol))
 
     # the spacecraft first: the effectors then write the angles it has just integrated to
@@ -236,6 +190,81 @@ def basilisk_run(
     sim.ExecuteSimulation()
     run_time = _time.perf_counter() - t0
 
+    out = _records(model, ts, save_ns, chains, rec_sc, recs)
+    out.update(time=run_time, setup_time=setup_time)
+    if log is not None:
+        out["energy"] = np.asarray(log.totRotEnergy)
+        out["angular_momentum"] = np.asarray(log.totRotAngMomPntC_N)
+    return out
+
+
+def _col(v):
+    """A column vector, as Basilisk's setters take them."""
+    return [[float(x)] for x in v]
+
+
+def _spacecraft(model):
+    """The hub: a ``spacecraft.Spacecraft`` with body 0's mass properties and initial state."""
+    from Basilisk.simulation import spacecraft  # pyright: ignore[reportMissingImports]  (optional: bsk)
+    from Basilisk.utilities import RigidBodyKinematics  # pyright: ignore[reportMissingImports]  (optional: bsk)
+
+    init = model.initial
+    sc = spacecraft.Spacecraft()
+    sc.ModelTag = "jaxtree"
+    sc.hub.mHub = float(np.asarray(model.mass, float)[0])
+    sc.hub.r_BcB_B = _col(np.zeros(3))
+    sc.hub.IHubPntBc_B = np.asarray(model.inertia, float)[0].tolist()
+    sc.hub.r_CN_NInit = _col(np.zeros(3))
+    sc.hub.v_CN_NInit = _col(np.zeros(3))
+    sc.hub.sigma_BNInit = _col(RigidBodyKinematics.C2MRP(np.asarray(init.dcm, float)))
+    sc.hub.omega_BN_BInit = _col(np.asarray(init.omega0, float))
+    return sc
+
+
+def _effectors(model, chains):
+    """One ``SpinningBodyNDOFStateEffector`` per chain, and its spinning bodies (to be kept alive)."""
+    from Basilisk.simulation import spinningBodyNDOFStateEffector  # pyright: ignore[reportMissingImports]  (optional: bsk)
+
+    mass = np.asarray(model.mass, float)
+    inertia = np.asarray(model.inertia, float)
+    axis = np.asarray(model.axis, float)
+    hop = np.asarray(model.hinge_on_parent, float)
+    hob = np.asarray(model.hinge_on_body, float)
+    stiffness = np.asarray(model.stiffness, float)
+    damping = np.asarray(model.damping, float)
+    sprung = set(model.sprung)
+    gamma0 = np.asarray(model.initial.gamma, float)
+    gamma_dot0 = np.asarray(model.initial.gamma_dot, float)
+    parents = model.topology.parents
+    effectors, keep = [], []
+    for c, chain in enumerate(chains):
+        eff = spinningBodyNDOFStateEffector.SpinningBodyNDOFStateEffector()
+        eff.ModelTag = f"chain{c}"
+        eff.setNameOfThetaState(f"theta{c}")
+        eff.setNameOfThetaDotState(f"thetaDot{c}")
+        for k in chain:
+            p = parents[k - 1]
+            body = spinningBodyNDOFStateEffector.SpinningBody()
+            body.setMass(float(mass[k]))
+            body.setISPntSc_S(inertia[k].tolist())
+            body.setDCM_S0P(np.eye(3).tolist())
+            body.setR_SP_P(_col(hop[k - 1] if p == 0 else hop[k - 1] - hob[p - 1]))
+            body.setR_ScS_S(_col(-hob[k - 1]))
+            body.setSHat_S(_col(axis[k - 1]))
+            body.setThetaInit(float(gamma0[k - 1]))
+            body.setThetaDotInit(float(gamma_dot0[k - 1]))
+            if k in sprung:
+                body.setK(float(stiffness[k - 1]))
+                body.setC(float(damping[k - 1]))
+            eff.addSpinningBody(body)
+            keep.append(body)
+        effectors.append(eff)
+    return effectors, keep
+
+
+def _records(model, ts, save_ns, chains, rec_sc, recs) -> dict:
+    """``omega0``, ``gamma`` and ``gamma_dot`` from the recorders (hinges in jaxtree's order),
+    after a check that they recorded at every save time."""
     T = ts.size
     times = np.asarray(rec_sc.times())
     expected = np.arange(T, dtype=np.int64) * save_ns
@@ -247,14 +276,4 @@ def basilisk_run(
     for k, r in zip(order, recs):
         gamma[:, k - 1] = np.asarray(r.theta)
         gamma_dot[:, k - 1] = np.asarray(r.thetaDot)
-    out = {
-        "omega0": np.asarray(rec_sc.omega_BN_B),
-        "gamma": gamma,
-        "gamma_dot": gamma_dot,
-        "time": run_time,
-        "setup_time": setup_time,
-    }
-    if log is not None:
-        out["energy"] = np.asarray(log.totRotEnergy)
-        out["angular_momentum"] = np.asarray(log.totRotAngMomPntC_N)
-    return out
+    return {"omega0": np.asarray(rec_sc.omega_BN_B), "gamma": gamma, "gamma_dot": gamma_dot}
