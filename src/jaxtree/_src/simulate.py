@@ -18,7 +18,6 @@ progress meters are diffrax objects, passed to :func:`diffrax.diffeqsolve` uncha
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from typing import Any, NamedTuple, cast
 
@@ -53,6 +52,7 @@ from ._integrate import (
     solver_statistics,
     warn_below_roundoff,
 )
+from ._math import regular
 from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
 from .autosolver import choose_checked, given
 from .control import AbstractController, with_model_laws
@@ -538,13 +538,9 @@ def _rhs_evaluations(solver, stats, dt0_given: bool):
     return stats["num_steps"] * per_step + start
 
 
-# (the round-off threshold of a Cholesky pivot: see jaxtree.dynamics.SINGULAR_PIVOT)
-from .dynamics import SINGULAR_PIVOT
-
-
 def _singular(problem: Problem, t, y):
-    """True when the Eq. (1) matrix at (t, y) is singular to working precision (see
-    SINGULAR_PIVOT): one factorization, no eigenvalues. An exactly singular matrix may leave the
+    """True when the Eq. (1) matrix at (t, y) is singular to working precision (a pivot at
+    round-off level, :func:`~jaxtree._src._math.regular`): one factorization, no eigenvalues. An exactly singular matrix may leave the
     factorization a pivot at round-off level instead of failing it, and the solve then returns
     finite garbage; this catches both."""
     model = problem.model
@@ -552,10 +548,7 @@ def _singular(problem: Problem, t, y):
     A = rotational_equations(model, state, t)[0]
     u = _unknown_rows(model)
     A = A[np.ix_(u, u)]
-    L = jax.lax.linalg.cholesky(A, symmetrize_input=False)
-    pivot = jnp.diagonal(L) ** 2 / jnp.diagonal(A)
-    tol = SINGULAR_PIVOT * math.sqrt(len(u)) * float(jnp.finfo(A.dtype).eps)
-    return ~(jnp.min(pivot) > tol)  # a failed factorization (NaN) is singular too
+    return ~regular(jax.lax.linalg.cholesky(A, symmetrize_input=False), A)  # a failed factorization (NaN) too
 
 
 def _initial_step(problem: Problem, y0, t0, t1):
@@ -584,67 +577,88 @@ class _Options(NamedTuple):
     report_in_callback: bool
 
 
+class _Run(NamedTuple):
+    """The inputs of one simulation that JAX may trace: the mass center's start (or None), the
+    times, tolerances and first step (arrays or None), and the diffrax objects."""
+
+    X0: Any
+    Xd0: Any
+    t0: Any
+    t1: Any
+    rtol: Any
+    atol: Any
+    dt0: Any
+    solver: Any
+    controller: Any
+    saveat: Any
+    adjoint: Any
+    event: Any
+    progress_meter: Any
+
+
 @eqx.filter_jit
-def _solve(
-    problem: Problem,
-    y0: State,
-    X0,
-    Xd0,
-    t0,
-    t1,
-    rtol,
-    atol,
-    dt0,
-    solver,
-    controller,
-    saveat,
-    adjoint,
-    event,
-    progress_meter,
-    opts: _Options,
-):
+def _solve(problem: Problem, y0: State, run: _Run, opts: _Options):
     dtype = jnp.result_type(problem.model.mass)
-    y = problem.pack(y0, None, X0, Xd0)
-    # A non-finite start cannot be integrated: NaN error estimates give NaN steps until max_steps
-    # (a vmapped batch would wait for its worst member). Nor can a start where Eq. (1) is singular
-    # to working precision (exact gimbal lock): the accelerations are undetermined, and the
-    # factorization may even return finite garbage. Integrate the vehicle at rest in their place,
-    # report "nonfinite_start" / "singular_start" and return NaN histories for such a run.
-    finite_start = jnp.all(jnp.isfinite(y))
-    singular_start = finite_start & _singular(problem, t0, jax.lax.stop_gradient(y))
-    start_ok = finite_start & ~singular_start
-    n, z3 = problem.model.n, jnp.zeros(3, dtype)
-    rest = problem.pack(State(jnp.eye(3, dtype=dtype), z3, jnp.zeros(n, dtype), jnp.zeros(n, dtype)))
+    y = problem.pack(y0, None, run.X0, run.Xd0)
+    start_ok, singular_start, rest = _start(problem, y, run.t0)
+    controller, dt0 = run.controller, run.dt0
     if controller is None:
-        controller = default_controller(rtol, atol, t0, t1)
+        controller = default_controller(run.rtol, run.atol, run.t0, run.t1)
         if dt0 is None:
             # a choice of the discretization, not a function to differentiate (BacksolveAdjoint
             # refuses a first step that carries a tangent)
-            dt0 = jax.lax.stop_gradient(_initial_step(problem, jnp.where(start_ok, y, rest), t0, t1))
+            dt0 = jax.lax.stop_gradient(_initial_step(problem, jnp.where(start_ok, y, rest), run.t0, run.t1))
     ts = None
     if not opts.user_saveat:
-        ts = jnp.linspace(t0, t1, opts.grid, dtype=dtype) if opts.grid is not None else saveat
-    solver = _with_jacobian(solver)
-    ts_h, ys_h, t_final, y_final, sol = integrate(
+        ts = jnp.linspace(run.t0, run.t1, opts.grid, dtype=dtype) if opts.grid is not None else run.saveat
+    solver = _with_jacobian(run.solver)
+    ends = integrate(
         _vector_field,
         solver,
-        t0,
-        t1,
+        run.t0,
+        run.t1,
         dt0,
         y,
         problem,
         ts=ts,
-        saveat=saveat if opts.user_saveat else None,
+        saveat=run.saveat if opts.user_saveat else None,
         controller=controller,
-        adjoint=adjoint,
-        event=event,
+        adjoint=run.adjoint,
+        event=run.event,
         max_steps=opts.max_steps,
-        progress_meter=progress_meter,
+        progress_meter=run.progress_meter,
         start_ok=start_ok,
         rest=rest,
     )
+    out = _solution(problem, opts, solver, dt0 is not None, (start_ok, singular_start), ends)
+    if opts.report_in_callback:
+        _report_in_callback(out)
+    return out
+
+
+def _start(problem: Problem, y, t0):
+    """``(start_ok, singular_start, rest)`` of a flat start `y`.
+
+    A non-finite start cannot be integrated: NaN error estimates give NaN steps until max_steps
+    (a vmapped batch would wait for its worst member). Nor can a start where Eq. (1) is singular
+    to working precision (exact gimbal lock): the accelerations are undetermined, and the
+    factorization may even return finite garbage. Such a run integrates the vehicle at rest
+    (`rest`) in their place, reports "nonfinite_start" / "singular_start" and returns NaN histories."""
+    dtype = jnp.result_type(problem.model.mass)
+    finite_start = jnp.all(jnp.isfinite(y))
+    singular_start = finite_start & _singular(problem, t0, jax.lax.stop_gradient(y))
+    n, z3 = problem.model.n, jnp.zeros(3, dtype)
+    rest = problem.pack(State(jnp.eye(3, dtype=dtype), z3, jnp.zeros(n, dtype), jnp.zeros(n, dtype)))
+    return finite_start & ~singular_start, singular_start, rest
+
+
+def _solution(problem: Problem, opts: _Options, solver, dt0_given: bool, start, ends) -> Solution:
+    """The :class:`Solution` of an integration: `start` ``(start_ok, singular_start)`` of
+    :func:`_start`, `ends` ``(ts, ys, t_final, y_final, diffrax solution)`` of ``integrate``; the
+    energy, momentum and hold torques are left to :func:`_with_diagnostics`."""
+    start_ok, singular_start = start
+    ts_h, ys_h, t_final, y_final, sol = ends
     hist = _history(problem, ts_h, ys_h)
-    final_state = problem.state(t_final, y_final)
     _, _, _, _, _, Xf, Xdf = problem.unpack(y_final)
     mask = sol.event_mask
     singular = jnp.asarray(False)
@@ -655,7 +669,7 @@ def _solve(
             mask, guard_mask = None, mask
         singular = _guard_any(guard_mask)
     stats = dict(sol.stats)
-    stats["rhs_evaluations"] = _rhs_evaluations(solver, sol.stats, dt0 is not None)
+    stats["rhs_evaluations"] = _rhs_evaluations(solver, sol.stats, dt0_given)
     stats.update(solver_statistics(solver, sol))
     R = dfx.RESULTS
     ok = (sol.result == R.successful) | ((sol.result == R.event_occurred) & ~singular)
@@ -664,7 +678,7 @@ def _solve(
         jnp.where(ok, 0, result_code(sol.result, singular)),
         jnp.where(singular_start, int(Failure.SINGULAR_START), int(Failure.NONFINITE_START)),
     )
-    out = Solution(
+    return Solution(
         ts=ts_h,
         gamma=hist["gamma"],
         gamma_dot=hist["gamma_dot"],
@@ -679,7 +693,7 @@ def _solve(
         angular_momentum=_FILLED_BY_SIMULATE,
         orthogonality=hist["orthogonality"],
         t_final=t_final,
-        final=final_state,
+        final=problem.state(t_final, y_final),
         final_control_state=problem.control_state(y_final),
         final_X=Xf,
         final_X_dot=Xdf,
@@ -692,24 +706,26 @@ def _solve(
         raw=sol,
         problem=problem,
     )
-    if opts.report_in_callback:
-        # Under a caller's jit/vmap the values are not known until run time: report failures
-        # from a host callback, which raises with the time and state of every failed member.
-        attitude_name, labels = problem.attitude.name, _unknown_labels(problem.model)
 
-        def host(code, t, state, margin, model, condition, direction):
-            _raise_from_callback(code, t, state, condition, margin, attitude_name, direction, labels)
 
-        def diagnose(code, t, state, margin, model):  # only when a run failed: an eigendecomposition
-            return _condition(model, state, t)
+def _report_in_callback(out: Solution) -> None:
+    """Under a caller's jit/vmap the values are not known until run time: report failures from a
+    host callback, which raises with the time and state of every failed member."""
+    problem = out.problem
+    attitude_name, labels = problem.attitude.name, _unknown_labels(problem.model)
 
-        report_failures(
-            host,
-            failure != 0,
-            jax.lax.stop_gradient((failure, t_final, final_state, out.margin, problem.model)),
-            diagnose,
-        )
-    return out
+    def host(code, t, state, margin, model, condition, direction):
+        _raise_from_callback(code, t, state, condition, margin, attitude_name, direction, labels)
+
+    def diagnose(code, t, state, margin, model):  # only when a run failed: an eigendecomposition
+        return _condition(model, state, t)
+
+    report_failures(
+        host,
+        out.failure != 0,
+        jax.lax.stop_gradient((out.failure, out.t_final, out.final, out.margin, problem.model)),
+        diagnose,
+    )
 
 
 # ----------------------------------------------------------------------------- failures
@@ -923,7 +939,7 @@ def simulate(
     opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced))
     as_array = lambda x: None if x is None else jnp.asarray(x, dtype)
     arrays = (as_array(X0), as_array(Xd0), as_array(t0), as_array(t1), as_array(rtol), as_array(atol), as_array(dt0))
-    sol = _solve(problem, y0, *arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, opts)
+    sol = _solve(problem, y0, _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter), opts)
     sol = _with_diagnostics(sol, model, law, controller, params)
     sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
     if throw and not traced:
