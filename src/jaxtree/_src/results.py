@@ -162,6 +162,27 @@ def _base_coords(model: Model, T_times):
     }
 
 
+# the optional histories of a simulation dataset: name, dimensions, units, long name
+_HISTORIES = (
+    ("energy", ("time",), "J", "kinetic energy about the system mass center plus hinge-spring energy"),
+    (
+        "angular_momentum",
+        ("time", "axis"),
+        "kg m2 s-1",
+        "angular momentum about the system mass center, inertial components",
+    ),
+    ("attitude", ("time", "attitude_variable"), "1", "integrated attitude variables of b0"),
+    (
+        "hold_torque",
+        ("time", "prescribed_hinge"),
+        "N m",
+        "torque holding each prescribed hinge on its prescription (Sec. II B)",
+    ),
+    ("orthogonality", ("time",), "1", "max |C C^T - U| (drift of Eq. 3)"),
+    ("modal", ("time", "modal_coordinate"), "1", "modal coordinates of the hybrid equations (Eqs. 111-112)"),
+)
+
+
 def simulation_dataset(
     model: Model,
     ts,
@@ -222,42 +243,28 @@ def simulation_dataset(
             "unit hinge axis g^k, in the parent's frame at gamma = 0",
         ),
     }
-    if energy is not None:
-        v["energy"] = _var(
-            ("time",), pick(energy), "J", "kinetic energy about the system mass center plus hinge-spring energy"
-        )
-    if angular_momentum is not None:
-        v["angular_momentum"] = _var(
-            ("time", "axis"),
-            pick(angular_momentum),
-            "kg m2 s-1",
-            "angular momentum about the system mass center, inertial components",
-        )
-    if attitude is not None:
-        v["attitude"] = _var(
-            ("time", "attitude_variable"),
-            pick(attitude),
-            "1",
-            f"integrated attitude variables of b0 ({attitude_name})",
-            attitude_name=attitude_name or "",
-        )
-    if hold_torque is not None and np.shape(hold_torque)[-1] > 0:
+    histories = dict(
+        energy=energy,
+        angular_momentum=angular_momentum,
+        attitude=attitude,
+        hold_torque=hold_torque if hold_torque is not None and np.shape(hold_torque)[-1] > 0 else None,
+        orthogonality=orthogonality,
+        modal=modal,
+    )
+    for name, dims, units, long_name in _HISTORIES:
+        if histories[name] is None:
+            continue
+        if name == "attitude":
+            v[name] = _var(
+                dims, pick(attitude), units, f"{long_name} ({attitude_name})", attitude_name=attitude_name or ""
+            )
+        else:
+            v[name] = _var(dims, pick(histories[name]), units, long_name)
+    if histories["hold_torque"] is not None:
         coords["prescribed_hinge"] = (
             "prescribed_hinge",
             np.asarray(model.prescribed),
             {"long_name": "index of a kinematically prescribed hinge"},
-        )
-        v["hold_torque"] = _var(
-            ("time", "prescribed_hinge"),
-            pick(hold_torque),
-            "N m",
-            "torque holding each prescribed hinge on its prescription (Sec. II B)",
-        )
-    if orthogonality is not None:
-        v["orthogonality"] = _var(("time",), pick(orthogonality), "1", "max |C C^T - U| (drift of Eq. 3)")
-    if modal is not None:
-        v["modal"] = _var(
-            ("time", "modal_coordinate"), pick(modal), "1", "modal coordinates of the hybrid equations (Eqs. 111-112)"
         )
     if isinstance(positions, tuple):
         rho, hinge = (np.asarray(x)[keep] for x in positions)
@@ -562,6 +569,19 @@ def _model_of(ds) -> Model:
     return scene_from_dict(json.loads(text))
 
 
+_NOT_STORED = (
+    "control_state",
+    "X",
+    "X_dot",
+    "final_control_state",
+    "final_X",
+    "final_X_dot",
+    "result",
+    "event_mask",
+    "raw",
+)
+
+
 def _to_solution(ds):
     import diffrax as dfx  # noqa: F401  (Solution's field types)
 
@@ -601,26 +621,19 @@ def _to_solution(ds):
         omega0=omega0,
         dcm=dcm,
         attitude=attitude,
-        control_state=None,
-        X=None,
-        X_dot=None,
         hold_torque=hold,
         energy=energy,
         angular_momentum=H,
         orthogonality=ortho,
         t_final=jnp.asarray(ds.attrs.get("t_final", ds["time"].values[i]), dtype),
         final=final,
-        final_control_state=None,
-        final_X=None,
-        final_X_dot=None,
-        result=None,
-        event_mask=None,
         singular=jnp.asarray(False),
         margin=jnp.asarray(jnp.nan, dtype),
         failure=jnp.asarray(failure),
         stats=stats,
-        raw=None,
         problem=problem,
+        # what a file does not hold: the controller's states, the translation, the raw solution
+        **dict.fromkeys(_NOT_STORED),
     )
 
 
