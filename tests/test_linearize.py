@@ -19,6 +19,12 @@ from helpers import appendix_c
 from oracle import oracle_at
 from trees import ALL, PARENTS, planar_model, principal_moments, sprung_tree
 
+# jaxtree's jacfwd linearization against closed forms and the oracle, O(1) entries in float64: round-off
+ROUNDOFF = 1e-12
+# against central differences with h = 1e-5 on O(1) angles (fd_ijk): truncation ~ h^2 |r'''| ~ 1e-9 and
+# round-off ~ 1e-16 |r| / h ~ 1e-10 of the matrix scale; this leaves a margin of 100
+RTOL_FD = 1e-7
+
 
 def oracle_residual(model, omega0, gamma, gamma_dot, acc):
     """Residual of Eq. (1), [a] x - rhs, from the independent Lagrange oracle (springs/dampers as tau)."""
@@ -104,15 +110,13 @@ def test_ijk_against_finite_differences_of_oracle():
     lin = jaxtree.linearize(model, small, omega0=omega0, gamma=gamma)
     I, J, K = (np.asarray(x) for x in lin)
     Ifd, Jfd, Kfd = fd_ijk(model, small, omega0, gamma)
-    # Central differences with h = 1e-5 on O(1) angles: truncation ~ h^2 |r'''| ~ 1e-9 and round-off
-    # ~ 1e-16 |r| / h ~ 1e-10 of the matrix scale; 1e-7 leaves a margin of 100.
     for a, b in ((I, Ifd), (J, Jfd), (K, Kfd)):
-        np.testing.assert_allclose(a, b, atol=1e-7 * np.abs(b).max())
+        np.testing.assert_allclose(a, b, atol=RTOL_FD * np.abs(b).max())
     # the bias is minus the residual of the rows of A on the nominal motion
     r0 = oracle_residual(model, omega0, gamma, np.zeros(model.n), np.zeros(model.n + 3))
     np.testing.assert_allclose(np.asarray(lin.bias), -r0[[3 + k - 1 for k in small]], atol=1e-10)
     # the damper gives J its symmetric part d_i delta_ij (Eq. 46); the rest of J is skew here
-    np.testing.assert_allclose(0.5 * (J + J.T), np.diag(np.asarray(model.damping)[np.array(small) - 1]), atol=1e-12)
+    np.testing.assert_allclose(0.5 * (J + J.T), np.diag(np.asarray(model.damping)[np.array(small) - 1]), atol=ROUNDOFF)
 
 
 def test_external_loads_enter_through_the_derivative():
@@ -142,7 +146,9 @@ def test_external_loads_enter_through_the_derivative():
 
     h = 1e-5
     Kfd = np.stack([(res(h * e, 0 * e, np.zeros(6)) - res(-h * e, 0 * e, np.zeros(6))) / (2 * h) for e in np.eye(3)], 1)
-    np.testing.assert_allclose(K, Kfd, atol=1e-7 * np.abs(Kfd).max())  # same FD budget as above
+    np.testing.assert_allclose(
+        K, Kfd, atol=RTOL_FD * np.abs(Kfd).max()
+    )  # the same budget: central differences, h = 1e-5
     st = jaxtree.structure(I, J, K)
     assert not st.K_symmetric and st.kind == "general"
 
@@ -157,7 +163,7 @@ def test_nonspinning_elastic_eq51_and_36d():
     for gamma in (np.zeros(model.n), rng.normal(size=model.n) * (1 - np.isin(np.arange(1, 7), small))):
         I, J, K = (np.asarray(x) for x in jaxtree.linearize(model, small, gamma=gamma))
         assert np.abs(J).max() == 0.0
-        np.testing.assert_allclose(K, np.diag(np.asarray(model.stiffness)[np.array(small) - 1]), atol=1e-12)
+        np.testing.assert_allclose(K, np.diag(np.asarray(model.stiffness)[np.array(small) - 1]), atol=ROUNDOFF)
         st = jaxtree.structure(I, J, K)
         assert st.J_zero and st.K_symmetric and st.kind == "real"
     # Eq. (36d) at the nominal state gamma = 0 (C_bar = U)
@@ -177,7 +183,7 @@ def test_nonspinning_elastic_eq51_and_36d():
             )
             I36[a, b] = v
     I0 = np.asarray(jaxtree.linearize(model, small).I)
-    np.testing.assert_allclose(I0, I36, rtol=1e-12, atol=1e-12 * np.abs(I36).max())
+    np.testing.assert_allclose(I0, I36, rtol=ROUNDOFF, atol=ROUNDOFF * np.abs(I36).max())
 
 
 def test_transverse_case_eqs_55_58():
@@ -213,8 +219,8 @@ def test_transverse_case_eqs_55_58():
                 )
             )
     scale = np.abs(K).max()
-    np.testing.assert_allclose(J, J55, atol=1e-12 * scale)
-    np.testing.assert_allclose(K, K58, atol=1e-12 * scale)
+    np.testing.assert_allclose(J, J55, atol=ROUNDOFF * scale)
+    np.testing.assert_allclose(K, K58, atol=ROUNDOFF * scale)
     st = jaxtree.structure(I, J, K)
     assert st.J_skew and not st.J_zero and st.K_symmetric and st.kind == "gyroscopic"
     assert np.abs(J).max() > 1e-3 * scale  # a genuinely gyroscopic case
@@ -270,8 +276,8 @@ def test_meridional_case_eqs_66_67():
                 e[i, r] * e[j, s] * Dz[s, r] * Dz[r, s] for r in P for s in P if s != r
             )
     scale = np.abs(K).max()
-    np.testing.assert_allclose(K, corrected, atol=1e-12 * scale)
-    np.testing.assert_allclose(I, I67, atol=1e-12 * np.abs(I67).max())
+    np.testing.assert_allclose(K, corrected, atol=ROUNDOFF * scale)
+    np.testing.assert_allclose(I, I67, atol=ROUNDOFF * np.abs(I67).max())
     # the printed Eq. (66) misses the -M sum D_ks D_sk term: off by far more than round-off
     assert np.abs(K - printed).max() > 1e-2 * scale
 
@@ -315,7 +321,7 @@ def test_appendix_c_linearized_equations_c61_c65():
         )
         exp = _appendix_c_expected(p, w, wd)
         for got, want in zip(lin, exp):
-            np.testing.assert_allclose(np.asarray(got), want, atol=1e-12 * max(1.0, np.abs(want).max()))
+            np.testing.assert_allclose(np.asarray(got), want, atol=ROUNDOFF * max(1.0, np.abs(want).max()))
 
 
 def test_appendix_c_transformation_c69_c74():
@@ -351,7 +357,7 @@ def test_appendix_c_transformation_c69_c74():
         [0, -(J * (w2**2 - w3**2) - 2 * M * R**2 * (w1**2 + w2**2) - M * R * r * (w1**2 + w3**2) - k)],
     ]
     for got, want in ((res, exp_res), (acc, exp_acc), (rate, exp_rate), (ang, exp_ang)):
-        np.testing.assert_allclose(got, np.asarray(want, float), atol=1e-12 * 100)
+        np.testing.assert_allclose(got, np.asarray(want, float), atol=ROUNDOFF * 100)
 
 
 def test_appendix_c_structure_and_eq66_extra_term():
@@ -377,7 +383,7 @@ def test_vehicle_linearization_structure_and_fd():
     assert lin.coordinates[:3] == ("cylinder.rotation_1", "cylinder.rotation_2", "cylinder.rotation_3")
     st = jaxtree.structure(I, J, K)
     assert st.kind == "gyroscopic" and st.K_semidefinite and not st.K_positive
-    np.testing.assert_allclose(np.asarray(lin.bias), 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(lin.bias), 0.0, atol=ROUNDOFF)
 
     @eqx.filter_jit
     def eq1(model, w, g, gd, acc):
@@ -404,4 +410,4 @@ def test_vehicle_linearization_structure_and_fd():
     }
     # "q" = accelerations, "v" = rates, "p" = angles; same FD budget as above
     for got, name in ((I, "q"), (J, "v"), (K, "p")):
-        np.testing.assert_allclose(got, cols[name], atol=1e-7 * np.abs(cols[name]).max())
+        np.testing.assert_allclose(got, cols[name], atol=RTOL_FD * np.abs(cols[name]).max())

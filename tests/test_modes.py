@@ -21,6 +21,14 @@ from jaxtree import Body, SpringDamper
 from helpers import appendix_c
 from trees import ALL, PARENTS, planar_model, sprung_tree
 
+# modal identities (phi^T I phi = U, phi^T K phi = sigma^2) and closed forms, O(1) numbers in float64: round-off
+ROUNDOFF = 1e-12
+# one closed-form frequency or eigenvalue against jaxtree's: a few hundred ulps
+ROUNDOFF_SCALAR = 1e-13
+# against an independent eigensolver (numpy / scipy on B, Eq. 71, or the hand-built C-70..C-74 system):
+# the conditioning of the non-symmetric first-order eigenproblem
+EIGENSOLVER = 1e-9
+
 
 def check_biorthogonality(md, tol=1e-10):
     """Eqs. (89)-(90): Phi'^T P Phi = U and Phi'^T Q Phi = Lambda (the undamped Lambda)."""
@@ -70,7 +78,9 @@ def test_rod_on_massive_base_closed_form():
         md = jaxtree.modes(jaxtree.linearize(model, ("rod",), omega0=[0, 0, Om]))
         assert md.kind == "real"
         np.testing.assert_allclose(
-            md.frequencies, [np.sqrt((k + (J - M * R**2 + (M - m) * R * r) * Om**2) / (J - M * R**2))], rtol=1e-13
+            md.frequencies,
+            [np.sqrt((k + (J - M * R**2 + (M - m) * R * r) * Om**2) / (J - M * R**2))],
+            rtol=ROUNDOFF_SCALAR,
         )
         assert md.labels == ("rod 100%",)
     heavy = rod_on_base(1e9, m, L, r, k)
@@ -91,13 +101,13 @@ def test_appendix_c_modes_held_base():
         s1 = np.sqrt((p["k"] + p["c"] * Om**2) / p["J"])
         s2 = np.sqrt((p["k"] + p["c"] * Om**2) / (p["J"] - 2 * p["M"] * p["R"] ** 2))
         order = np.argsort([s1, s2])
-        np.testing.assert_allclose(md.frequencies, np.array([s1, s2])[order], rtol=1e-13)
+        np.testing.assert_allclose(md.frequencies, np.array([s1, s2])[order], rtol=ROUNDOFF_SCALAR)
         phi = np.asarray(md.shapes)
         I, J, K = (np.asarray(x) for x in lin)
         np.testing.assert_allclose(phi.T @ I @ phi, np.eye(2), atol=1e-13)
-        np.testing.assert_allclose(phi.T @ K @ phi, np.diag(np.asarray(md.frequencies) ** 2), atol=1e-12)
+        np.testing.assert_allclose(phi.T @ K @ phi, np.diag(np.asarray(md.frequencies) ** 2), atol=ROUNDOFF)
         sym = int(np.flatnonzero(order == 0)[0])  # the eta1 mode
-        assert abs(phi[0, sym] - phi[1, sym]) < 1e-12 and abs(phi[0, 1 - sym] + phi[1, 1 - sym]) < 1e-12
+        assert abs(phi[0, sym] - phi[1, sym]) < ROUNDOFF and abs(phi[0, 1 - sym] + phi[1, 1 - sym]) < ROUNDOFF
         assert " + " in md.labels[sym] and " - " in md.labels[1 - sym]
         check_biorthogonality(md)
 
@@ -134,7 +144,7 @@ def test_appendix_c_vehicle_modes():
     assert md.kind == "real"
     s_eta1 = np.sqrt(p["k"] / (p["J"] - 2 * p["c"] ** 2 / p["I1"]))
     s_eta2 = np.sqrt(p["k"] / (p["J"] - 2 * p["M"] * p["R"] ** 2))
-    np.testing.assert_allclose(md.frequencies, [0, 0, 0] + sorted([s_eta1, s_eta2]), atol=1e-12, rtol=1e-12)
+    np.testing.assert_allclose(md.frequencies, [0, 0, 0] + sorted([s_eta1, s_eta2]), atol=ROUNDOFF, rtol=ROUNDOFF)
     assert list(np.asarray(md.rigid)) == [True, True, True, False, False]
     assert all(lab.startswith("rigid body") for lab in md.labels[:3])
     Om = 1.0
@@ -142,7 +152,7 @@ def test_appendix_c_vehicle_modes():
     assert md.kind == "gyroscopic"
     dw = _dw_system(p, Om)  # seven values: 0 (dw3), and three pairs
     expected = np.sort(np.concatenate([[0.0, Om], np.unique(np.round(dw[1:], 12))]))
-    np.testing.assert_allclose(md.frequencies, expected, atol=1e-9)
+    np.testing.assert_allclose(md.frequencies, expected, atol=EIGENSOLVER)
     assert list(np.asarray(md.rigid)) == [True, False, False, False, False]
     assert md.labels[0].startswith("rigid body: cylinder.rotation_3")
     check_biorthogonality(md)
@@ -171,7 +181,7 @@ def test_gyroscopic_modes_left_eigenvectors_eq96(transverse):
     np.testing.assert_allclose(lam[nu:], np.conj(lam[:nu]))
     P, Q, B = (np.asarray(x) for x in jaxtree.first_order(*lin))
     ref = np.linalg.eigvals(B)
-    np.testing.assert_allclose(np.sort(np.abs(ref.imag))[1::2], md.frequencies, rtol=1e-9)
+    np.testing.assert_allclose(np.sort(np.abs(ref.imag))[1::2], md.frequencies, rtol=EIGENSOLVER)
     check_biorthogonality(md)
     w, vl, vr = sla.eig(Q, P, left=True, right=True)
     right = np.asarray(md.right)
@@ -182,7 +192,7 @@ def test_gyroscopic_modes_left_eigenvectors_eq96(transverse):
         a, b = vl[:, i], right[:, j]
         assert abs(abs(np.vdot(a, b)) - np.linalg.norm(a) * np.linalg.norm(b)) < 1e-8 * np.linalg.norm(b)
     # Eq. (70) holds for each right eigenvector: (Q - lambda P) Phi = 0
-    np.testing.assert_allclose((Q @ right) - (P @ right) * lam[None, :], 0, atol=1e-9)
+    np.testing.assert_allclose((Q @ right) - (P @ right) * lam[None, :], 0, atol=EIGENSOLVER)
 
 
 def test_real_solution_eq95(transverse):
@@ -224,8 +234,8 @@ def test_general_case_with_dampers():
     lam = check_biorthogonality(md)
     P, Q, B = (np.asarray(x) for x in jaxtree.first_order(*lin))
     ref = np.sort_complex(np.linalg.eigvals(B))
-    np.testing.assert_allclose(np.sort_complex(np.asarray(md.eigenvalues)), ref, atol=1e-9 * np.abs(ref).max())
-    np.testing.assert_allclose(lam, md.eigenvalues, atol=1e-9 * np.abs(ref).max())
+    np.testing.assert_allclose(np.sort_complex(np.asarray(md.eigenvalues)), ref, atol=EIGENSOLVER * np.abs(ref).max())
+    np.testing.assert_allclose(lam, md.eigenvalues, atol=EIGENSOLVER * np.abs(ref).max())
     z = np.asarray(md.damping_ratios)
     assert np.all((z > 0) & (z < 1))
     np.testing.assert_allclose(z, -np.asarray(md.eigenvalues[:4]).real / np.abs(np.asarray(md.eigenvalues[:4])))
@@ -262,10 +272,10 @@ def test_repeated_eigenvalues():
     phi0 = np.linalg.solve(L.T, V)  # I-orthonormal
     K = I @ phi0 @ np.diag([1.0, 1.0, 4.0]) @ phi0.T @ I
     md = jaxtree.modes(I, np.zeros((3, 3)), K)
-    np.testing.assert_allclose(md.frequencies, [1, 1, 2], rtol=1e-12)
+    np.testing.assert_allclose(md.frequencies, [1, 1, 2], rtol=ROUNDOFF)
     phi = np.asarray(md.shapes)
-    np.testing.assert_allclose(phi.T @ I @ phi, np.eye(3), atol=1e-12)
-    np.testing.assert_allclose(phi.T @ K @ phi, np.diag([1, 1, 4]), atol=1e-12)
+    np.testing.assert_allclose(phi.T @ I @ phi, np.eye(3), atol=ROUNDOFF)
+    np.testing.assert_allclose(phi.T @ K @ phi, np.diag([1, 1, 4]), atol=ROUNDOFF)
     check_biorthogonality(md)
     # two identical gyroscopic blocks, mixed by a congruence: repeated pairs
     Ib, Jb, Kb = np.diag([2.0, 3.0]), np.array([[0.0, 1.5], [-1.5, 0.0]]), np.diag([5.0, 7.0])
@@ -280,7 +290,7 @@ def test_repeated_eigenvalues():
     check_biorthogonality(md)
     md = jaxtree.modes(Ig, Jg + 0.1 * Ig, Kg)  # proportional damping: general path, still repeated
     assert md.kind == "general"
-    check_biorthogonality(md, tol=1e-9)
+    check_biorthogonality(md, tol=EIGENSOLVER)
 
 
 def test_rejected_systems_have_clear_messages():
@@ -312,7 +322,7 @@ def test_modal_damping_real_and_spinning(transverse):
     s = np.asarray(md0.frequencies)
     np.testing.assert_allclose(md.frequencies, s)
     up = -zeta * s + 1j * s * np.sqrt(1 - zeta**2)
-    np.testing.assert_allclose(md.eigenvalues, np.concatenate([up, up.conj()]), rtol=1e-13)
+    np.testing.assert_allclose(md.eigenvalues, np.concatenate([up, up.conj()]), rtol=ROUNDOFF_SCALAR)
     B = np.asarray(md.B)
     np.testing.assert_allclose(
         np.sort_complex(np.linalg.eigvals(B)), np.sort_complex(np.asarray(md.eigenvalues)), rtol=1e-10
@@ -320,18 +330,18 @@ def test_modal_damping_real_and_spinning(transverse):
     I = np.asarray(lin.I)
     C = -I @ B[2:, 2:]
     phi = np.asarray(md.shapes)
-    np.testing.assert_allclose(phi.T @ C @ phi, np.diag(2 * zeta * s), atol=1e-12)
+    np.testing.assert_allclose(phi.T @ C @ phi, np.diag(2 * zeta * s), atol=ROUNDOFF)
     # spinning (gyroscopic)
     _, lin = transverse
     zeta = np.linspace(0.01, 0.05, lin.nu)
     md = jaxtree.modes(lin, damping=zeta)
     s = np.asarray(md.frequencies)
     up = (-zeta + 1j) * s
-    np.testing.assert_allclose(md.eigenvalues, np.concatenate([up, up.conj()]), rtol=1e-13)
+    np.testing.assert_allclose(md.eigenvalues, np.concatenate([up, up.conj()]), rtol=ROUNDOFF_SCALAR)
     B = np.asarray(md.B)
     assert B.dtype.kind == "f"
     np.testing.assert_allclose(
-        np.sort_complex(np.linalg.eigvals(B)), np.sort_complex(np.asarray(md.eigenvalues)), rtol=1e-9
+        np.sort_complex(np.linalg.eigvals(B)), np.sort_complex(np.asarray(md.eigenvalues)), rtol=EIGENSOLVER
     )
 
 
