@@ -31,8 +31,18 @@ from jaxtree._src.kinematics import tilde
 
 from helpers import appendix_c
 
-TOL = 1e-11
-SAME = 2e-8
+TOL = 1e-11  # rtol = atol of the reference integrations (module docstring)
+SAME = 2e-8  # two TOL integrations of the same motion agree to this (observed <= 2e-10; module docstring)
+# float64 identities of O(1) numbers (packing, mode shapes, energy, projection residual): round-off
+ROUNDOFF = 1e-12
+# the precomputed substructure terms against the general form of Eq. (118), relative to the largest
+# entry: round-off of two different summations over the bodies
+ROUNDOFF_EQ118 = 1e-11
+# against scipy's eigenvalues of B and the modal normalizations (Eqs. 89-90, 116): the conditioning
+# of the non-symmetric first-order eigenproblem
+EIGENSOLVER = 1e-9
+# the same frequencies taken from another object (selected, retained): equal to a few ulps
+SAME_NUMBERS = 1e-14
 FIG4_SMALL = (5, 6, 7, 8, 9, 10)  # all panel hinges: a terminal appendage (Sec. III A, Fig. 4)
 FIG4_SPIN = [0.0, 0.0, 0.3]  # nominal omega0 of the modes: spinning, so the modes are gyroscopic
 
@@ -247,7 +257,7 @@ def check_rhs_against_eq30(hm, rng, trials=2):
         tol = 1e-10 * float(np.abs(want).max())
         np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=tol)
         # the kinematic rows of (30d) (first-order form): Gamma_1 Phi Y' = Gamma_2 Phi Y = y'
-        np.testing.assert_allclose(np.asarray(yd), np.asarray(st.gamma_dot[S]), atol=1e-12)
+        np.testing.assert_allclose(np.asarray(yd), np.asarray(st.gamma_dot[S]), atol=ROUNDOFF)
         worst = max(worst, float(np.abs(got - want).max() / np.abs(want).max()))
         if model.prescribed:
             # Eq. (30c) prints the prescribed terms as -sum_G a_0k gamma_ddot_k; Eq. (30) needs bar + caret.
@@ -305,16 +315,18 @@ def test_nominal_modal_block_and_left_eigenvector_scaling(fig4):
     nu = len(FIG4_SMALL)
     B = np.block([[np.zeros((nu, nu)), np.eye(nu)], [-np.linalg.solve(I, K), -np.linalg.solve(I, J)]])
     sigma = np.sort(np.abs(sla.eigvals(B).imag))[::2]
-    np.testing.assert_allclose(np.asarray(hm.frequencies), sigma, rtol=1e-9)
-    np.testing.assert_allclose(np.asarray(hm.frequencies), np.asarray(md.frequencies)[list(hm.mode_index)], rtol=1e-14)
+    np.testing.assert_allclose(np.asarray(hm.frequencies), sigma, rtol=EIGENSOLVER)
+    np.testing.assert_allclose(
+        np.asarray(hm.frequencies), np.asarray(md.frequencies)[list(hm.mode_index)], rtol=SAME_NUMBERS
+    )
     # Eq. (116) as printed: Phi'^T A_kk Phi with the nominal A_kk = diag(U, a_bar) of (30d)
     R, Lf = np.asarray(md.right), np.asarray(md.left)
     Pu = sla.block_diag(np.eye(nu), I)
     printed = Lf.T @ Pu @ R
     assert np.abs(printed - np.eye(2 * nu)).max() > 0.4
-    np.testing.assert_allclose(Lf.T @ sla.block_diag(K, I) @ R, np.eye(2 * nu), atol=1e-9)
+    np.testing.assert_allclose(Lf.T @ sla.block_diag(K, I) @ R, np.eye(2 * nu), atol=EIGENSOLVER)
     scaled = sla.block_diag(K.T, np.eye(nu)) @ Lf
-    np.testing.assert_allclose(scaled.T @ Pu @ R, np.eye(2 * nu), atol=1e-9)
+    np.testing.assert_allclose(scaled.T @ Pu @ R, np.eye(2 * nu), atol=EIGENSOLVER)
     # the hybrid equations at the nominal motion (large variables at their nominal values; the
     # platform held, as in jaxtree.linearize: prescription amplitude zero)
     nominal = State(jnp.eye(3), jnp.asarray(FIG4_SPIN), jnp.zeros(model.n), jnp.zeros(model.n))
@@ -327,10 +339,10 @@ def test_nominal_modal_block_and_left_eigenvector_scaling(fig4):
         nx = 3 + len(h.large)
         act = np.concatenate([np.arange(k), h.n_modes + np.arange(k)])  # the active modal rows and columns
         Mmm = np.asarray(mat)[nx:, nx:][np.ix_(act, act)]
-        np.testing.assert_allclose(Mmm, np.eye(2 * k), atol=1e-9)
+        np.testing.assert_allclose(Mmm, np.eye(2 * k), atol=EIGENSOLVER)
         lam = sla.eigvals(np.linalg.solve(Mmm, jac[nx:][np.ix_(act, act)]))
         np.testing.assert_allclose(np.abs(lam.real).max(), 0.0, atol=1e-8)
-        np.testing.assert_allclose(np.sort(np.abs(lam.imag))[::2], sigma[:k], rtol=1e-9)
+        np.testing.assert_allclose(np.sort(np.abs(lam.imag))[::2], sigma[:k], rtol=EIGENSOLVER)
     # modal damping (end of Sec. III E, spinning case): i sigma -> -zeta sigma + i sigma
     zeta = 0.02
     hd = jaxtree.hybrid_model(held, FIG4_SMALL, omega0=FIG4_SPIN, damping=zeta, basis="set")
@@ -341,7 +353,7 @@ def test_nominal_modal_block_and_left_eigenvector_scaling(fig4):
     lam = sla.eigvals(np.linalg.solve(mat, jac[nx:]))
     lam = lam[np.argsort(np.abs(lam.imag))][::2]
     np.testing.assert_allclose(lam.real, -zeta * sigma, rtol=1e-7)
-    np.testing.assert_allclose(np.abs(lam.imag), sigma, rtol=1e-9)
+    np.testing.assert_allclose(np.abs(lam.imag), sigma, rtol=EIGENSOLVER)
 
 
 # ----------------------------------------------------------------------------- Eq. (30), integrated
@@ -461,7 +473,7 @@ def test_truncation_error_decreases(fig4, fig4_run):
     assert panels[0] > 1e-2 and panels[4] < 0.2 * panels[0] and rates[4] < 0.02 * rates[0]
     # a model built with fewer modes is the masked one
     small3 = jaxtree.hybrid_model(model, FIG4_SMALL, 3, omega0=FIG4_SPIN, basis="set")
-    np.testing.assert_allclose(np.asarray(small3.frequencies), np.asarray(hm.frequencies)[:3], rtol=1e-14)
+    np.testing.assert_allclose(np.asarray(small3.frequencies), np.asarray(hm.frequencies)[:3], rtol=SAME_NUMBERS)
     act = np.concatenate([np.arange(3), 6 + np.arange(3)])  # active columns of the masked model
     for a, b in (
         (small3.positions, hm.positions[:, act]),
@@ -471,7 +483,7 @@ def test_truncation_error_decreases(fig4, fig4_run):
         (small3.kin_rhs, hm.kin_rhs[np.ix_(act, act)]),
         (small3.project, hm.project[act]),
     ):
-        np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-12 * float(np.abs(np.asarray(b)).max()))
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=ROUNDOFF * float(np.abs(np.asarray(b)).max()))
     # a frequency cutoff keeps the modes below it
     cut = jaxtree.hybrid_model(model, FIG4_SMALL, cutoff=12.0, omega0=FIG4_SPIN, basis="set")
     assert cut.n_modes == int(np.sum(np.asarray(hm.frequencies) <= 12.0)) == 4
@@ -509,7 +521,7 @@ def test_appendix_c_eta2_decouples(appendix):
     printed C-70..C-73 integrated by scipy, and the retained mode shape is C-69a's [1, 1]."""
     model, p, hm = appendix
     phi = np.asarray(hm.positions)[:, :2]
-    assert abs(phi[0, 0] - phi[1, 0]) < 1e-12 and abs(phi[0, 1] + phi[1, 1]) < 1e-12  # C-69a
+    assert abs(phi[0, 0] - phi[1, 0]) < ROUNDOFF and abs(phi[0, 1] + phi[1, 1]) < ROUNDOFF  # C-69a
     T, ts = 12.0, np.linspace(0.0, 12.0, 61)
     gamma0, gdot0 = np.array([0.03, -0.01]), np.array([0.02, 0.05])
     state = State(jnp.eye(3), jnp.array([0.05, -0.03, 1.0]), jnp.asarray(gamma0), jnp.asarray(gdot0))
@@ -605,8 +617,8 @@ def test_precomputed_equals_general_with_loads_moving_platform_and_several_bases
             t = jnp.asarray(rng.uniform(0, 3))
             m1, r1 = equations_jit(pre, t, y)
             m2, r2 = equations_jit(gen, t, y)
-            np.testing.assert_allclose(np.asarray(m1), np.asarray(m2), atol=1e-11 * float(np.abs(m2).max()))
-            np.testing.assert_allclose(np.asarray(r1), np.asarray(r2), atol=1e-11 * float(np.abs(r2).max()))
+            np.testing.assert_allclose(np.asarray(m1), np.asarray(m2), atol=ROUNDOFF_EQ118 * float(np.abs(m2).max()))
+            np.testing.assert_allclose(np.asarray(r1), np.asarray(r2), atol=ROUNDOFF_EQ118 * float(np.abs(r2).max()))
     assert len({g.base for g in pre.groups}) == 2 and pre.modal_inverse is None  # two moving bases
 
 
@@ -672,7 +684,7 @@ def test_truncation_under_a_slew_falls_as_modes_are_added():
             model, ref.final._replace(gamma=state.gamma, gamma_dot=state.gamma_dot, omega0=state.omega0, dcm=state.dcm)
         )
     )
-    assert abs(float(ref.energy[0]) - e0) < 1e-12 * max(1.0, abs(e0))
+    assert abs(float(ref.energy[0]) - e0) < ROUNDOFF * max(1.0, abs(e0))
 
 
 def test_projection_residual_of_the_initial_state():
@@ -685,14 +697,14 @@ def test_projection_residual_of_the_initial_state():
     g[:8] = rng.normal(size=8) * 0.01
     state = model.initial._replace(gamma=jnp.asarray(g), gamma_dot=jnp.zeros(model.n))
     full = jaxtree.hybrid_model(model, small)
-    assert float(full.projection_residual(state)) < 1e-12
+    assert float(full.projection_residual(state)) < ROUNDOFF
     one = jaxtree.hybrid_model(model, small, 1)
     r = float(one.projection_residual(state))
     # independent: the same residual from a least-squares fit in the I-weighted norm is not needed;
     # with one mode per wing the random start is mostly outside the retained modes
     assert 0.2 < r < 1.0
     sol = jaxtree.simulate_hybrid(one, 0.5, y0=state, saveat=3)
-    assert abs(float(sol.projection_residual) - r) < 1e-12
+    assert abs(float(sol.projection_residual) - r) < ROUNDOFF
 
 
 def test_held_base_frequencies_are_differentiable_in_the_stiffness():
@@ -866,8 +878,8 @@ def test_precomputed_equals_general_on_flex95_with_loads_large_hinges_and_spin()
         t = jnp.asarray(rng.uniform(0, 3))
         m1, r1 = equations_jit(pre, t, y)
         m2, r2 = equations_jit(gen, t, y)
-        np.testing.assert_allclose(np.asarray(m1), np.asarray(m2), atol=1e-11 * float(np.abs(m2).max()))
-        np.testing.assert_allclose(np.asarray(r1), np.asarray(r2), atol=1e-11 * float(np.abs(r2).max()))
+        np.testing.assert_allclose(np.asarray(m1), np.asarray(m2), atol=ROUNDOFF_EQ118 * float(np.abs(m2).max()))
+        np.testing.assert_allclose(np.asarray(r1), np.asarray(r2), atol=ROUNDOFF_EQ118 * float(np.abs(r2).max()))
 
 
 def test_gradient_through_hybrid_model_and_simulate_hybrid_against_central_differences():
@@ -953,5 +965,5 @@ def test_substructure_terms_by_one_batch_and_by_parts_agree_with_nested_jacfwd()
         tm = sub._terms(topo, d, gbar, one_batch)
         for key, value in ref.items():
             np.testing.assert_allclose(
-                np.asarray(getattr(tm, key)), np.asarray(value), rtol=0, atol=1e-12 * float(np.abs(value).max())
+                np.asarray(getattr(tm, key)), np.asarray(value), rtol=0, atol=ROUNDOFF * float(np.abs(value).max())
             )
