@@ -32,7 +32,9 @@ DRIFT_100S = 1e-9
 # tens of times the local tolerance over a few thousand steps (observed 1e-11 .. 3e-10).
 TIGHT = 1e-12
 GLOBAL = 1e-8
-# Closed forms against a run at rtol = atol = 1e-11 over a few periods (observed ~1e-11).
+# rtol = atol of the runs checked against closed forms, event times and one another below
+RUN_TOL = 1e-11
+# Closed forms against a run at rtol = atol = RUN_TOL over a few periods (observed ~1e-11).
 CLOSED = 1e-9
 # Newton root finding of events on the dense output (tolerance 1e-10 on the time).
 EVENT_TIME = 1e-9
@@ -120,7 +122,7 @@ FIG4_SAVE = dict(saveat=dfx.SaveAt(ts=jnp.linspace(0.0, 10.0, 101), dense=True),
 def test_quaternion_dcm_and_euler_runs_agree_on_the_sample_problem(scenes):
     model = scenes["fig4"]
     sols = {
-        a: simulate(model, 10.0, attitude=a, rtol=1e-11, atol=1e-11, **FIG4_SAVE)
+        a: simulate(model, 10.0, attitude=a, rtol=RUN_TOL, atol=RUN_TOL, **FIG4_SAVE)
         for a in ("quaternion", "dcm", "euler123")
     }
     q = sols["quaternion"]
@@ -193,7 +195,7 @@ def test_event_time_on_a_free_hinge_matches_the_closed_form():
     """gamma(t) = 0.4 cos(w t) with w^2 = k / I_EFF crosses 0.2 downward at t = pi / (3 w)."""
     k = 3.0
     model = coaxial(jaxtree.SpringDamper(k), gamma0=0.4)
-    sol = simulate(model, 5.0, event=jaxtree.hinge_angle_event(1, 0.2, direction=False), rtol=1e-11, atol=1e-11)
+    sol = simulate(model, 5.0, event=jaxtree.hinge_angle_event(1, 0.2, direction=False), rtol=RUN_TOL, atol=RUN_TOL)
     w = np.sqrt(k / I_EFF)
     assert sol.ok and sol.result == dfx.RESULTS.event_occurred
     assert sol.X is None and sol.control_state is None  # Eq. (2) only when asked for
@@ -212,11 +214,11 @@ def test_latch_event_on_a_prescribed_deployment_and_release(scenes):
     profile = lambda t: a + b * (1 - jnp.cos(np.pi * t / T)) / 2
     bodies[5] = dataclasses.replace(bodies[5], joint=jaxtree.Prescribed(profile))
     deploy = jaxtree.build_model(bodies, d["initial"])
-    sol = simulate(deploy, 10.0, event=jaxtree.hinge_angle_event(5, latch), rtol=1e-11, atol=1e-11)
+    sol = simulate(deploy, 10.0, event=jaxtree.hinge_angle_event(5, latch), rtol=RUN_TOL, atol=RUN_TOL)
     t_latch = T / np.pi * np.arccos(1 - 2 * (latch - a) / b)
     assert abs(float(sol.t_final) - t_latch) < EVENT_TIME
     released = jaxtree.scene_from_dict(d)  # hinge 5 back on its spring
-    after = simulate(released, float(sol.t_final) + 2.0, t0=sol.t_final, y0=sol.final, rtol=1e-11, atol=1e-11)
+    after = simulate(released, float(sol.t_final) + 2.0, t0=sol.t_final, y0=sol.final, rtol=RUN_TOL, atol=RUN_TOL)
     assert maxdiff(after.gamma[0], sol.final.gamma) == 0.0 and maxdiff(after.gamma_dot[0], sol.final.gamma_dot) == 0.0
     assert float(after.energy_drift()) < 1e-9  # free again: energy conserved after the release
 
@@ -233,7 +235,7 @@ def test_pd_law_matches_the_closed_form_and_rhs_evaluations_are_counted():
         return pd(t, state, params)
 
     # an explicit solver given: "auto" would evaluate the law once more, for its Jacobian
-    sol = simulate(coaxial(gamma0=0.5), 6.0, law=law, rtol=1e-11, atol=1e-11, solver=dfx.Dopri8())
+    sol = simulate(coaxial(gamma0=0.5), 6.0, law=law, rtol=RUN_TOL, atol=RUN_TOL, solver=dfx.Dopri8())
     A = np.array([[0.0, 1.0], [-kp / I_EFF, -kd / I_EFF]])
     x = np.stack([scipy.linalg.expm(A * t) @ [0.5 - r, 0.0] for t in np.asarray(sol.ts)])
     assert maxdiff(sol.gamma[:, 0] - r, x[:, 0]) < CLOSED
@@ -248,7 +250,7 @@ def test_pid_controller_states_match_expm():
     """Integrator and first-order rate filter appended to the state: a 4-state linear system."""
     kp, ki, kd, tf = 2.0, 0.7, 0.5, 0.1
     ctrl = jaxtree.HingePID(1, (1,), kp, ki, kd, tf)
-    sol = simulate(coaxial(gamma0=0.5), 6.0, controller=ctrl, rtol=1e-11, atol=1e-11)
+    sol = simulate(coaxial(gamma0=0.5), 6.0, controller=ctrl, rtol=RUN_TOL, atol=RUN_TOL)
     # x = (gamma, gamma_dot, integral, filtered rate)
     A = np.array(
         [
@@ -274,7 +276,7 @@ def test_body_torque_and_force_with_eq2_match_the_closed_forms():
     loads = jaxtree.combine_loads(jaxtree.BodyTorque(0, [0.0, 0.0, T]), push)
     X0, V0 = np.array([1.0, 2.0, 3.0]), np.array([0.1, 0.0, -0.2])
     model = coaxial(jaxtree.SpringDamper(k), gamma0=0.4, loads=loads)
-    sol = simulate(model, 4.0, translation=(X0, V0), rtol=1e-11, atol=1e-11)
+    sol = simulate(model, 4.0, translation=(X0, V0), rtol=RUN_TOL, atol=RUN_TOL)
     t = np.asarray(sol.ts)
     H = np.asarray(sol.angular_momentum)
     assert np.abs(H[:, 2] - T * t).max() < CLOSED and np.abs(H[:, :2]).max() < CLOSED
@@ -457,7 +459,7 @@ def test_vmap_over_initial_states_and_parameters_matches_closed_forms():
 
     def run(g, k):
         m = eqx.tree_at(lambda m: m.stiffness, model, k[None])
-        return simulate(m, 3.0, y0=m.initial._replace(gamma=g[None]), rtol=1e-11, atol=1e-11).gamma[:, 0]
+        return simulate(m, 3.0, y0=m.initial._replace(gamma=g[None]), rtol=RUN_TOL, atol=RUN_TOL).gamma[:, 0]
 
     out = jax.vmap(run)(g0, ks)
     t = np.linspace(0.0, 3.0, 101)
@@ -537,7 +539,7 @@ def test_gradient_through_simulate_matches_the_closed_form():
 
     def final_angle(stiffness):
         m = eqx.tree_at(lambda m: m.stiffness, model, stiffness)
-        return simulate(m, T, saveat=2, rtol=1e-11, atol=1e-11).gamma[-1, 0]
+        return simulate(m, T, saveat=2, rtol=RUN_TOL, atol=RUN_TOL).gamma[-1, 0]
 
     grad = jax.grad(final_angle)(jnp.asarray([k]))
     w = np.sqrt(k / I_EFF)
