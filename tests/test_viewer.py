@@ -16,6 +16,8 @@ import jaxtree
 from jaxtree._src import viewer
 
 CHROMIUM = "/usr/bin/chromium"
+# the page carries positions and unit quaternions as float32 (eps 6e-8) of numbers up to ~10
+FLOAT32 = 1e-6
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -123,15 +125,15 @@ def test_embedded_poses_match_the_two_body_closed_form():
     C = Rotation.random(T, random_state=rng).as_matrix()
     data, pos, rot = embedded(viewer.animation_html(model, ts, C, gamma, title="two <bodies> & a hinge"))
     want_pos, want_rot = two_body_closed_form(40.0, 3.0, axis, p, q, C, gamma[:, 0])
-    np.testing.assert_allclose(pos, want_pos, atol=1e-6)
-    np.testing.assert_allclose(rot, want_rot, atol=1e-6)
+    np.testing.assert_allclose(pos, want_pos, atol=FLOAT32)
+    np.testing.assert_allclose(rot, want_rot, atol=FLOAT32)
     np.testing.assert_allclose(data["times"], ts)
     hinge = data["hinges"][0]
     from_b1 = pos[:, 1] + np.einsum("tij,j->ti", rot[:, 1], hinge["point"])
     from_b0 = pos[:, 0] + np.einsum("tij,j->ti", rot[:, 0], p)
-    np.testing.assert_allclose(from_b1, from_b0, atol=1e-6)
+    np.testing.assert_allclose(from_b1, from_b0, atol=FLOAT32)
     np.testing.assert_allclose(
-        np.einsum("tij,j->ti", rot[:, 1], hinge["axis"]), np.einsum("tij,j->ti", rot[:, 0], axis), atol=1e-6
+        np.einsum("tij,j->ti", rot[:, 1], hinge["axis"]), np.einsum("tij,j->ti", rot[:, 0], axis), atol=FLOAT32
     )
     assert data["title"] == "two <bodies> & a hinge"
 
@@ -148,7 +150,7 @@ def test_long_results_are_decimated_and_bad_input_is_named():
     kept = np.searchsorted(ts, data["times"])
     np.testing.assert_array_equal(ts[kept], data["times"])  # saved frames, evenly spread
     assert set(np.diff(kept)) == {2, 3}
-    np.testing.assert_allclose(pos[:, 1], viewer.poses(model, C[kept], gamma[kept])[0][:, 1], atol=1e-6)
+    np.testing.assert_allclose(pos[:, 1], viewer.poses(model, C[kept], gamma[kept])[0][:, 1], atol=FLOAT32)
     # rows after an early stop (inf times) are dropped
     ts2 = np.concatenate([ts[:10], [np.inf] * 3])
     data, _, _ = embedded(viewer.animation_html(model, ts2, C[:13], gamma[:13]))
@@ -181,8 +183,8 @@ def test_mode_page_oscillates_the_shape_about_the_nominal_angles(tmp_path):
     assert data["period"] == pytest.approx(period)
     angle = gamma0[0] + A * -1.5 * np.sin(2 * np.pi * np.arange(T) / T)
     want_pos, want_rot = two_body_closed_form(40.0, 3.0, axis, p, q, np.broadcast_to(np.eye(3), (T, 3, 3)), angle)
-    np.testing.assert_allclose(pos, want_pos, atol=1e-6)
-    np.testing.assert_allclose(rot, want_rot, atol=1e-6)
+    np.testing.assert_allclose(pos, want_pos, atol=FLOAT32)
+    np.testing.assert_allclose(rot, want_rot, atol=FLOAT32)
     # A complex (gyroscopic) shape plays Im(shape e^{i w t}): i s gives s cos(w t).
     _, pos_c, _ = embedded(viewer.mode_html(model, np.array([-1.5j]), 2.0, gamma=gamma0, amplitude=A))
     cos_pos, _ = two_body_closed_form(
@@ -194,7 +196,7 @@ def test_mode_page_oscillates_the_shape_about_the_nominal_angles(tmp_path):
         np.broadcast_to(np.eye(3), (T, 3, 3)),
         gamma0[0] + A * -1.5 * np.cos(2 * np.pi * np.arange(T) / T),
     )
-    np.testing.assert_allclose(pos_c, cos_pos, atol=1e-6)
+    np.testing.assert_allclose(pos_c, cos_pos, atol=FLOAT32)
     # The default amplitude moves a mass center by 15 % of the radius (here, a long arm, before
     # the angle reaches 0.35 rad): the arm's largest excursion from the nominal pose.
     long_arm, *_ = two_body(q=(-2.0, 0.2, 0.05))
