@@ -323,6 +323,19 @@ def check_tolerances(name, rtol, atol, max_steps):
         raise SceneError(f"{name}: rtol and atol are both zero: no step would ever be accepted")
 
 
+def tolerances(name, rtol, atol, max_steps, dtype, stepsize_controller, stacklevel) -> tuple:
+    """``(rtol, atol)`` of a run of the public function `name`: :func:`default_tolerance` of
+    `dtype` where None, checked with `max_steps` (:func:`check_tolerances`), and the warning of
+    :func:`warn_below_roundoff` when the default step-size controller will use `rtol`
+    (`stacklevel` as seen from the caller of this function)."""
+    rtol = default_tolerance(dtype) if rtol is None else rtol
+    atol = default_tolerance(dtype) if atol is None else atol
+    check_tolerances(name, rtol, atol, max_steps)
+    if stepsize_controller is None:
+        warn_below_roundoff(rtol, dtype, stacklevel + 1)
+    return rtol, atol
+
+
 def warn_below_roundoff(rtol, dtype, stacklevel):
     """Warn when a concrete `rtol` is too small for `dtype`: below ~50 unit roundoffs the steps
     pile up (fig4_free in float32 over 10 s: 762 steps at 1e-5, 2759 at 3e-6, 7834 at 1e-6 with

@@ -108,8 +108,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import ArrayLike
 
-from . import _checks
 from . import substructure as _sub
+from ._checks import SceneError, SceneTypeError, as_float, as_int, short, tolerance
 from ._hinges import prescribed_motion, selector
 from ._integrate import (
     DEFAULT_MAX_STEPS,
@@ -118,9 +118,7 @@ from ._integrate import (
     SimulationError,
     check_state,
     check_times,
-    check_tolerances,
     default_controller,
-    default_tolerance,
     failure_report,
     integrate,
     is_traced,
@@ -128,14 +126,14 @@ from ._integrate import (
     report_failures,
     result_code,
     solver_statistics,
-    warn_below_roundoff,
+    tolerances,
 )
 from ._math import build_jit
 from .articulated import _force_cross, _inertia_apply, _inertia_matrix, _motion_cross
-from .attitude import AbstractAttitude, get_attitude
+from .attitude import AbstractAttitude, attitude_argument, get_attitude
 from .dynamics import _unbalanced, configuration, mass_matrix, rotational_equations
 from .kinematics import ancestor_sum, body_rotations, cross, full_precision, mm, mv
-from .linearize import linearize, resolve_hinges
+from .linearize import linearize, linearize_args, resolve_hinges
 from .model import Model, State
 from .modes import ModalError, _check_modal_damping
 from .modes import modes as _modes
@@ -1179,6 +1177,71 @@ def _nominal_motion(model, omega0, gamma, dcm):
     return tuple(x.astype(dtype) if is_traced(x) else jnp.asarray(np.asarray(x, dtype)) for x in (w, g, C))
 
 
+def _hybrid_model_args(
+    model,
+    small,
+    n_modes=None,
+    *,
+    cutoff=None,
+    omega0=None,
+    gamma=None,
+    dcm=None,
+    damping=None,
+    form=None,
+    precompute=None,
+    attitude: object = "quaternion",
+    rtol=1e-9,
+    basis=None,
+    tol=1e-2,
+):
+    """Arguments of :func:`jaxtree.hybrid_model`, checked before the linearization is traced."""
+    name = "hybrid_model"
+    linearize_args(name, model, small, omega0=omega0, gamma=gamma, dcm=dcm)
+    if getattr(model, "law", None) is not None or getattr(model, "controller", None) is not None:
+        raise SceneError(
+            f"{name}: the model carries hinge control laws (model.law / model.controller, from its scene's "
+            "'control'), which the hybrid equations do not include; drop them with model.with_control(None, None)"
+        )
+    if basis is not None and basis not in ("substructure", "set"):
+        raise SceneError(f"{name}: basis must be 'substructure', 'set' or None, got {short(basis)}")
+    t = float(as_float(tol, f"{name}: tol", ()))
+    if not t > 0.0:
+        raise SceneError(f"{name}: tol must be positive (the neglected share of the quasi-static response), got {t}")
+    if isinstance(n_modes, str):
+        if n_modes != "auto":
+            raise SceneError(
+                f"{name}: n_modes must be an integer, a sequence of integers, 'auto' or None, got {short(n_modes)}"
+            )
+    elif n_modes is not None:
+        if isinstance(n_modes, (list, tuple)):  # one number per substructure
+            if not n_modes:
+                raise SceneError(f"{name}: n_modes is an empty sequence")
+            for i, m in enumerate(n_modes):
+                as_int(m, f"{name}: n_modes[{i}]", minimum=1)
+        else:
+            as_int(n_modes, f"{name}: n_modes", minimum=1)
+    if cutoff is not None:
+        c = float(as_float(cutoff, f"{name}: cutoff", ()))
+        if c < 0:
+            raise SceneError(f"{name}: cutoff must be >= 0 (a frequency in rad/s), got {c}")
+    if damping is not None:
+        z = as_float(damping, f"{name}: damping")
+        nu = len((small,) if isinstance(small, (str, int, np.integer)) else list(small))
+        # at most one mode per small hinge is retained (the exact number is known after the modes)
+        if z.ndim > 1 or (z.ndim == 1 and z.shape[0] != 1 and z.shape[0] > nu):
+            raise SceneError(
+                f"{name}: damping must be a scalar or one ratio per retained mode (at most {nu}), got shape {z.shape}"
+            )
+        if np.any(z < 0):
+            raise SceneError(f"{name}: modal damping ratios must be >= 0, got {z.tolist()}")
+    if form is not None and form not in ("real", "first_order"):
+        raise SceneError(f"{name}: form must be 'real', 'first_order' or None, got {short(form)}")
+    if precompute is not None and not isinstance(precompute, (bool, np.bool_)):
+        raise SceneTypeError(f"{name}: precompute must be True, False or None, got {short(precompute)}")
+    attitude_argument(name, attitude)
+    tolerance(name, rtol)
+
+
 @full_precision
 def hybrid_model(
     model: Model,
@@ -1250,7 +1313,7 @@ def hybrid_model(
 
     **Returns:** :class:`HybridModel`.
     """
-    _checks.hybrid_model_args(
+    _hybrid_model_args(
         model,
         small,
         n_modes,
@@ -1917,11 +1980,8 @@ def simulate_hybrid(
     """
 
     dtype = jnp.result_type(hybrid.model.mass)
-    rtol = default_tolerance(dtype) if rtol is None else rtol
-    atol = default_tolerance(dtype) if atol is None else atol
-    check_tolerances("simulate_hybrid", rtol, atol, max_steps)
-    if stepsize_controller is None:
-        warn_below_roundoff(rtol, dtype, stacklevel=3)  # the caller of full_precision's wrapper
+    # (stacklevel 3: the caller of full_precision's wrapper)
+    rtol, atol = tolerances("simulate_hybrid", rtol, atol, max_steps, dtype, stepsize_controller, stacklevel=3)
     y0 = hybrid.model.initial if y0 is None else y0
     if isinstance(y0, State):
         check_state("simulate_hybrid", hybrid.model, y0)

@@ -39,9 +39,7 @@ from ._integrate import (
     SimulationError,
     check_state,
     check_times,
-    check_tolerances,
     default_controller,
-    default_tolerance,
     failure_kind,
     failure_report,
     integrate,
@@ -50,8 +48,9 @@ from ._integrate import (
     report_failures,
     result_code,
     solver_statistics,
-    warn_below_roundoff,
+    tolerances,
 )
+from ._integrate import default_tolerance as default_tolerance  # jaxtree.default_tolerance, named in the docs
 from ._math import regular
 from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
 from .autosolver import choose_checked, given
@@ -904,13 +903,8 @@ def simulate(
     att = _check_attitude_and_laws(attitude, controller, law)
     law, controller = with_model_laws(model, law, controller)  # a scene's own laws first
     dtype = jnp.result_type(model.mass)
-    if rtol is None:
-        rtol = default_tolerance(dtype)
-    if atol is None:
-        atol = default_tolerance(dtype)
-    check_tolerances("simulate", rtol, atol, max_steps)
-    if stepsize_controller is None:
-        warn_below_roundoff(rtol, dtype, stacklevel=3)  # the caller of full_precision's wrapper
+    # (stacklevel 3: the caller of full_precision's wrapper)
+    rtol, atol = tolerances("simulate", rtol, atol, max_steps, dtype, stepsize_controller, stacklevel=3)
     y0 = model.initial if y0 is None else y0
     check_state("simulate", model, y0)
     saveat, grid, user_saveat = _check_saveat(saveat, t0, t1)
