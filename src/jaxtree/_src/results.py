@@ -19,8 +19,8 @@ Long runs are written in *parts* (:class:`ChunkedResult`): ``RESULT.parts/part-0
 per chunk of the integration, each atomic and holding the exact state where its chunk ended;
 :meth:`ChunkedResult.merge` joins them into ``RESULT`` at the end. Until then
 :func:`load_result` of ``RESULT`` reads the parts written so far (a run that was interrupted or
-killed is readable up to its last part), and ``jaxtree simulate --resume`` continues from the
-last part.
+killed is readable up to its last part). The run that writes them, and continues from the last
+part after an interruption (``jaxtree simulate --resume``), is :mod:`jaxtree._src.chunked`.
 
 xarray and a NetCDF-4 backend (h5netcdf) are imported when a result is written or read, not by
 ``import jaxtree``.
@@ -45,7 +45,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import ArrayLike
 
+from ._integrate import KINDS, failure_kind
+from .attitude import get_attitude
+from .dynamics import configuration
 from .model import Model, State
+from .modes import Modes
+from .scene import scene_from_dict, scene_to_dict
+from .simulate import Problem, Solution
 
 if TYPE_CHECKING:
     import xarray  # annotations only: xarray is imported when a result is written or read (_xr)
@@ -67,7 +73,7 @@ def versions() -> dict[str, str]:
     import diffrax
     import equinox
 
-    import jaxtree
+    import jaxtree  # the package, whose __init__ imports this module
 
     out = {
         "jaxtree_version": jaxtree.__version__,
@@ -91,10 +97,6 @@ def _scene_json(model: Model) -> str:
     (no JSON form), the vehicle without them, said in its description (the plots and the 3D
     page need only the vehicle); "" for a model that has no JSON form (a prescription given by
     a Python function)."""
-    import equinox as eqx
-
-    from .scene import scene_to_dict
-
     try:
         return json.dumps(scene_to_dict(model))
     except (ValueError, TypeError):
@@ -128,8 +130,6 @@ def _clean_attrs(attrs: dict) -> dict:
 # ----------------------------------------------------------------------------- geometry
 @eqx.filter_jit
 def _positions(model, gamma):
-    from .dynamics import configuration
-
     cfg = jax.vmap(lambda g: configuration(model, g))(gamma)
     return cfg.rho, cfg.hinge
 
@@ -291,8 +291,6 @@ def simulation_dataset(
 
 def solution_attrs(sol) -> dict:
     """Attributes of a :class:`jaxtree.Solution`: attitude, result, where it ended, steps, drift."""
-    from ._integrate import failure_kind
-
     # the step counts, and the solver's record (a SolverChoice: which solver ran and why)
     st = {k: int(np.asarray(x)) for k, x in sol.stats.items() if isinstance(x, (jax.Array, np.ndarray, int))}
     kind = failure_kind(sol.failure)
@@ -437,8 +435,6 @@ def write_netcdf(ds, path) -> pathlib.Path:
 def save_result(path, result, attrs: dict | None = None) -> pathlib.Path:
     """Write a :class:`jaxtree.Solution` (or an :class:`xarray.Dataset` made here) to a NetCDF
     file, atomically. `attrs` are added to the global attributes."""
-    from .simulate import Solution
-
     if isinstance(result, Solution):
         ds = solution_to_dataset(result, attrs)
     elif hasattr(result, "to_netcdf"):
@@ -558,8 +554,6 @@ def _open(path):
 
 
 def _model_of(ds) -> Model:
-    from .scene import scene_from_dict
-
     text = ds.attrs.get("scene", "")
     if not text:
         raise ValueError(
@@ -585,10 +579,6 @@ _NOT_STORED = (
 def _to_solution(ds):
     import diffrax as dfx  # noqa: F401  (Solution's field types)
 
-    from ._integrate import KINDS as _KINDS
-    from .attitude import get_attitude
-    from .simulate import Problem, Solution
-
     model = _model_of(ds)
     dtype = jnp.result_type(model.mass)
     f = lambda name: jnp.asarray(ds[name].values, dtype)
@@ -606,7 +596,7 @@ def _to_solution(ds):
     i = T - 1
     final = State(dcm[i], omega0[i], gamma[i], gamma_dot[i])
     result = str(ds.attrs.get("result", "ok"))
-    failure = 0 if result in ("ok", "") or result not in _KINDS else _KINDS.index(result) + 1
+    failure = 0 if result in ("ok", "") or result not in KINDS else KINDS.index(result) + 1
     stats = {
         "num_accepted_steps": int(ds.attrs.get("steps_accepted", -1)),
         "num_rejected_steps": int(ds.attrs.get("steps_rejected", -1)),
@@ -638,8 +628,6 @@ def _to_solution(ds):
 
 
 def _to_modes(ds):
-    from .modes import Modes
-
     c = lambda a, b: jnp.asarray(ds[a].values + 1j * ds[b].values)
     kind = str(ds.attrs.get("modes_kind", "real"))
     shapes = c("shape_real", "shape_imag")
