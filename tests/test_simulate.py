@@ -601,6 +601,23 @@ def test_implicit_solver_passes_through_on_a_stiff_hinge(scenes):
     assert int(st["newton_iterations"]) >= int(st["num_accepted_steps"])
 
 
+def test_simulate_validates_its_model_once(scenes, monkeypatch):
+    """simulate validates the model once: its automatic solver choice linearizes the checked
+    model (choose_solver -> linearize_vehicle) without validating it again, while the public
+    choose_solver, called alone, still validates it."""
+    from jaxtree._src import scene
+
+    calls = []
+    validate = scene.validate_model
+    monkeypatch.setattr(scene, "validate_model", lambda model: calls.append(model) or validate(model))
+    model = scenes["fig4"]
+    law = lambda t, state, params: 0.0 * state.gamma  # a hinge law: the solver choice linearizes
+    sol = simulate(model, 0.05, saveat=3, law=law)
+    assert "linearized" in sol.stats["solver"].reason and len(calls) == 1
+    jaxtree.choose_solver(model, 0.05, law=law)
+    assert len(calls) == 2
+
+
 # ----------------------------------------------------------------------------- command line
 def test_command_line_runs_the_sample_problem(tmp_path, monkeypatch, capsys):
     from jaxtree.__main__ import main
