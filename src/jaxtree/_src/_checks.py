@@ -10,6 +10,11 @@ numpy reaches the user. Values that are traced (under ``jax.jit``, ``jax.vmap``,
 :class:`SceneError` is a :class:`ValueError`; a wrong type raises a SceneError that is also a
 :class:`TypeError`, an unknown body name one that is also a :class:`KeyError`, so that both
 ``except jaxtree.SceneError`` and the built-in exception types catch them.
+
+This module holds the basic checks and imports nothing else of the package; the checks of
+one public function's arguments stand beside that function (``linearize_args`` in
+:mod:`~jaxtree._src.linearize`, ``check_model`` beside ``validate_model`` in
+:mod:`~jaxtree._src.scene`, ...) and return the values they parse.
 """
 
 from __future__ import annotations
