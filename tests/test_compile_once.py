@@ -21,22 +21,20 @@ _EVENTS = {
     "/jax/core/compile/jaxpr_trace_duration": "traces",
     "/jax/core/compile/backend_compile_duration": "compiles",
 }
+_SEEN = collections.Counter()  # every trace and compilation of this process since the import
+# one listener for the process, never removed (as in test_fuzz.py)
+jax.monitoring.register_event_duration_secs_listener(
+    lambda event, duration_secs, **kwargs: _SEEN.update([_EVENTS[event]]) if event in _EVENTS else None
+)
 
 
 @contextlib.contextmanager
 def compilations():
     """Counts the traces and XLA compilations inside, as a Counter {"traces": .., "compiles": ..}."""
+    before = _SEEN.copy()
     counts = collections.Counter()
-
-    def listen(event, duration, **kwargs):
-        if event in _EVENTS:
-            counts[_EVENTS[event]] += 1
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
-        yield counts
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
+    yield counts
+    counts.update(_SEEN - before)
 
 
 @pytest.fixture(scope="module")
