@@ -79,6 +79,29 @@ TREES = _trees()
 BLOCK = 4
 
 
+@pytest.mark.parametrize("name", sorted(TREES))
+def test_configuration_tangent_closed_form_equals_jvp(name):
+    """The rule's closed-form tangent of the configuration and the body angular velocities
+    (dynamics._configuration_tangent: small rotations about the hinge axes inboard of each body)
+    against forward-mode differentiation of dynamics._configuration (products of rotations)."""
+    model = TREES[name]
+    rng = np.random.default_rng(5)
+    n = model.n
+    g, gd, w = (jnp.asarray(rng.normal(size=k)) for k in (n, n, 3))
+    dg, dgd, dw = (jnp.asarray(rng.normal(size=k)) for k in (n, n, 3))
+    f = lambda g, gd, w: dynamics._configuration(model, g, w, gd)
+    (cfg, omega), (cfg_dot, omega_dot) = jax.jvp(f, (g, gd, w), (dg, dgd, dw))
+    closed_cfg, closed_omega = dynamics._configuration_tangent(model, cfg, omega, gd, dg, dgd, dw)
+    for field, a, b in zip(cfg._fields, closed_cfg, cfg_dot):
+        assert rel(a, b) < 1e-13, field
+    assert rel(closed_omega, omega_dot) < 1e-13
+    # rates only: the configuration does not move
+    _, (cfg_dot, omega_dot) = jax.jvp(f, (g, gd, w), (jnp.zeros(n), dgd, dw))
+    closed_cfg, closed_omega = dynamics._configuration_tangent(model, cfg, omega, gd, None, dgd, dw)
+    assert all(float(jnp.abs(a).max()) == 0.0 for a in closed_cfg)
+    assert rel(closed_omega, omega_dot) < 1e-13
+
+
 @pytest.mark.parametrize("method", ["dense", "articulated"])
 @pytest.mark.parametrize("name", sorted(TREES))
 def test_state_jacobian_rule_equals_differentiated_solve(name, method):

@@ -49,7 +49,7 @@ from ._math import (
 )
 from ._math import regular as _regular
 from ._math import regular_pivots as _regular_pivots
-from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum
+from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum, tilde
 from .model import Model, State
 
 
@@ -463,6 +463,12 @@ def _unbalanced(model, state, t, tau, omega0_dot, gamma_ddot):
     never assembled. Zero in the rows of the unknowns at the solution; minus the holding torques
     in the rows of prescribed hinges."""
     cfg, omega = _configuration(model, state.gamma, state.omega0, state.gamma_dot)
+    return _unbalanced_at(model, state, t, tau, cfg, omega, omega0_dot, gamma_ddot)
+
+
+def _unbalanced_at(model, state, t, tau, cfg, omega, omega0_dot, gamma_ddot):
+    """:func:`_unbalanced` with the configuration and the body angular velocities given (the
+    state's angles and rates are read only by the hinge laws and the loads)."""
     torque = hinge_torques(model, state.gamma, state.gamma_dot)
     if tau is not None:
         torque = torque + tau
@@ -470,6 +476,46 @@ def _unbalanced(model, state, t, tau, omega0_dot, gamma_ddot):
     wrenches = _wrenches(model, cfg, omega, state.gamma_dot, loads, (omega0_dot, gamma_ddot))
     sums = subtree_sum(model.topology, wrenches, model.massive)
     return _rhs_from_sums(model, cfg, sums, torque, loads)
+
+
+def _configuration_tangent(model, cfg, omega, gamma_dot, d_gamma, d_gamma_dot, d_omega0):
+    """Tangents of ``(cfg, omega)`` of :func:`_configuration` along state tangents
+    ``(d_gamma, d_gamma_dot, d_omega0)`` (None: zero), in closed form.
+
+    A change ``d_gamma`` of the angles turns every body about the hinge axes inboard of it: body
+    k by the small rotation ``theta_k = sum_r epsilon_{rk} d_gamma_r g^r`` (the path-element sum
+    of the angular velocities, Def. 27, with ``d_gamma`` for the rates and no ``omega0``). Every
+    vector fixed in b_k turns by ``theta_k x``, so ``dC^{0k} = tilde(theta_k) C^{0k}``, the axes
+    and hinge offsets turn with their bodies, the mass centers move as with velocities
+    ``theta`` (recentred on the system mass center), the inertias as ``[theta, I]``, and the
+    angular velocities change through the turned axes of Eq. (5)'s sum. One path-element sum for
+    theta and one for the positions and rates replace the differentiated product of rotations."""
+    dtype = cfg.rho.dtype
+    topo = model.topology
+    par = _parents(model)
+    G = cfg.axis
+    zero = jnp.zeros((1, 3), dtype)
+    w0 = zero if d_omega0 is None else jnp.asarray(d_omega0, dtype)[None, :]
+    rates = jnp.zeros_like(G) if d_gamma_dot is None else G * jnp.asarray(d_gamma_dot, dtype)[:, None]
+    if d_gamma is None:
+        d_omega = ancestor_sum(topo, jnp.concatenate([w0, rates], 0))
+        return jax.tree_util.tree_map(jnp.zeros_like, cfg), d_omega
+    theta = ancestor_sum(topo, jnp.concatenate([zero, G * jnp.asarray(d_gamma, dtype)[:, None]], 0))
+    tp = theta[par]
+    d_axis = cross(tp, G)
+    d_to = cross(tp, cfg.to_hinge)
+    d_from = cross(theta[1:], cfg.from_hinge)
+    steps = jnp.concatenate([zero, d_to + d_from], 0)
+    rates = jnp.concatenate([w0, rates + d_axis * gamma_dot[:, None]], 0)
+    both = ancestor_sum(topo, jnp.concatenate([steps, rates], 1))
+    mass = model.mass.astype(dtype)
+    d_rho = both[:, :3] - jnp.sum(mass[:, None] * both[:, :3], 0) / jnp.sum(mass)
+    d_hinge = d_rho[par] + d_to
+    d_R = mm(tilde(theta), cfg.R)
+    th = _massive(model, theta)
+    turned = mm(tilde(th), cfg.inertia)
+    d_inertia = turned + jnp.swapaxes(turned, -1, -2)  # [theta, I] = theta x I - I theta x, I symmetric
+    return Configuration(d_R, d_axis, d_to, d_from, d_rho, d_hinge, d_inertia), both[:, 3:]
 
 
 def _differentiated(primals, tangents):
@@ -498,7 +544,8 @@ def _solve_completed_jvp(primals, tangents):
 
         x_u' = A_uu^{-1} (dF/dp p')   and   hold' = -(dF_p/dp p') + A_pu x_u',
 
-    where ``dF/dp p'`` is one JVP of F at *fixed* x (no solve inside) and ``A_uu^{-1}`` is
+    where ``dF/dp p'`` is one JVP of F at *fixed* x (no solve inside; the configuration's tangent
+    along the state in closed form, :func:`_unbalanced_jvp`) and ``A_uu^{-1}`` is
     applied to every tangent at once (``jax.jacfwd``: one solve with many right sides): with the
     dense method's Cholesky factor, or for the articulated method (which calls no LAPACK routine)
     as an inverse by Gauss-Jordan elimination in a loop (:func:`jaxtree._src._math.spd_inverse`),
@@ -527,13 +574,8 @@ def _solve_completed_jvp(primals, tangents):
     x_u = jnp.concatenate([acc.omega0_dot, acc.gamma_ddot[rows_u[3:] - 3]])
     A_pu = A[np.ix_(rows_p, rows_u)] if len(rows_p) else None
     values, dots, rebuild = _differentiated(primals, tangents)
-
-    def unbalanced(values):
-        m, s, tt, ta, gp = rebuild(values)
-        return _unbalanced(m, s, tt, ta, *_full_accelerations(m, x_u, gp))
-
     if values:
-        _, F_dot = jax.jvp(unbalanced, (values,), (dots,))
+        F_dot = _unbalanced_jvp(primals, tangents, x_u, values, dots, rebuild)
     else:
         F_dot = jnp.zeros((model.n + 3,), x_u.dtype)
     x_dot = solve_u(F_dot[rows_u])
@@ -543,6 +585,34 @@ def _solve_completed_jvp(primals, tangents):
     if A_pu is not None:
         hold_dot = hold_dot + A_pu @ x_dot
     return acc, Accelerations(w_dot_dot, gdd_dot, hold_dot)
+
+
+def _unbalanced_jvp(primals, tangents, x_u, values, dots, rebuild):
+    """``dF/dp p'`` of the unbalanced force at fixed unknown accelerations `x_u`: the tangents of
+    the configuration and the angular velocities along the state's angles and rates in closed
+    form (:func:`_configuration_tangent`), those along the model's parameters by differentiating
+    :func:`_configuration`, and one JVP of the rest (:func:`_unbalanced_at`) with all of them."""
+    model, state, *_ = primals
+    d_model, d_state = tangents[0], tangents[1]
+    d_g, d_gd, d_w = (None, None, None) if d_state is None else (d_state.gamma, d_state.gamma_dot, d_state.omega0)
+    cfg, omega = _configuration(model, state.gamma, state.omega0, state.gamma_dot)
+    cfg_dot, omega_dot = _configuration_tangent(model, cfg, omega, state.gamma_dot, d_g, d_gd, d_w)
+    if d_model is not None:
+        m_values, m_dots, m_rebuild = _differentiated(model, d_model)
+        if m_values:
+
+            def configuration_of(v):
+                return _configuration(m_rebuild(v), state.gamma, state.omega0, state.gamma_dot)
+
+            _, (c_dot, o_dot) = jax.jvp(configuration_of, (m_values,), (m_dots,))
+            cfg_dot = jax.tree_util.tree_map(jnp.add, cfg_dot, c_dot)
+            omega_dot = omega_dot + o_dot
+
+    def unbalanced(values, cfg, omega):
+        m, s, tt, ta, gp = rebuild(values)
+        return _unbalanced_at(m, s, tt, ta, cfg, omega, *_full_accelerations(m, x_u, gp))
+
+    return jax.jvp(unbalanced, (values, cfg, omega), (dots, cfg_dot, omega_dot))[1]
 
 
 def _cho_apply(L, b):
