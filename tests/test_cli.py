@@ -128,7 +128,7 @@ def test_killed_and_interrupted_runs_are_readable_and_resume_to_the_same_answer(
     p = subprocess.Popen(cmd, env=slow, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     _wait_for_parts(parts_dir, 1, p)
     p.kill()
-    p.wait()
+    p.communicate()  # waits, and closes the pipes (an unclosed one is a ResourceWarning, an error here)
     assert p.returncode == -signal.SIGKILL
     part = jaxtree.load_result(out, as_dataset=True)
     assert part.attrs["complete"] == 0 and part.sizes["time"] == 6  # grid points 0..5 of 21
