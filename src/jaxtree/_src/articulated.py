@@ -65,7 +65,8 @@ import numpy as np
 
 from ._math import eliminate
 from ._math import regular_pivots as _regular_pivots
-from .kinematics import ancestor_sum, cross, dot, mv
+from .kinematics import ancestor_sum, cross, dot
+from .spatial import force_cross, inertia_apply, inertia_matrix, motion_cross
 
 METHODS = ("auto", "dense", "articulated")
 
@@ -239,39 +240,6 @@ def _plan(topology, massive, unknown, inert, block):
     )
 
 
-# ----------------------------------------------------------------------------- spatial algebra
-# A rigid-body inertia about O is kept as (J (..., 3, 3), h = m rho (..., 3), m (...)); sums of
-# inertias about the same point are sums of these parts.
-def _inertia_apply(J, h, m, w, u):
-    """``M (w, u)`` for the inertia (J, h, m) about O: ``(J w + h x u, m u - h x w)``."""
-    return mv(J, w) + cross(h, u), m[..., None] * u - cross(h, w)
-
-
-def _inertia_matrix(J, h, m):
-    """The 6 x 6 matrix of the inertia (J, h, m)."""
-    z = jnp.zeros_like(m)
-    ht = jnp.stack(
-        [
-            jnp.stack([z, -h[..., 2], h[..., 1]], -1),
-            jnp.stack([h[..., 2], z, -h[..., 0]], -1),
-            jnp.stack([-h[..., 1], h[..., 0], z], -1),
-        ],
-        -2,
-    )
-    eye = jnp.eye(3, dtype=J.dtype) * m[..., None, None]
-    return jnp.concatenate([jnp.concatenate([J, ht], -1), jnp.concatenate([-ht, eye], -1)], -2)
-
-
-def _motion_cross(vw, vu, mw, mu):
-    """Spatial motion cross product ``(vw, vu) x (mw, mu) = (vw x mw, vw x mu + vu x mw)``."""
-    return cross(vw, mw), cross(vw, mu) + cross(vu, mw)
-
-
-def _force_cross(vw, vu, n, f):
-    """``(vw, vu) x* (n, f) = (vw x n + vu x f, vw x f)``."""
-    return cross(vw, n) + cross(vu, f), cross(vw, f)
-
-
 # ----------------------------------------------------------------------------- the solve
 def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
     """Accelerations of Eq. (1) by the blocked articulated recursion.
@@ -287,13 +255,44 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
     prescribed hinges (as :func:`jaxtree.solve_accelerations`).
     """
     bp = plan(model)
+    body = _body_terms(model, cfg, omega, vel, gamma_dot, loads, prescribed_acc)
+    blocks = _block_systems(bp, cfg, body, tau)
+    gains, a0, ok = _inward(bp, blocks, body)
+    gdd = _outward(model.n, bp, blocks, gains, a0)
+    gdd, a0 = jnp.where(ok, gdd, jnp.nan), jnp.where(ok, a0, jnp.nan)
+    if prescribed_acc is None:
+        return a0[:3], gdd, jnp.zeros((0,), gdd.dtype)
+    gdd = gdd.at[np.asarray(model.prescribed, np.int64) - 1].set(prescribed_acc)
+    return a0[:3], gdd, _holding_torques(model, body, tau, a0, gdd)
+
+
+class _Bodies(NamedTuple):
+    """Per body, about the system mass center O: the velocity-product accelerations `cbar` (n+1, 6)
+    of the hinges' rates (and prescribed accelerations), inertia `J`, first moment `h`, `mass`,
+    bias wrench (`bw`, `bu`), ``W = M cbar + b`` and the columns summed over blocks; the hinges'
+    motions (`Sw`, `Su`)."""
+
+    cbar: jax.Array
+    J: jax.Array
+    h: jax.Array
+    mass: jax.Array
+    bw: jax.Array
+    bu: jax.Array
+    W: jax.Array
+    cols: jax.Array
+    Sw: jax.Array
+    Su: jax.Array
+
+
+def _body_terms(model, cfg, omega, vel, gamma_dot, loads, prescribed_acc):
+    """The bodies' spatial inertias and bias wrenches about O and the hinges' motions (:class:`_Bodies`)."""
     n = model.n
     dtype = cfg.rho.dtype
     par = np.asarray(model.topology.parents, np.int64)
     # spatial velocities about O, motion of the hinges, velocity-product accelerations
     uO = vel + cross(cfg.rho, omega)  # velocity of the point of b_k at O
     Sw, Su = cfg.axis, cross(cfg.hinge, cfg.axis)
-    cw, cu = _motion_cross(omega[par], uO[par], Sw * gamma_dot[:, None], Su * gamma_dot[:, None])
+    cw, cu = motion_cross(omega[par], uO[par], Sw * gamma_dot[:, None], Su * gamma_dot[:, None])
     if prescribed_acc is not None:
         p = np.asarray(model.prescribed, np.int64) - 1
         cw = cw.at[p].add(Sw[p] * prescribed_acc[:, None])
@@ -311,28 +310,44 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
     )
     J = jnp.zeros((n + 1, 3, 3), dtype).at[idx].set(Jm) if len(idx) < n + 1 else Jm
     h = mass[:, None] * rho
-    Lw, Lu = _inertia_apply(J, h, mass, omega, uO)  # momentum about O
-    bw, bu = _force_cross(omega, uO, Lw, Lu)
+    Lw, Lu = inertia_apply(J, h, mass, omega, uO)  # momentum about O
+    bw, bu = force_cross(omega, uO, Lw, Lu)
     if loads is not None:
         lb, F, T = loads
         bw = bw.at[lb].add(-(T + cross(rho[lb], F)))
         bu = bu.at[lb].add(-F)
-    Mcw, Mcu = _inertia_apply(J, h, mass, cbar[:, :3], cbar[:, 3:])
+    Mcw, Mcu = inertia_apply(J, h, mass, cbar[:, :3], cbar[:, 3:])
     W = jnp.concatenate([Mcw + bw, Mcu + bu], 1)  # M_i cbar_i + b_i
-    body_cols = jnp.concatenate([mass[:, None], h, J.reshape(-1, 9), W], 1)  # (n+1, 19)
+    cols = jnp.concatenate([mass[:, None], h, J.reshape(-1, 9), W], 1)  # (n+1, 19)
+    return _Bodies(cbar, J, h, mass, bw, bu, W, cols, Sw, Su)
 
-    # ------------------------------------------------------------------ blocks (all at once)
+
+class _Blocks(NamedTuple):
+    """Every block at once: ``M0 = [[A, K], [K^T, C]]`` ((m, b+7, b+7), the block's quadratic form
+    in (gamma_ddot, a~)), the port map ``N = [L, X]`` and its parts, and the unknown slots."""
+
+    M0: jax.Array
+    N: jax.Array
+    Lmat: jax.Array
+    Xh: jax.Array
+    unk: jax.Array
+
+
+def _block_systems(bp, cfg, body, tau):
+    """The blocks' systems (:class:`_Blocks`), all blocks in one batch."""
+    n = len(tau)
+    dtype = cfg.rho.dtype
     hinge = bp.hinge  # (m, b); n = padding
     b = bp.size
     pad_body = np.where(hinge < n, hinge + 1, 0)
     valid = jnp.asarray((hinge < n).astype(float), dtype)
-    cols = body_cols[pad_body] * valid[..., None]  # (m, b, 19)
+    cols = body.cols[pad_body] * valid[..., None]  # (m, b, 19)
     inboard = jnp.asarray(bp.inboard, dtype)
     comp = jnp.einsum("jab,jbc->jac", inboard, cols)  # within-block outboard sums per slot
     cm, ch, cJ, cW = comp[..., 0], comp[..., 1:4], comp[..., 4:13].reshape(comp.shape[:2] + (3, 3)), comp[..., 13:]
     hp = np.where(hinge < n, hinge, 0)
-    sw, su = Sw[hp] * valid[..., None], Su[hp] * valid[..., None]  # (m, b, 3)
-    Yw, Yu = _inertia_apply(cJ, ch, cm, sw, su)  # I^c S per slot
+    sw, su = body.Sw[hp] * valid[..., None], body.Su[hp] * valid[..., None]  # (m, b, 3)
+    Yw, Yu = inertia_apply(cJ, ch, cm, sw, su)  # I^c S per slot
     unk = jnp.asarray(bp.unknown, dtype)
     # joint-space matrix of each block: X[a, c] = S_a . (I^c_c S_c) where a is inboard of c
     X = jnp.einsum("jai,jci->jac", sw, Yw) + jnp.einsum("jai,jci->jac", su, Yu)
@@ -341,30 +356,36 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
     um = unk[..., :, None] * unk[..., None, :]
     A = A * um + jnp.eye(b, dtype=dtype) * (1.0 - unk)[..., None]  # non-unknown slots: 1 * x = 0
     # coupling to the parent's acceleration and the block's generalized bias forces
-    cpar = cbar[bp.parent]  # (m, 6)
-    Icw, Icu = _inertia_apply(
+    cpar = body.cbar[bp.parent]  # (m, 6)
+    Icw, Icu = inertia_apply(
         cJ, ch, cm, jnp.broadcast_to(cpar[:, None, :3], ch.shape), jnp.broadcast_to(cpar[:, None, 3:], ch.shape)
     )
     kconst = dot(sw, cW[..., :3] - Icw) + dot(su, cW[..., 3:] - Icu) - tau[hp] * valid
     K = jnp.concatenate([Yw, Yu, kconst[..., None]], -1) * unk[..., None]  # (m, b, 7)
     # the whole block: composite inertia C and bias (7 x 7, homogeneous)
     tot = jnp.sum(cols, 1)  # (m, 19)
-    Cm = _inertia_matrix(tot[:, 4:13].reshape(-1, 3, 3), tot[:, 1:4], tot[:, 0])  # (m, 6, 6)
+    Cm = inertia_matrix(tot[:, 4:13].reshape(-1, 3, 3), tot[:, 1:4], tot[:, 0])  # (m, 6, 6)
     C = _homogeneous(Cm, tot[:, 13:] - jnp.einsum("jab,jb->ja", Cm, cpar))
     # Z of a block as a quadratic form in (gamma_ddot, a~): M0 = [[A, K], [K^T, C]]; the port's
     # acceleration is N (gamma_ddot, a~) with N = [L, X] (7 x (b + 7)).
     M0 = jnp.concatenate([jnp.concatenate([A, K], -1), jnp.concatenate([jnp.swapaxes(K, -1, -2), C], -1)], -2)
     tp = jnp.asarray(bp.to_port, dtype) * unk  # unknown hinges between parent and port
     Lmat = jnp.concatenate([sw * tp[..., None], su * tp[..., None], jnp.zeros_like(tp)[..., None]], -1)  # (m, b, 7)
-    dport = cbar[np.where(bp.port >= 0, bp.port, 0)] - cpar  # bias of the port relative to the parent
+    dport = body.cbar[np.where(bp.port >= 0, bp.port, 0)] - cpar  # bias of the port relative to the parent
     Xh = _homogeneous(jnp.broadcast_to(jnp.eye(6, dtype=dtype), Cm.shape), dport, corner=1.0, lower=False)
     N = jnp.concatenate([jnp.swapaxes(Lmat, -1, -2), Xh], -1)  # (m, 7, b + 7)
-    # Minimizing Z over gamma_ddot is a Schur complement: eliminating the block's b hinge
-    # accelerations from M = [[A, K], [K^T, C]] leaves the articulated inertia of the block,
-    # P = C - K^T A^{-1} K, and G = A^{-1} K for the outward pass (_math.eliminate: no LAPACK
-    # call, whose batched CPU kernels can deadlock XLA's thread pool).
+    return _Blocks(M0, N, Lmat, Xh, unk)
 
-    # ------------------------------------------------------------------ inward over block levels
+
+def _inward(bp, blocks, body):
+    """The inward pass over block levels: ``(G (m, b, 7), a0 (7,), ok)``.
+
+    Minimizing Z over gamma_ddot is a Schur complement: eliminating the block's b hinge
+    accelerations from M = [[A, K], [K^T, C]] leaves the articulated inertia of the block,
+    P = C - K^T A^{-1} K, and G = A^{-1} K for the outward pass (_math.eliminate: no LAPACK
+    call, whose batched CPU kernels can deadlock XLA's thread pool)."""
+    b = bp.size
+    M0, N = blocks.M0, blocks.N
     m = len(bp.parent)
     P = [None] * m
     gains: list = [None] * m  # G of every block, filled level by level below
@@ -387,19 +408,25 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
         for i, j in enumerate(ported):
             P[j], gains[j] = Pp[i], Gp[i]
     # body 0: its own inertia and bias, and the articulated inertias of the blocks on it
-    P0 = _homogeneous(_inertia_matrix(J[0], h[0], mass[0]), W[0]) + sum(P[c] for c in bp.root_children)
+    P0 = _homogeneous(inertia_matrix(body.J[0], body.h[0], body.mass[0]), body.W[0]) + sum(
+        P[c] for c in bp.root_children
+    )
     G0, _, piv0 = eliminate(P0, 6)
     ok = ok & _regular_pivots(piv0, P0)
-    a0 = -G0[:, 0]
+    return jnp.stack(gains), -G0[:, 0], ok
 
-    # ------------------------------------------------------------------ outward
-    # gamma_ddot = -M11^{-1} M12 a~ = -G a~, and the port's acceleration is N (gamma_ddot, a~)
-    G = jnp.stack(gains)  # (m, b, 7)
+
+def _outward(n, bp, blocks, G, a0):
+    """The outward pass: the hinge accelerations (n,) in hinge order from the gains `G` and the
+    base's acceleration `a0`; ``gamma_ddot = -M11^{-1} M12 a~ = -G a~``, and the port's
+    acceleration is ``N (gamma_ddot, a~)``."""
+    dtype = a0.dtype
+    m = len(bp.parent)
     ported = [j for j in range(m) if bp.children[j]]
     T = {}
     if ported:
         pa = np.asarray(ported, np.int64)
-        Tp = Xh[pa] - jnp.einsum("jai,jak->jik", Lmat[pa], G[pa])  # port acceleration = T a~
+        Tp = blocks.Xh[pa] - jnp.einsum("jai,jak->jik", blocks.Lmat[pa], G[pa])  # port acceleration = T a~
         T = {j: Tp[i] for i, j in enumerate(ported)}
     base = jnp.concatenate([a0, jnp.ones((1,), dtype)])
     at: list = [None] * m  # homogeneous acceleration of each block's parent
@@ -414,27 +441,26 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
             if bp.parent_block[j] < 0:
                 at[j] = base
     atp = jnp.stack(at)
-    qdd = -jnp.einsum("jak,jk->ja", G, atp) * unk
+    qdd = -jnp.einsum("jak,jk->ja", G, atp) * blocks.unk
     # the block slots back in hinge order (a static permutation; padding slots dropped)
     flat = bp.hinge.reshape(-1)
     order = np.full(n, flat.size, np.int64)
     order[flat[flat < n]] = np.flatnonzero(flat < n)
-    gdd = jnp.concatenate([qdd.reshape(-1), jnp.zeros((1,), dtype)])[order]
-    gdd, a0 = jnp.where(ok, gdd, jnp.nan), jnp.where(ok, a0, jnp.nan)
-    if prescribed_acc is not None:
-        gdd = gdd.at[np.asarray(model.prescribed, np.int64) - 1].set(prescribed_acc)
-    hold = jnp.zeros((0,), dtype)
-    if prescribed_acc is not None:
-        # torques that hold the prescribed hinges: S_k . sum_{i outboard of k} (M_i a_i + b_i) - tau_k
-        pk = np.asarray(model.prescribed, np.int64)
-        rates = jnp.concatenate([jnp.zeros((1, 6), dtype), jnp.concatenate([Sw, Su], 1) * gdd[:, None]], 0)
-        rates = rates.at[pk].set(0.0)  # the prescribed accelerations are in cbar already
-        acc = a0[None, :] + cbar + ancestor_sum(model.topology, rates)
-        fw, fu = _inertia_apply(J, h, mass, acc[:, :3], acc[:, 3:])
-        f = jnp.concatenate([fw + bw, fu + bu], 1)
-        out = jnp.tensordot(jnp.asarray(model.topology.descendants[pk], dtype), f, axes=1)
-        hold = dot(Sw[pk - 1], out[:, :3]) + dot(Su[pk - 1], out[:, 3:]) - tau[pk - 1]
-    return a0[:3], gdd, hold
+    return jnp.concatenate([qdd.reshape(-1), jnp.zeros((1,), dtype)])[order]
+
+
+def _holding_torques(model, body, tau, a0, gdd):
+    """Torques that hold the prescribed hinges: ``S_k . sum_{i outboard of k} (M_i a_i + b_i) - tau_k``."""
+    dtype = gdd.dtype
+    pk = np.asarray(model.prescribed, np.int64)
+    Sw, Su = body.Sw, body.Su
+    rates = jnp.concatenate([jnp.zeros((1, 6), dtype), jnp.concatenate([Sw, Su], 1) * gdd[:, None]], 0)
+    rates = rates.at[pk].set(0.0)  # the prescribed accelerations are in cbar already
+    acc = a0[None, :] + body.cbar + ancestor_sum(model.topology, rates)
+    fw, fu = inertia_apply(body.J, body.h, body.mass, acc[:, :3], acc[:, 3:])
+    f = jnp.concatenate([fw + body.bw, fu + body.bu], 1)
+    out = jnp.tensordot(jnp.asarray(model.topology.descendants[pk], dtype), f, axes=1)
+    return dot(Sw[pk - 1], out[:, :3]) + dot(Su[pk - 1], out[:, 3:]) - tau[pk - 1]
 
 
 def _homogeneous(M, v, corner=0.0, lower=True):

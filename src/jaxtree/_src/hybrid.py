@@ -129,7 +129,6 @@ from ._integrate import (
     tolerances,
 )
 from ._math import build_jit
-from .articulated import _force_cross, _inertia_apply, _inertia_matrix, _motion_cross
 from .attitude import AbstractAttitude, attitude_argument, get_attitude
 from .dynamics import _unbalanced, configuration, mass_matrix, rotational_equations
 from .kinematics import ancestor_sum, body_rotations, cross, full_precision, mm, mv
@@ -137,6 +136,7 @@ from .linearize import linearize, linearize_args, resolve_hinges
 from .model import Model, State
 from .modes import ModalError, _check_modal_damping
 from .modes import modes as _modes
+from .spatial import force_cross, inertia_apply, inertia_matrix, motion_cross
 from .topology import Topology
 
 
@@ -540,7 +540,7 @@ def _large_frame(hm: HybridModel, bases, t, dcm, w, gL, gdL, v0=None):
     S = jnp.concatenate([g, cross(r[par] + to_h, g)], 1)  # (nh, 6) hinge motions
     v0 = jnp.concatenate([w, jnp.zeros(3, dtype)]) if v0 is None else v0
     vel = ancestor_sum(topo, jnp.concatenate([v0[None], S * gamd[:, None]], 0))
-    cw, cu = _motion_cross(vel[par, :3], vel[par, 3:], S[:, :3] * gamd[:, None], S[:, 3:] * gamd[:, None])
+    cw, cu = motion_cross(vel[par, :3], vel[par, 3:], S[:, :3] * gamd[:, None], S[:, 3:] * gamd[:, None])
     c = jnp.concatenate([cw, cu], 1)  # (the prescribed accelerations enter through their columns of z)
     cbar = ancestor_sum(topo, jnp.concatenate([jnp.zeros((1, 6), dtype), c], 0))
     bidx = np.asarray(bodies, np.int64)
@@ -549,9 +549,9 @@ def _large_frame(hm: HybridModel, bases, t, dcm, w, gL, gdL, v0=None):
     eye = jnp.eye(3, dtype=dtype)
     J = Jc + mass[:, None, None] * (jnp.sum(r * r, -1)[:, None, None] * eye - r[:, :, None] * r[:, None, :])
     h = mass[:, None] * r
-    Lw, Lu = _inertia_apply(J, h, mass, vel[:, :3], vel[:, 3:])
-    bw, bu = _force_cross(vel[:, :3], vel[:, 3:], Lw, Lu)
-    Mcw, Mcu = _inertia_apply(J, h, mass, cbar[:, :3], cbar[:, 3:])
+    Lw, Lu = inertia_apply(J, h, mass, vel[:, :3], vel[:, 3:])
+    bw, bu = force_cross(vel[:, :3], vel[:, 3:], Lw, Lu)
+    Mcw, Mcu = inertia_apply(J, h, mass, cbar[:, :3], cbar[:, 3:])
     wrench = jnp.concatenate([Mcw + bw, Mcu + bu], 1)
     if model.loads is not None:
         lb = np.asarray([local[int(b)] for b in model.loads.bodies], np.int64)
@@ -568,7 +568,7 @@ def _large_frame(hm: HybridModel, bases, t, dcm, w, gL, gdL, v0=None):
         ],
         -1,
     )
-    M6 = _inertia_matrix(J, h, mass)
+    M6 = inertia_matrix(J, h, mass)
     A = jnp.einsum("iak,iab,ibl->kl", Jac, M6, Jac)
     b = jnp.einsum("iak,ia->k", Jac, wrench)
     # hinge laws of the large hinges (b is minus the generalized force)

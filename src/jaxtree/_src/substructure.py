@@ -52,8 +52,8 @@ import numpy as np
 
 from ._checks import is_traced
 from ._math import build_jit
-from .articulated import _force_cross, _inertia_apply, _inertia_matrix, _motion_cross
 from .kinematics import ancestor_sum, body_rotations, cross, mm, mv
+from .spatial import force_cross, inertia_apply, inertia_matrix, motion_cross
 from .topology import Topology
 
 
@@ -145,11 +145,11 @@ def _gauss(topo, d: _Bodies, gamma, yd, v):
     hm = mass[:, None] * r
     rates = jnp.concatenate([v[None, :], jnp.concatenate([Sw, Su], 1) * yd[:, None]], 0)
     vel = ancestor_sum(topo, rates)  # (nu+1, 6)
-    cw, cu = _motion_cross(vel[par, :3], vel[par, 3:], Sw * yd[:, None], Su * yd[:, None])
+    cw, cu = motion_cross(vel[par, :3], vel[par, 3:], Sw * yd[:, None], Su * yd[:, None])
     cbar = ancestor_sum(topo, jnp.concatenate([jnp.zeros((1, 6), dtype), jnp.concatenate([cw, cu], 1)], 0))
-    Lw, Lu = _inertia_apply(J, hm, mass, vel[:, :3], vel[:, 3:])
-    bw, bu = _force_cross(vel[:, :3], vel[:, 3:], Lw, Lu)
-    Mcw, Mcu = _inertia_apply(J, hm, mass, cbar[:, :3], cbar[:, 3:])
+    Lw, Lu = inertia_apply(J, hm, mass, vel[:, :3], vel[:, 3:])
+    bw, bu = force_cross(vel[:, :3], vel[:, 3:], Lw, Lu)
+    Mcw, Mcu = inertia_apply(J, hm, mass, cbar[:, :3], cbar[:, 3:])
     wrench = jnp.concatenate([Mcw + bw, Mcu + bu], 1)  # M_i c_i + v_i x* M_i v_i
     # J_i = [U | S_k on the path to body i]
     E = jnp.asarray(topo.path_elements, dtype)  # (nu, nu+1): hinge k on the path to body i
@@ -157,7 +157,7 @@ def _gauss(topo, d: _Bodies, gamma, yd, v):
     Jac = jnp.concatenate(
         [jnp.broadcast_to(jnp.eye(6, dtype=dtype), (nu + 1, 6, 6)), jnp.einsum("ka,ki->iak", S, E)], -1
     )  # (nu+1, 6, 6+nu)
-    M6 = _inertia_matrix(J, hm, mass)
+    M6 = inertia_matrix(J, hm, mass)
     A = jnp.einsum("iak,iab,ibl->kl", Jac, M6, Jac)
     b = jnp.einsum("iak,ia->k", Jac, wrench)
     return A, b
