@@ -376,56 +376,33 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
             num_rhs=i32(0),
         )
 
-    def step(self, terms, t0, t1, y0, args, solver_state: Radau5State, made_jump):
-        st = solver_state
-        rtol, atol, norm = self._tols()
-        y_flat, unravel = ravel_pytree(y0)
+    def _reuse(self, st, fun, t0, h_t, y_flat, y0, args, unit, made_jump):
+        """The Jacobian and the factorizations of this step: kept from the state, or new when
+        Newton asked for it, after a rejected step or a jump, or when h left the factor window."""
         dtype = y_flat.dtype
-        cdtype = jnp.promote_types(dtype, jnp.complex64)
-        eps = jnp.finfo(dtype).eps
-        unit = self._unit(terms, dtype)
-        fun = self._rhs(terms, args, unravel, dtype, unit)
-        tdtype = st.h_last.dtype
-        t0 = jnp.asarray(t0, dtype=tdtype)
-        h_t = jnp.asarray(t1, dtype=tdtype) - t0
-        h = h_t.astype(dtype)
-        made_jump = jnp.asarray(made_jump, dtype=bool)
-        c = jnp.asarray(C, dtype=dtype)
-
-        # --- what to reuse -------------------------------------------------------------------
-        fresh_start = made_jump | ~st.started
         retry = h_t < 0.99 * st.h_last  # see the module docstring: rejected attempts are forgotten
         jac_current = (st.t_jac == t0) & ~made_jump
         new_jac = (st.refresh_jac | retry | made_jump) & ~jac_current
-
         jac = jax.lax.cond(new_jac, lambda: self._jacobian(fun, t0, y_flat, y0, args, unit), lambda: st.jac)
-        t_jac = jnp.where(new_jac, t0, st.t_jac)
-
         quot1, quot2 = self.factor_window
         ratio = h_t / st.h_lu
-        slack = 64 * jnp.finfo(tdtype).eps  # h recomputed as t1 - t0 differs from h_lu by roundoff
+        slack = 64 * jnp.finfo(h_t.dtype).eps  # h recomputed as t1 - t0 differs from h_lu by roundoff
         new_lu = new_jac | ~((ratio >= quot1 * (1 - slack)) & (ratio <= quot2 * (1 + slack)))  # NaN: factor
-        lu_r, piv_r, lu_c, piv_c = jax.lax.cond(
+        lus = jax.lax.cond(
             new_lu,
-            lambda: self._factor(jac, h, dtype),
+            lambda: self._factor(jac, h_t.astype(dtype), dtype),
             lambda: (st.lu_real, st.piv_real, st.lu_complex, st.piv_complex),
         )
-        h_lu_t = jnp.where(new_lu, h_t, st.h_lu)
-        h_lu = h_lu_t.astype(dtype)
+        return jac, new_jac, lus, new_lu, retry
 
-        def solve_real(b):
-            return jsl.lu_solve((lu_r, piv_r), b)
-
-        def solve_complex(b):
-            return jsl.lu_solve((lu_c, piv_c), b)
-
-        # --- starting values: the last collocation polynomial, extrapolated --------------------
-        r = (h_t / st.h_last).astype(dtype)
-        weights = _lagrange_weights(1.0 + c * r)  # (3 new stages, 3 old stages)
-        z_extrap = _mix(weights, st.zs) - st.zs[2]
-        z_start = jnp.where(fresh_start, jnp.zeros_like(st.zs), z_extrap)
-
-        # --- simplified Newton iteration ------------------------------------------------------
+    def _newton(self, fun, stage_t, h, y_flat, z_start, faccon0, lus, rtol, atol, norm):
+        """The simplified Newton iteration on the collocation system (Hairer and Wanner IV.8):
+        ``(k, z, theta, faccon, status)``, status 1 converged, 2 non-finite, 3 diverged or too
+        slow, 4 out of iterations."""
+        dtype = y_flat.dtype
+        cdtype = jnp.promote_types(dtype, jnp.complex64)
+        eps = jnp.finfo(dtype).eps
+        lu_r, piv_r, lu_c, piv_c = lus
         scale = atol + rtol * jnp.abs(y_flat)
         if self.newton_tol is None:
             kappa = jnp.maximum(10 * eps / rtol, jnp.minimum(0.03, jnp.sqrt(rtol)))
@@ -433,8 +410,6 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
             kappa = self.newton_tol
         kappa = jnp.asarray(kappa, dtype=dtype)
         nit = self.max_newton
-        thet = abs(self.jac_refresh)
-        stage_t = t0 + jnp.asarray(C, dtype=tdtype) * h_t
         gamma_h = GAMMA / h
         shift_h = jnp.asarray(ALPHA + 1j * BETA, dtype=cdtype) / h.astype(cdtype)
 
@@ -442,8 +417,10 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
             k, w, z, dynold, thqold, theta, faccon, _ = carry
             fs = jax.vmap(fun)(stage_t, y_flat + z)
             rhs = _mix(T_INV, fs)
-            d_real = solve_real(rhs[0] - gamma_h * w[0])
-            d_cplx = solve_complex((rhs[1] + 1j * rhs[2]).astype(cdtype) - shift_h * (w[1] + 1j * w[2]).astype(cdtype))
+            d_real = jsl.lu_solve((lu_r, piv_r), rhs[0] - gamma_h * w[0])
+            d_cplx = jsl.lu_solve(
+                (lu_c, piv_c), (rhs[1] + 1j * rhs[2]).astype(cdtype) - shift_h * (w[1] + 1j * w[2]).astype(cdtype)
+            )
             dw = jnp.stack([d_real, d_cplx.real, d_cplx.imag])
             dyno = jnp.asarray(norm(dw / scale), dtype=dtype)
             k = k + 1
@@ -479,33 +456,31 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
             z_start,
             zero,
             zero,
-            jnp.asarray(thet, dtype=dtype),
-            jnp.maximum(st.faccon, eps) ** 0.8,
+            jnp.asarray(abs(self.jac_refresh), dtype=dtype),
+            jnp.maximum(faccon0, eps) ** 0.8,
             jnp.asarray(0, jnp.int32),
         )
         k, _, z, _, _, theta, faccon, status = eqxi.while_loop(not_done, body, init, max_steps=nit, kind="checkpointed")
-        ok = status == 1
+        return k, z, theta, faccon, status
 
-        # --- solution and error estimate ------------------------------------------------------
-        y1_flat = y_flat + z[2]
+    @staticmethod
+    def _error(fun, t0, y_flat, z, h, h_lu, lus, again, scaled):
+        """The error estimate ``(err, right sides used)``: ``err = (h / h_lu) (gamma / h - J)^{-1}
+        (f(t0, y0) + ez)``; where `again` says so (a first step or a retry whose estimate fails),
+        once more with ``f(t0, y0 + err)`` (Hairer-Wanner IV.8). One loop of one or two passes, so
+        that the compiled step holds the vector field once here, not twice."""
+        lu_r, piv_r = lus[0], lus[1]
         ez = _mix(E[None, :], z)[0] / h
         fix = h / h_lu  # the matrix was factored for h_lu (see the module docstring)
 
-        def scaled(e):
-            y_max = jnp.maximum(jnp.abs(y_flat), jnp.abs(y1_flat))
-            return jnp.asarray(norm(e / (atol + rtol * y_max)))
-
-        # err = (h / h_lu) (gamma / h - J)^{-1} (f(t0, y0) + ez); on a first step or a retry whose
-        # estimate fails, once more with f(t0, y0 + err) (Hairer-Wanner IV.8). One loop of one or
-        # two passes, so that the compiled step holds the vector field once here, not twice.
         def err_body(carry):
             i, _, x = carry
-            e = fix * solve_real(fun(t0, x) + ez)
+            e = fix * jsl.lu_solve((lu_r, piv_r), fun(t0, x) + ez)
             return i + 1, e, y_flat + e
 
         def err_more(carry):
             i, e, _ = carry
-            return (i == 0) | ((i == 1) & (fresh_start | retry) & ok & ~(scaled(e) < 1))
+            return (i == 0) | ((i == 1) & again & ~(scaled(e) < 1))
 
         nf_err, err, _ = eqxi.while_loop(
             err_more,
@@ -514,6 +489,42 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
             max_steps=2,
             kind="checkpointed",
         )
+        return err, nf_err
+
+    def step(self, terms, t0, t1, y0, args, solver_state: Radau5State, made_jump):
+        st = solver_state
+        rtol, atol, norm = self._tols()
+        y_flat, unravel = ravel_pytree(y0)
+        dtype = y_flat.dtype
+        unit = self._unit(terms, dtype)
+        fun = self._rhs(terms, args, unravel, dtype, unit)
+        tdtype = st.h_last.dtype
+        t0 = jnp.asarray(t0, dtype=tdtype)
+        h_t = jnp.asarray(t1, dtype=tdtype) - t0
+        h = h_t.astype(dtype)
+        made_jump = jnp.asarray(made_jump, dtype=bool)
+        fresh_start = made_jump | ~st.started
+        jac, new_jac, lus, new_lu, retry = self._reuse(st, fun, t0, h_t, y_flat, y0, args, unit, made_jump)
+        h_lu_t = jnp.where(new_lu, h_t, st.h_lu)
+
+        # starting values: the last collocation polynomial, extrapolated
+        c = jnp.asarray(C, dtype=dtype)
+        weights = _lagrange_weights(1.0 + c * (h_t / st.h_last).astype(dtype))  # (3 new stages, 3 old)
+        z_extrap = _mix(weights, st.zs) - st.zs[2]
+        z_start = jnp.where(fresh_start, jnp.zeros_like(st.zs), z_extrap)
+        stage_t = t0 + jnp.asarray(C, dtype=tdtype) * h_t
+        k, z, theta, faccon, status = self._newton(fun, stage_t, h, y_flat, z_start, st.faccon, lus, rtol, atol, norm)
+        ok = status == 1
+
+        # solution and error estimate
+        y1_flat = y_flat + z[2]
+
+        def scaled(e):
+            y_max = jnp.maximum(jnp.abs(y_flat), jnp.abs(y1_flat))
+            return jnp.asarray(norm(e / (atol + rtol * y_max)))
+
+        again = (fresh_start | retry) & ok
+        err, nf_err = self._error(fun, t0, y_flat, z, h, h_lu_t.astype(dtype), lus, again, scaled)
         err = jnp.where(ok, err, jnp.inf)
         failure = dfx.RESULTS.where(
             status == 4,
@@ -523,13 +534,10 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
         failure = dfx.RESULTS.where(status == 2, dfx.RESULTS.promote(optx.RESULTS.nonfinite), failure)
         result = dfx.RESULTS.where(ok, dfx.RESULTS.successful, failure)
 
-        y1 = unravel(y1_flat)
-        y_error = unravel(err)
-        zs_tree = jax.vmap(unravel)(z)
-        dense_info = dict(y0=y0, zs=zs_tree)
+        lu_r, piv_r, lu_c, piv_c = lus
         new_state = Radau5State(
             jac=jac,
-            t_jac=t_jac,
+            t_jac=jnp.where(new_jac, t0, st.t_jac),
             lu_real=lu_r,
             piv_real=piv_r,
             lu_complex=lu_c,
@@ -546,7 +554,8 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
             num_newton=st.num_newton + k,
             num_rhs=st.num_rhs + 3 * k + nf_err,
         )
-        return y1, y_error, dense_info, new_state, result
+        dense_info = dict(y0=y0, zs=jax.vmap(unravel)(z))
+        return unravel(y1_flat), unravel(err), dense_info, new_state, result
 
     def func(self, terms, t0, y0, args):
         return terms.vf(t0, y0, args)
