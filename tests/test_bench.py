@@ -135,7 +135,8 @@ def test_work_precision_measures_error_against_an_independent_reference(tmp_path
     with open(paths["csv"]) as fh:
         table = list(csv.DictReader(fh))
     assert len(table) == len(report.rows) and {r["solver"] for r in table} == {"Dopri8", "RK4"}
-    text = open(paths["md"]).read()
+    with open(paths["md"]) as fh:  # closed: an open file is a ResourceWarning, an error in the suite
+        text = fh.read()
     assert "## wings (reference)" in text and "floor" in text and "wings.png" in text
     # the findings drawn from the rows: wings' fastest jaxtree run to 1e-6 is Dopri8 (the only adaptive solver here)
     assert "## Findings" in text and "| wings | reference | Dopri8 | Dopri8 " in text
