@@ -35,9 +35,9 @@ def _accelerations(model, solve):
 
     def acc(model, state, t):
         if solve == "rule":
-            a = dynamics._solve_accelerations(model, state, t, None)
+            a = dynamics.solve_unchecked(model, state, t, None)
         else:
-            full, gdd_p = dynamics._complete_state(model, t, state)
+            full, gdd_p = dynamics.complete_state(model, t, state)
             dtype = dynamics._dtype(model, full.gamma, full.gamma_dot, full.omega0)
             full = jaxtree.State(*(jnp.asarray(x, dtype) for x in full))
             a = dynamics._solve_plain(model, full, jnp.asarray(t, dtype), None, gdd_p)
@@ -83,13 +83,13 @@ BLOCK = 4
 def test_configuration_tangent_closed_form_equals_jvp(name):
     """The rule's closed-form tangent of the configuration and the body angular velocities
     (dynamics._configuration_tangent: small rotations about the hinge axes inboard of each body)
-    against forward-mode differentiation of dynamics._configuration (products of rotations)."""
+    against forward-mode differentiation of dynamics.configuration_and_rates (products of rotations)."""
     model = TREES[name]
     rng = np.random.default_rng(5)
     n = model.n
     g, gd, w = (jnp.asarray(rng.normal(size=k)) for k in (n, n, 3))
     dg, dgd, dw = (jnp.asarray(rng.normal(size=k)) for k in (n, n, 3))
-    f = lambda g, gd, w: dynamics._configuration(model, g, w, gd)
+    f = lambda g, gd, w: dynamics.configuration_and_rates(model, g, w, gd)
     (cfg, omega), (cfg_dot, omega_dot) = jax.jvp(f, (g, gd, w), (dg, dgd, dw))
     closed_cfg, closed_omega = dynamics._configuration_tangent(model, cfg, omega, gd, dg, dgd, dw)
     for field, a, b in zip(cfg._fields, closed_cfg, cfg_dot):

@@ -125,7 +125,7 @@ def test_eq1_equals_printed_defs_38_to_41(scenes, name):
     state = random_state(model, rng)
     tau = jnp.asarray(rng.normal(size=model.n))
     # the printed form fills in prescribed hinges; do the same on the fast side
-    state_full, _ = jaxtree._src.dynamics._complete_state(model, 0.0, state)
+    state_full, _ = jaxtree._src.dynamics.complete_state(model, 0.0, state)
     A, rhs = equations(model, state_full, 0.0, tau)
     As, rhss = seed_form(model, state, 0.0, tau)
     assert rel(A, As) < RTOL

@@ -245,7 +245,7 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
     """Accelerations of Eq. (1) by the blocked articulated recursion.
 
     **Arguments:** the configuration `cfg` and body angular velocities `omega` of
-    :func:`jaxtree.dynamics._configuration`, the mass-center velocities `vel` relative to the
+    :func:`jaxtree.dynamics.configuration_and_rates`, the mass-center velocities `vel` relative to the
     system mass center, `gamma_dot` (n,), the hinge torques `tau` (n,), the external `loads`
     ``(bodies, force, torque)`` in {b^0} components or None, and the accelerations of the
     prescribed hinges (in ``model.prescribed`` order) or None.

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .dynamics import _complete_state, external_loads, hinge_torques
+from .dynamics import complete_state, external_loads, hinge_torques
 from .kinematics import body_rotations, full_precision, relative_rotations
 from .model import Model, State
 
@@ -104,7 +104,7 @@ def seed_equations(model: Model, state: State, t=0.0, tau=None):
     Same signature and result as :func:`jaxtree.rotational_equations`, except that
     prescribed hinges are filled in from the prescription first.
     """
-    state, _ = _complete_state(model, t, state)
+    state, _ = complete_state(model, t, state)
     gamma, gdot, w0 = state.gamma, state.gamma_dot, state.omega0
     n = model.n
     bary = barycentric(model)

@@ -729,7 +729,7 @@ class BenchReport:
     def save(self, directory, *, stem: str = "work_precision", plots: bool = True) -> dict[str, str]:
         """Write ``<stem>.csv``, ``<stem>.md`` and one ``<stem>_<case>.png`` per case into
         `directory` (each atomically); returns the paths."""
-        from .output import atomic_write
+        from .files import atomic_write
 
         os.makedirs(directory, exist_ok=True)
         paths = {"csv": os.path.join(directory, f"{stem}.csv"), "md": os.path.join(directory, f"{stem}.md")}

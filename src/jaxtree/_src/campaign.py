@@ -154,14 +154,14 @@ def _diagnose_failures(out: dict, models, model: Model) -> None:
     eager evaluation per failed member, on the host (batched LAPACK calls in the vmapped chunk
     would cost every member a decomposition, and can deadlock on the CPU, see _sharded)."""
     from .model import State
-    from .simulate import _condition_jit
+    from .simulate import condition_jit
 
     code = out["diagnosis"]
     suspects = np.flatnonzero(np.isin(code, [FAILURES.index(k) for k in ("max_steps", "dt_min", "other")]))
     for i in suspects:
         member = _take(models, i)
         state = State(*(np.asarray(x)[i] for x in out["final"]))
-        cond, _ = _condition_jit(member, state, np.asarray(out["t_final"])[i])
+        cond, _ = condition_jit(member, state, np.asarray(out["t_final"])[i])
         cond = float(cond)
         if not np.isfinite(cond) or cond > SINGULAR_CONDITION:
             code[i] = FAILURES.index("singular_matrix")
@@ -432,7 +432,7 @@ class _Store:
             assert isinstance(chunk_done, zarr.Array), "made an array with the template above"
             chunk_done[index] = True
             return
-        from .output import atomic_write
+        from .files import atomic_write
 
         os.makedirs(self.parts, exist_ok=True)
         meta = os.path.join(self.parts, "campaign.json")

@@ -38,7 +38,7 @@ from .linearize import resolve_hinges
 from .model import Model, State
 from .modes import ModalError
 from .radau import Radau5
-from .results import ChunkedResult, _scene_json, body_positions, simulation_dataset
+from .results import ChunkedResult, body_positions, scene_json, simulation_dataset
 from .simulate import simulate
 
 
@@ -157,7 +157,7 @@ def chunked_config(
         _, choice = choose_solver(model, t1, t0=t0, rtol=rtol)
         solver, why = choice.name, f"auto: {choice.reason}"
     cfg: dict[str, Any] = {
-        "scene": _scene_json(model),
+        "scene": scene_json(model),
         "t0": float(t0),
         "t1": float(t1),
         "points": int(save_points(model, float(t1 - t0))[0] if points is None else points),

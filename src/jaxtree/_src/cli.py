@@ -52,8 +52,8 @@ from .chunked import solver_named as solver_named
 from .diagnostics import check_scene
 from .linearize import linearize, structure
 from .modes import ModalError, modes
-from .results import _model_of as model_of_result
-from .results import _to_solution, command_line, load_result, modes_dataset, save_result, versions, write_netcdf
+from .results import command_line, load_result, modes_dataset, save_result, to_solution, versions, write_netcdf
+from .results import model_of as result_model
 from .scene import SceneError, list_scenes, load_scene
 from .simulate import simulate
 
@@ -208,7 +208,7 @@ def _load_result(path):
 
 def _model_of(ds, path):
     try:
-        return model_of_result(ds)
+        return result_model(ds)
     except (ValueError, KeyError) as e:
         raise UserError(f"{path}: {e}") from None
 
@@ -738,7 +738,7 @@ def _exports(args, out, ds):
     """The CSV export and the plots of a finished run; returns the files written."""
     written = []
     if args.csv:
-        output.save_csv(args.csv, _to_solution(ds))
+        output.save_csv(args.csv, to_solution(ds))
         written.append(args.csv)
     if not args.no_plot:
         if not _matplotlib():

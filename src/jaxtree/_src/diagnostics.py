@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .dynamics import SINGULAR_CONDITION, _matrix_condition, _unknown_labels, rotational_equations
+from .dynamics import SINGULAR_CONDITION, matrix_condition, rotational_equations, unknown_labels
 from .model import Model, SinePrescription, State
 from .scene import SceneError, load_scene, scene_from_dict
 from .scene_laws import describe_laws
@@ -88,7 +88,7 @@ def _condition_core(model: Model, state: State, t):
         idx = np.asarray(model.prescription.hinges, dtype=np.int64) - 1
         gamma = jnp.asarray(gamma).at[idx].set(jnp.asarray(model.prescription(t), jnp.result_type(gamma)))
     A, _ = rotational_equations(model, state._replace(gamma=gamma), t)
-    return _matrix_condition(model, A)
+    return matrix_condition(model, A)
 
 
 def condition(model: Model, state: State | None = None, t=0.0) -> Condition:
@@ -104,7 +104,7 @@ def condition(model: Model, state: State | None = None, t=0.0) -> Condition:
     if not isinstance(state, State):
         raise TypeError(f"condition: state must be a jaxtree.State, got {type(state).__name__}")
     number, direction = _condition_core(model, state, jnp.asarray(t, jnp.result_type(model.mass)))
-    return Condition(number, direction, _unknown_labels(model))
+    return Condition(number, direction, unknown_labels(model))
 
 
 # ----------------------------------------------------------------------------- check_scene

@@ -106,14 +106,18 @@ def _dtype(model, *xs):
 def configuration(model: Model, gamma) -> Configuration:
     """Rotations (Eqs. 4-5, 21-22), hinge axes, hinge points and mass centers at angles `gamma`."""
     _check_shapes("configuration", model, gamma=gamma)
-    return _configuration(model, gamma)[0]
+    return configuration_and_rates(model, gamma)[0]
 
 
 @overload
-def _configuration(model: Model, gamma, omega0: None = None, gamma_dot: None = None) -> tuple[Configuration, None]: ...
+def configuration_and_rates(
+    model: Model, gamma, omega0: None = None, gamma_dot: None = None
+) -> tuple[Configuration, None]: ...
 @overload
-def _configuration(model: Model, gamma, omega0: jax.Array, gamma_dot: jax.Array) -> tuple[Configuration, jax.Array]: ...
-def _configuration(model, gamma, omega0=None, gamma_dot=None):
+def configuration_and_rates(
+    model: Model, gamma, omega0: jax.Array, gamma_dot: jax.Array
+) -> tuple[Configuration, jax.Array]: ...
+def configuration_and_rates(model, gamma, omega0=None, gamma_dot=None):
     """:func:`configuration`, and with `omega0` and `gamma_dot` also the body angular velocities
     (:func:`body_angular_velocities`), whose path-element sum shares one pass with the mass
     centers' (else None)."""
@@ -332,7 +336,7 @@ def _rhs_from_sums(model, cfg, sub, tau, loads):
     return jnp.concatenate([rhs0, hinge])
 
 
-def _complete_state(model, t, state: State):
+def complete_state(model, t, state: State):
     """`state` with its prescribed hinges from the prescription at time t, and their accelerations."""
     return _hinges.complete(model, t, state, _dtype(model, state.gamma))
 
@@ -350,7 +354,7 @@ def rotational_equations(model: Model, state: State, t=0.0, tau=None):
     gamma_dot = jnp.asarray(state.gamma_dot, dtype)
     omega0 = jnp.asarray(state.omega0, dtype)
     state = State(jnp.asarray(state.dcm, dtype), omega0, gamma, gamma_dot)
-    cfg, omega = _configuration(model, gamma, omega0, gamma_dot)
+    cfg, omega = configuration_and_rates(model, gamma, omega0, gamma_dot)
     torque = hinge_torques(model, gamma, gamma_dot)
     if tau is not None:
         torque = torque + tau
@@ -392,17 +396,17 @@ def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelera
     The torque needed to hold the prescription is returned as `hold_torque`.
     """
     _check_shapes("solve_accelerations", model, state, tau=tau)
-    acc = _solve_accelerations(model, state, t, tau)
+    acc = solve_unchecked(model, state, t, tau)
     _check_finite("solve_accelerations", model, state, t, tau, acc)
     return acc
 
 
-def _solve_accelerations(model, state, t, tau, completed=None):
+def solve_unchecked(model, state, t, tau, completed=None):
     """Eq. (1) at a state; `completed`: the prescribed accelerations of a state already
     completed with its prescribed hinges (:func:`jaxtree._hinges.complete`, once per right side),
     or None to complete it here."""
     if completed is None:
-        state, gdd_p = _complete_state(model, t, state)
+        state, gdd_p = complete_state(model, t, state)
     else:
         gdd_p = completed if model.prescription is not None else None
     dtype = _dtype(model, state.gamma, state.gamma_dot, state.omega0)
@@ -462,7 +466,7 @@ def _unbalanced(model, state, t, tau, omega0_dot, gamma_ddot):
     the accelerations join the velocity-product loads of Def. 41 (:func:`_wrenches`), so A is
     never assembled. Zero in the rows of the unknowns at the solution; minus the holding torques
     in the rows of prescribed hinges."""
-    cfg, omega = _configuration(model, state.gamma, state.omega0, state.gamma_dot)
+    cfg, omega = configuration_and_rates(model, state.gamma, state.omega0, state.gamma_dot)
     return _unbalanced_at(model, state, t, tau, cfg, omega, omega0_dot, gamma_ddot)
 
 
@@ -479,7 +483,7 @@ def _unbalanced_at(model, state, t, tau, cfg, omega, omega0_dot, gamma_ddot):
 
 
 def _configuration_tangent(model, cfg, omega, gamma_dot, d_gamma, d_gamma_dot, d_omega0):
-    """Tangents of ``(cfg, omega)`` of :func:`_configuration` along state tangents
+    """Tangents of ``(cfg, omega)`` of :func:`configuration_and_rates` along state tangents
     ``(d_gamma, d_gamma_dot, d_omega0)`` (None: zero), in closed form.
 
     A change ``d_gamma`` of the angles turns every body about the hinge axes inboard of it: body
@@ -591,18 +595,18 @@ def _unbalanced_jvp(primals, tangents, x_u, values, dots, rebuild):
     """``dF/dp p'`` of the unbalanced force at fixed unknown accelerations `x_u`: the tangents of
     the configuration and the angular velocities along the state's angles and rates in closed
     form (:func:`_configuration_tangent`), those along the model's parameters by differentiating
-    :func:`_configuration`, and one JVP of the rest (:func:`_unbalanced_at`) with all of them."""
+    :func:`configuration_and_rates`, and one JVP of the rest (:func:`_unbalanced_at`) with all of them."""
     model, state, *_ = primals
     d_model, d_state = tangents[0], tangents[1]
     d_g, d_gd, d_w = (None, None, None) if d_state is None else (d_state.gamma, d_state.gamma_dot, d_state.omega0)
-    cfg, omega = _configuration(model, state.gamma, state.omega0, state.gamma_dot)
+    cfg, omega = configuration_and_rates(model, state.gamma, state.omega0, state.gamma_dot)
     cfg_dot, omega_dot = _configuration_tangent(model, cfg, omega, state.gamma_dot, d_g, d_gd, d_w)
     if d_model is not None:
         m_values, m_dots, m_rebuild = _differentiated(model, d_model)
         if m_values:
 
             def configuration_of(v):
-                return _configuration(m_rebuild(v), state.gamma, state.omega0, state.gamma_dot)
+                return configuration_and_rates(m_rebuild(v), state.gamma, state.omega0, state.gamma_dot)
 
             _, (c_dot, o_dot) = jax.jvp(configuration_of, (m_values,), (m_dots,))
             cfg_dot = jax.tree_util.tree_map(jnp.add, cfg_dot, c_dot)
@@ -627,7 +631,7 @@ def _solve_articulated(model, state, t, tau, gdd_p):
     dtype = _dtype(model, state.gamma, state.gamma_dot, state.omega0)
     gamma, gamma_dot = jnp.asarray(state.gamma, dtype), jnp.asarray(state.gamma_dot, dtype)
     state = State(jnp.asarray(state.dcm, dtype), jnp.asarray(state.omega0, dtype), gamma, gamma_dot)
-    cfg, omega = _configuration(model, gamma, state.omega0, gamma_dot)
+    cfg, omega = configuration_and_rates(model, gamma, state.omega0, gamma_dot)
     torque = hinge_torques(model, gamma, gamma_dot)
     if tau is not None:
         torque = torque + tau
@@ -662,17 +666,17 @@ def _diagnose(name, model, state, t, tau):
     if bad:
         lines.append(f"  diagnosis: not finite: {', '.join(bad)}")
         return "\n".join(lines)
-    full, gdd_p = _complete_state(model, t, state)
+    full, gdd_p = complete_state(model, t, state)
     A, rhs = rotational_equations(model, full, t, tau)
     if not np.all(np.isfinite(np.asarray(A))):
         lines.append("  diagnosis: the Eq. (1) matrix is not finite")
         return "\n".join(lines)
-    cond, direction = _matrix_condition(model, A)
+    cond, direction = matrix_condition(model, A)
     cond = float(cond)
     if not np.isfinite(cond) or cond > SINGULAR_CONDITION:
         lines.append(
             f"  diagnosis: the Eq. (1) matrix is singular or nearly so (condition number {cond:.3g}); "
-            f"{_null_direction_text(direction, _unknown_labels(model))}"
+            f"{null_direction_text(direction, unknown_labels(model))}"
         )
     elif not np.all(np.isfinite(np.asarray(rhs))) or (gdd_p is not None and not np.all(np.isfinite(np.asarray(gdd_p)))):
         lines.append(
@@ -687,28 +691,26 @@ def _diagnose(name, model, state, t, tau):
 SINGULAR_CONDITION = 1e12
 
 
-def _matrix_condition(model, A):
+def matrix_condition(model, A):
     """Condition number of the Eq. (1) matrix `A` with the prescribed rows and columns removed,
     and its eigenvector of the eigenvalue nearest zero (the near-null direction when singular)."""
-    u = _unknown_rows(model)
+    u = unknown_rows(model)
     ev, V = jnp.linalg.eigh(A[np.ix_(u, u)])
     i = jnp.argmin(jnp.abs(ev))
     return jnp.max(jnp.abs(ev)) / jnp.abs(ev[i]), V[:, i]
 
 
-def _unknown_rows(model):
+def unknown_rows(model):
     """Rows of Eq. (1) that are unknowns: omega0 and the hinges that are not prescribed or inert."""
     return np.concatenate([np.arange(3), np.asarray(model.unknown_hinges, dtype=np.int64) + 2])
 
 
-def _unknown_labels(model) -> tuple[str, ...]:
+def unknown_labels(model) -> tuple[str, ...]:
     """Labels of the unknown rows of Eq. (1), for messages: ``omega0x``..., ``hinge k (name)``."""
-    return tuple(
-        "omega0" + "xyz"[i] if i < 3 else f"hinge {i - 2} ({model.names[i - 2]})" for i in _unknown_rows(model)
-    )
+    return tuple("omega0" + "xyz"[i] if i < 3 else f"hinge {i - 2} ({model.names[i - 2]})" for i in unknown_rows(model))
 
 
-def _null_direction_text(v, labels) -> str:
+def null_direction_text(v, labels) -> str:
     """Describe the near-null direction `v` of a singular Eq. (1) matrix by its large entries."""
     v = np.asarray(v, dtype=float)
     big = np.flatnonzero(np.abs(v) >= 0.25 * np.abs(v).max())
@@ -748,14 +750,14 @@ def forward_dynamics(model: Model, dcm, omega0, gamma, gamma_dot, t=0.0):
     """
     _check_shapes("forward_dynamics", model, dcm=dcm, omega0=omega0, gamma=gamma, gamma_dot=gamma_dot)
     state = State(dcm, omega0, gamma, gamma_dot)
-    acc = _solve_accelerations(model, state, t, None)
+    acc = solve_unchecked(model, state, t, None)
     _check_finite("forward_dynamics", model, state, t, None, acc)
     return acc.omega0_dot, acc.gamma_ddot
 
 
 def _momenta(model, state):
     dtype = _dtype(model, state.gamma)
-    cfg, omega = _configuration(
+    cfg, omega = configuration_and_rates(
         model, state.gamma, jnp.asarray(state.omega0, dtype), jnp.asarray(state.gamma_dot, dtype)
     )
     vel = _massive(model, _velocities(model, cfg, omega))

@@ -5,37 +5,16 @@ in the same folder, then a rename), so a crash never leaves a half-written resul
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import io
-import os
-import pathlib
-import tempfile
 from typing import Any, cast
 
 import jax
 import numpy as np
 
+from .files import atomic_write as atomic_write
+from .plots import plot_histories
 from .simulate import Solution
-
-
-@contextlib.contextmanager
-def atomic_write(path, mode="wb"):
-    """Open a temporary file next to `path`; rename it to `path` when the block succeeds."""
-    path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, mode) as fh:
-            yield fh
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600 files; give the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
 
 
 def histories(sol: Solution) -> dict[str, np.ndarray]:
@@ -114,8 +93,6 @@ def save_plot(path, runs: dict[str, Solution], title: str = "") -> bool:
         import matplotlib  # noqa: F401
     except ImportError:
         return False
-    from .plots import plot_histories
-
     plot_histories(runs, path, title=title or None, drift=True)
     return True
 

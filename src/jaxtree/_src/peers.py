@@ -64,10 +64,10 @@ def _laws(model):
 def base_velocity(model, state=None) -> np.ndarray:
     """Velocity of b_0's mass center relative to the system mass center (b_0 axes): the peers
     integrate b_0's translation, which moves whenever the rest of the vehicle does."""
-    from .dynamics import _configuration, _velocities
+    from .dynamics import _velocities, configuration_and_rates
 
     s = model.initial if state is None else state
-    cfg, omega = _configuration(model, s.gamma, s.omega0, s.gamma_dot)
+    cfg, omega = configuration_and_rates(model, s.gamma, s.omega0, s.gamma_dot)
     return np.asarray(_velocities(model, cfg, omega)[0], float)
 
 

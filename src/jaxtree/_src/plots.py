@@ -16,6 +16,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from .files import atomic_write
 from .model import Model
 
 # Every PNG written here: at 120 dpi a 9 pt label is 15 px high.
@@ -60,8 +61,6 @@ def _figure(**kw):
 def _save(fig, path):
     if path is None:
         return
-    from .output import atomic_write
-
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
     with atomic_write(path) as fh:
@@ -89,13 +88,13 @@ def _series(result) -> dict:
     """Arrays of a Solution or a result Dataset: t, gamma, gamma_dot, omega0, dcm, energy, H, names,
     and the model (None where a result does not carry its scene)."""
     if hasattr(result, "data_vars"):
-        from .results import _model_of
+        from .results import model_of
 
         ds = result
         get = lambda k: ds[k].values if k in ds else None
         names = [str(s) for s in ds["hinge_name"].values] if "hinge_name" in ds.coords else None
         try:
-            model = _model_of(ds)
+            model = model_of(ds)
         except (ValueError, KeyError, TypeError):
             model = None
         out: dict[str, Any] = dict(

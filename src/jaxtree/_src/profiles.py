@@ -24,11 +24,14 @@ last point repeated at later times (1 s apart), its value held; the true lengths
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._checks import SceneError, as_float
 from .model import Prescription
 
 PRESCRIBED_SHAPES = ("ramp", "smooth_step")
@@ -123,3 +126,35 @@ def hermite_table(t, times, values, length):
 def linear_table(t, times, values):
     """Linear interpolation of a (padded) table row at t, held constant outside it."""
     return jnp.interp(t, times, values)
+
+
+class PrescriptionGroup(Prescription):
+    """Several prescriptions side by side (e.g. sine hinges and user functions)."""
+
+    hinges: tuple[int, ...] = eqx.field(static=True)
+    parts: tuple[Prescription, ...]
+
+    def __call__(self, t):
+        return jnp.concatenate([jnp.atleast_1d(p(t)) for p in self.parts])
+
+
+class FunctionPrescription(Prescription):
+    """Prescribed angles from user functions of time, one per hinge (a scene's ``joint.fn``)."""
+
+    hinges: tuple[int, ...] = eqx.field(static=True)
+    fns: tuple[Callable, ...] = eqx.field(static=True)
+
+    def __call__(self, t):
+        return jnp.stack([jnp.asarray(f(t)) for f in self.fns])
+
+
+def checked_table(times, values, where: str, label: str) -> tuple[np.ndarray, np.ndarray]:
+    """A checked table: at least two strictly increasing finite `times` and as many finite values.
+    `where` names the object up to the field (``"... field 'joint"``), closed here with the key."""
+    t = as_float(times, f"{where}.times'")
+    if t.ndim != 1 or len(t) < 2:
+        raise SceneError(f"{where}.times' must be a list of at least 2 times, got shape {t.shape}")
+    if not np.all(np.diff(t) > 0):
+        raise SceneError(f"{where}.times' must be strictly increasing, got {t.tolist()}")
+    v = as_float(values, f"{where}.{label}'", t.shape)
+    return t, v

@@ -92,7 +92,7 @@ def versions() -> dict[str, str]:
     return out
 
 
-def _scene_json(model: Model) -> str:
+def scene_json(model: Model) -> str:
     """The model as ``jaxtree-scene/1`` JSON; where its loads or laws are Python functions
     (no JSON form), the vehicle without them, said in its description (the plots and the 3D
     page need only the vehicle); "" for a model that has no JSON form (a prescription given by
@@ -281,7 +281,7 @@ def simulation_dataset(
         "format": RESULT_FORMAT,
         "kind": "simulation",
         "scene_name": model.name,
-        "scene": _scene_json(model),
+        "scene": scene_json(model),
         "n_hinges": model.n,
         **versions(),
     }
@@ -400,7 +400,7 @@ def modes_dataset(model: Model, md, *, small=(), omega0=None, gamma=None, attrs:
         "kind": "modes",
         "modes_kind": md.kind,
         "scene_name": model.name,
-        "scene": _scene_json(model),
+        "scene": scene_json(model),
         "n_hinges": n,
         "small_hinges": np.asarray(small, dtype=np.int64),
         **versions(),
@@ -553,7 +553,7 @@ def _open(path):
     raise FileNotFoundError(f"no result file {str(path)!r}" + (" (nor parts of an interrupted run)"))
 
 
-def _model_of(ds) -> Model:
+def model_of(ds) -> Model:
     text = ds.attrs.get("scene", "")
     if not text:
         raise ValueError(
@@ -576,10 +576,10 @@ _NOT_STORED = (
 )
 
 
-def _to_solution(ds):
+def to_solution(ds):
     import diffrax as dfx  # noqa: F401  (Solution's field types)
 
-    model = _model_of(ds)
+    model = model_of(ds)
     dtype = jnp.result_type(model.mass)
     f = lambda name: jnp.asarray(ds[name].values, dtype)
     T = ds.sizes["time"]
@@ -675,7 +675,7 @@ def load_result(path, *, as_dataset: bool = False) -> Any:
     kind = ds.attrs.get("kind")
     if kind == "modes":
         return _to_modes(ds)
-    return _to_solution(ds)
+    return to_solution(ds)
 
 
 def command_line() -> str:

@@ -19,14 +19,21 @@ import tempfile
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any, ClassVar, NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ._checks import SceneError, SceneTypeError, as_float, is_traced, rotation, short, unknown_keys
 from .model import BodyLoads, Model, Prescription, SinePrescription, State
-from .profiles import ShapePrescription, TablePrescription, pad_tables
+from .profiles import (
+    FunctionPrescription,
+    PrescriptionGroup,
+    ShapePrescription,
+    TablePrescription,
+    checked_table,
+    pad_tables,
+)
+from .scene_laws import laws_to_dict, prescribed_joints, with_scene_laws
 from .topology import Topology
 
 FORMAT = "jaxtree-scene/1"
@@ -139,24 +146,6 @@ class Body:
     hinge_on_parent: Any = None
     hinge_on_body: Any = None
     joint: Any = Free()
-
-
-class _PrescriptionGroup(Prescription):
-    """Several prescriptions side by side (e.g. sine hinges and user functions)."""
-
-    hinges: tuple[int, ...] = eqx.field(static=True)
-    parts: tuple[Prescription, ...]
-
-    def __call__(self, t):
-        return jnp.concatenate([jnp.atleast_1d(p(t)) for p in self.parts])
-
-
-class _FunctionPrescription(Prescription):
-    hinges: tuple[int, ...] = eqx.field(static=True)
-    fns: tuple[Callable, ...] = eqx.field(static=True)
-
-    def __call__(self, t):
-        return jnp.stack([jnp.asarray(f(t)) for f in self.fns])
 
 
 # ----------------------------------------------------------------------------- validation
@@ -275,22 +264,10 @@ def _joint(joint, k, name):
             raise SceneError(f"{_where(k, name)}: field 'joint.duration' must be > 0, got {fields['duration']}")
         j = type(j)(**fields)
     if isinstance(j, PrescribedTable):
-        j = PrescribedTable(*_table(j.times, j.angles, f"{_where(k, name)}: field 'joint", "angles"))
+        j = PrescribedTable(*checked_table(j.times, j.angles, f"{_where(k, name)}: field 'joint", "angles"))
     if isinstance(j, Prescribed) and not callable(j.fn):
         raise SceneTypeError(f"{_where(k, name)}: field 'joint.fn' must be callable")
     return j
-
-
-def _table(times, values, where: str, label: str) -> tuple[np.ndarray, np.ndarray]:
-    """A checked table: at least two strictly increasing finite `times` and as many finite values.
-    `where` names the object up to the field (``"... field 'joint"``), closed here with the key."""
-    t = as_float(times, f"{where}.times'")
-    if t.ndim != 1 or len(t) < 2:
-        raise SceneError(f"{where}.times' must be a list of at least 2 times, got shape {t.shape}")
-    if not np.all(np.diff(t) > 0):
-        raise SceneError(f"{where}.times' must be strictly increasing, got {t.tolist()}")
-    v = as_float(values, f"{where}.{label}'", t.shape)
-    return t, v
 
 
 _INITIAL_KEYS = {"gamma", "gamma_dot", "omega0", "dcm", "attitude_dcm"}
@@ -582,12 +559,12 @@ def _prescription(laws: _JointLaws) -> Prescription | None:
             )
         )
     if funcs:
-        parts.append(_FunctionPrescription(tuple(k for k, _ in funcs), tuple(j.fn for _, j in funcs)))
+        parts.append(FunctionPrescription(tuple(k for k, _ in funcs), tuple(j.fn for _, j in funcs)))
     prescription = None
     if len(parts) == 1:
         prescription = parts[0]
     elif parts:
-        prescription = _PrescriptionGroup(sum((p.hinges for p in parts), ()), tuple(parts))
+        prescription = PrescriptionGroup(sum((p.hinges for p in parts), ()), tuple(parts))
     return prescription
 
 
@@ -791,7 +768,7 @@ def _validate_leaves_of(model: Model) -> None:
                     f"{what} must be a proper rotation matrix (orthonormal, det +1): max |C C^T - I| = {err:.3g}"
                 )
     pres = model.prescription
-    parts = [] if pres is None else list(pres.parts) if isinstance(pres, _PrescriptionGroup) else [pres]
+    parts = [] if pres is None else list(pres.parts) if isinstance(pres, PrescriptionGroup) else [pres]
     fields = {
         SinePrescription: ("amplitude", "frequency", "phase"),
         ShapePrescription: ("initial", "final", "start", "duration"),
@@ -847,7 +824,6 @@ def scene_from_dict(data: dict) -> Model:
     initial = data.get("initial")
     if initial is not None and not isinstance(initial, dict):
         raise SceneTypeError(f"scene: field 'initial' must be an object, got {short(initial)}")
-    from .scene_laws import with_scene_laws
 
     return with_scene_laws(build_model(data["bodies"], initial, name=data.get("name", "")), data)
 
@@ -883,7 +859,6 @@ def scene_to_dict(model: Model, description: str = "") -> dict:
 
     Raises ValueError for what has no JSON form: a prescription, load or law given as a Python
     function (or another class than the scene format's)."""
-    from .scene_laws import laws_to_dict, prescribed_joints
 
     prescribed = prescribed_joints(model)
     laws = laws_to_dict(model)

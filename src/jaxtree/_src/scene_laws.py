@@ -25,7 +25,7 @@ from ._checks import SceneError, SceneTypeError, as_float, rotation, short, unkn
 from .control import HingePD, HingePID
 from .loads import AttitudePD, CircularOrbit, CombinedLoads, GravityGradient, ScheduledLoads, combine_loads
 from .model import Model, SinePrescription
-from .profiles import ShapePrescription, TablePrescription
+from .profiles import FunctionPrescription, PrescriptionGroup, ShapePrescription, TablePrescription, checked_table
 
 SCENE_LAW_KEYS = ("loads", "control", "orbit")
 EARTH_MU = 3.986004418e14  # m^3/s^2, the default central body
@@ -127,12 +127,14 @@ def _profile(value, where: str) -> tuple[str, tuple, tuple | None]:
         rise = _number(value, "rise", w, 1e-2, positive=True)
         return kind, (start, duration, rise), None
     if kind == "table":
-        from .scene import _table
-
         for field in ("times", "values"):
             if field not in value:
                 raise SceneError(f"{w}: field {field!r} is missing")
-        return kind, (0.0, 0.0, 1.0), _table(value["times"], value["values"], f"{where}: field 'profile", "values")
+        return (
+            kind,
+            (0.0, 0.0, 1.0),
+            checked_table(value["times"], value["values"], f"{where}: field 'profile", "values"),
+        )
     return kind, (0.0, 0.0, 1.0), None
 
 
@@ -357,10 +359,9 @@ def laws_to_dict(model: Model) -> dict:
 def prescribed_joints(model: Model) -> dict[int, dict]:
     """The ``joint`` objects of the prescribed hinges, by hinge (ValueError for a prescription
     given as a Python function: it has no JSON form)."""
-    from .scene import _FunctionPrescription, _PrescriptionGroup
 
     pres = model.prescription
-    parts = [] if pres is None else list(pres.parts) if isinstance(pres, _PrescriptionGroup) else [pres]
+    parts = [] if pres is None else list(pres.parts) if isinstance(pres, PrescriptionGroup) else [pres]
     f = lambda a: np.asarray(a, dtype=float).tolist()
     out: dict[int, dict] = {}
     for p in parts:
@@ -385,7 +386,7 @@ def prescribed_joints(model: Model) -> dict[int, dict]:
                     "angles": f(p.angles[i, :L]),
                 }
             else:
-                what = "a Python function" if isinstance(p, _FunctionPrescription) else type(p).__name__
+                what = "a Python function" if isinstance(p, FunctionPrescription) else type(p).__name__
                 raise ValueError(f"scene_to_dict: the prescription of hinge {k} ({what}) has no JSON form")
     return out
 

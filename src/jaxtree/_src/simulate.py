@@ -58,14 +58,14 @@ from .control import AbstractController, with_model_laws
 from .dynamics import (
     SINGULAR_CONDITION,
     _energy_and_momentum,
-    _matrix_condition,
-    _null_direction_text,
-    _solve_accelerations,
-    _unknown_labels,
-    _unknown_rows,
     mass_center_acceleration,
+    matrix_condition,
+    null_direction_text,
     rotational_equations,
     solve_accelerations,
+    solve_unchecked,
+    unknown_labels,
+    unknown_rows,
 )
 from .kinematics import full_precision
 from .model import Model, State
@@ -204,7 +204,7 @@ class Problem(eqx.Module):
         tau = self.torque(t, state, z)
         if tau is not None:
             tau = jnp.asarray(tau, gamma.dtype)
-        return state, z, tau, _solve_accelerations(self.model, state, t, tau, completed=gdd_p)
+        return state, z, tau, solve_unchecked(self.model, state, t, tau, completed=gdd_p)
 
     def vector_field(self, t, y, args=None):
         """Right side of the first-order equations (Eqs. 25-27; Eq. 2 when enabled)."""
@@ -520,11 +520,11 @@ def _diagnostics(model: Model, law, controller, params, ts, states: State, zs):
 
 def _condition(model: Model, state: State, t):
     """Condition number and near-null direction of the Eq. (1) matrix at a state
-    (:func:`jaxtree.dynamics._matrix_condition`)."""
-    return _matrix_condition(model, rotational_equations(model, state, t)[0])
+    (:func:`jaxtree.dynamics.matrix_condition`)."""
+    return matrix_condition(model, rotational_equations(model, state, t)[0])
 
 
-_condition_jit = eqx.filter_jit(_condition)
+condition_jit = eqx.filter_jit(_condition)
 
 
 def _rhs_evaluations(solver, stats, dt0_given: bool):
@@ -545,7 +545,7 @@ def _singular(problem: Problem, t, y):
     model = problem.model
     state = problem.state(t, y)
     A = rotational_equations(model, state, t)[0]
-    u = _unknown_rows(model)
+    u = unknown_rows(model)
     A = A[np.ix_(u, u)]
     return ~regular(jax.lax.linalg.cholesky(A, symmetrize_input=False), A)  # a failed factorization (NaN) too
 
@@ -711,7 +711,7 @@ def _report_in_callback(out: Solution) -> None:
     """Under a caller's jit/vmap the values are not known until run time: report failures from a
     host callback, which raises with the time and state of every failed member."""
     problem = out.problem
-    attitude_name, labels = problem.attitude.name, _unknown_labels(problem.model)
+    attitude_name, labels = problem.attitude.name, unknown_labels(problem.model)
 
     def host(code, t, state, margin, model, condition, direction):
         _raise_from_callback(code, t, state, condition, margin, attitude_name, direction, labels)
@@ -753,7 +753,7 @@ def _format_failure(
         pass
     elif not np.isfinite(c) or c > SINGULAR_CONDITION:
         where = (
-            _null_direction_text(direction, labels)
+            null_direction_text(direction, labels)
             if direction is not None and labels is not None and np.all(np.isfinite(np.asarray(direction)))
             else "for a gimbal this is gimbal lock"
         )
@@ -792,7 +792,7 @@ def check_solution(sol: Solution) -> None:
     # The condition number is a diagnosis, computed only for a failed run (for a batch of
     # solutions the model may be batched too, and it is left out).
     if code.ndim == 0:
-        condition, direction = _condition_jit(sol.problem.model, sol.final, sol.t_final)
+        condition, direction = condition_jit(sol.problem.model, sol.final, sol.t_final)
     else:
         condition, direction = np.full(code.shape, np.nan), None
     _raise_from_callback(
@@ -803,7 +803,7 @@ def check_solution(sol: Solution) -> None:
         sol.margin,
         sol.problem.attitude.name,
         direction=direction,
-        labels=_unknown_labels(sol.problem.model),
+        labels=unknown_labels(sol.problem.model),
     )
 
 

@@ -45,8 +45,8 @@ import jax
 import numpy as np
 
 from .dynamics import configuration
+from .files import atomic_write
 from .model import Model
-from .output import atomic_write
 
 MAX_FRAMES = 2000  # frames embedded in a page at most (evenly decimated beyond)
 MAX_BODY_FRAMES = 250_000  # frames x bodies at most: caps a page near 9 MB for large trees
