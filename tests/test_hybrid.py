@@ -710,7 +710,7 @@ def test_projection_residual_of_the_initial_state():
 def test_held_base_frequencies_are_differentiable_in_the_stiffness():
     """d sigma / d k of a wing's held-base modes (substructure terms, held_base, modes traced with
     kind='real') against central finite differences."""
-    from jaxtree._src import substructure as sub
+    from jaxtree._src.hybrid import substructure as sub
 
     model = _wings(damping=False)
     grp = sub.substructures(model, (1, 2, 3, 4))[0]
@@ -943,7 +943,7 @@ def test_substructure_terms_by_one_batch_and_by_parts_agree_with_nested_jacfwd()
     polarization of the quadratic velocity terms, in one batch (small substructures) and by parts
     (large ones, memory), against nested jacfwd / hessian of the same Gauss function at a bent
     nominal: the second derivatives of b in (y', v) and (v, v) and their derivative in y."""
-    from jaxtree._src import substructure as sub
+    from jaxtree._src.hybrid import substructure as sub
     from jaxtree._src.topology import Topology
 
     model = _wings()

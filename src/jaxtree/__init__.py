@@ -231,6 +231,7 @@ from ._src.hybrid import (
 from ._src.hybrid import (
     HybridSolution as HybridSolution,
 )
+from ._src.hybrid import Substructure as Substructure
 from ._src.hybrid import (
     hybrid_equations as hybrid_equations,
 )
@@ -243,6 +244,7 @@ from ._src.hybrid import (
 from ._src.hybrid import (
     simulate_hybrid as simulate_hybrid,
 )
+from ._src.hybrid import substructures as substructures
 from ._src.kinematics import full_precision as full_precision
 from ._src.linearize import (
     LinearSystem as LinearSystem,
@@ -371,8 +373,6 @@ from ._src.simulate import (
 from ._src.simulate import (
     state_event as state_event,
 )
-from ._src.substructure import Substructure as Substructure
-from ._src.substructure import substructures as substructures
 from ._src.viewer import (
     animation_html as animation_html,
 )

@@ -1,0 +1,591 @@
+"""The construction of a hybrid model, :func:`hybrid_model` (Likins 1972, Sec. III E,
+Eqs. 105-123): from the vehicle and its set A to a :class:`~.model.HybridModel`.
+
+The steps: the set A split into substructures (:func:`.substructure.substructures`), the basis and
+whether to precompute (:func:`_basis_and_precompute`), the nominal motion, each substructure's
+Taylor terms (:func:`.substructure.terms`), the systems ``I y'' + J y' + K y = 0`` whose modes are
+taken (Eq. 42 = Eq. 105 per group), their modes (:func:`jaxtree.modes`, Eqs. 70-104), the
+retained ones (:mod:`.basis`), and the assembly (:func:`_assemble_model`): each system's modal
+matrices placed in the global order of the modes (ascending frequency, :func:`_assemble`), the
+precomputed substructure terms projected on them (:func:`_build_pre`, the arrays of
+:class:`~.model.Precomputed`), ``a_bar`` of the small hinges, the truncation terms and the
+constant modal block's inverse.
+
+**Which modes.** By default (``basis="substructure"``) each substructure has its own modes, on its
+own held base (its base body moving on the nominal motion: cantilever modes, with centrifugal
+stiffening and Coriolis coupling when the nominal spins; :func:`.substructure.held_base`,
+:func:`_substructure_systems`), and the number kept is chosen per substructure, a group of repeated
+frequencies kept whole. ``basis="set"`` takes the modes of the whole set A with the large
+variables held (Eq. 42 for A, :func:`jaxtree.linearize`), the seed's single-appendage reading.
+With all modes retained both are Eq. (30) in other coordinates (exactly, to round-off);
+truncation removes the modes left out.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._checks import SceneError, SceneTypeError, as_float, as_int, is_traced, short, tolerance
+from .._math import build_jit
+from ..attitude import AbstractAttitude, attitude_argument, get_attitude
+from ..dynamics import configuration, mass_matrix
+from ..kinematics import cross, full_precision, mv
+from ..linearize import linearize, linearize_args, resolve_hinges
+from ..model import Model
+from ..modes import ModalError, _check_modal_damping
+from ..modes import modes as _modes
+from . import substructure as _sub
+from .basis import base_loads, modal_matrices, put, retained_like, retained_modes, truncation_terms
+from .model import PAIRS, HybridModel, Precomputed, with_inverse
+
+# the features psi of :class:`~.model.Precomputed`: the 21 products v_b v_c (b <= c), v, c and 1
+_FEATURES = len(PAIRS[0]) + 6 + 6 + 1
+
+
+def _stacked_terms(t: dict, xp=np) -> dict:
+    """The arrays of :class:`Precomputed` from the per-term stacks of :func:`_build_pre`
+    (numpy, leading axis p)."""
+    p, uS, mS = t["w1"].shape
+    z = lambda *shape: xp.zeros((p, *shape))
+    iu, ju = PAIRS
+
+    def pairs(g):  # g : v v / 2 over the 21 products v_b v_c, b <= c
+        return (
+            0.5
+            * (g[:, :, iu, ju] + g[:, :, ju, iu])
+            * np.where(iu == ju, 0.5, 1.0).reshape((1, 1, -1) + (1,) * (g.ndim - 4))
+        )
+
+    a0 = xp.concatenate([pairs(t["g0a"]), z(6, 6), t["aa0"], z(6, 1)], 2)
+    w0 = xp.concatenate([pairs(t["g0w"]), z(uS, 6), t["wa0"], t["w0"][:, :, None]], 2)
+    a1 = xp.concatenate([pairs(t["g1a"]), t["g2a"], t["aa1"], z(6, 1, mS)], 2)
+    w1 = xp.concatenate([pairs(t["g1w"]), t["g2w"], t["wa1"], t["w1"][:, :, None, :]], 2)
+    return {
+        "bias0": xp.concatenate([a0, w0], 1),
+        "bias1": xp.concatenate([a1, w1], 1).reshape(p, 6 + uS, _FEATURES * mS),
+        "mat0": xp.concatenate([t["aa0"], t["wa0"]], 1),
+        "mat1": xp.concatenate([t["aa1"], t["wa1"]], 1),
+        "aw0": t["aw0"],
+    }
+
+
+def _zeta(damping, k, kind):
+    if damping is not None and np.ndim(damping) and np.shape(damping) != (k,):
+        raise ValueError(
+            f"hybrid_model: damping has {np.size(damping)} ratios for {k} retained modes "
+            "(give a scalar or one per retained mode)"
+        )
+    zeta = np.zeros(k) if damping is None else np.broadcast_to(np.asarray(damping, float), (k,)).copy()
+    if damping is not None:
+        _check_modal_damping(zeta, kind, "hybrid_model", "Sec. III E", "the modes of this set A already have")
+    return zeta
+
+
+def _assemble(blocks, nu, form, order=None):
+    """Global modal matrices from per-group blocks ``(rows of the set A, sigma, parts)``: the modes
+    of all groups ordered by frequency (or as `order` gives, ``(_, group, local index)``: a traced
+    build keeps its reference build's order); returns the matrices, the order ``(group, local
+    index)`` and each group's global modal coordinates and rows."""
+    xp = jnp if is_traced(blocks) else np
+    if order is None:
+        order = sorted(((float(sig[j]), g, j) for g, (_, sig, _) in enumerate(blocks) for j in range(len(sig))))
+    k = len(order)
+    u = k if form == "real" else 2 * k
+    pos = {(g, j): q for q, (_, g, j) in enumerate(order)}
+    out = dict(
+        positions=xp.zeros((nu, 2 * k)),
+        rates=xp.zeros((nu, 2 * k)),
+        accel=xp.zeros((nu, u)),
+        rows=xp.zeros((nu, u)),
+        kin=xp.zeros((u, u)),
+        kin_rhs=xp.zeros((u, 2 * k)),
+        project=xp.zeros((2 * k, 2 * nu)),
+    )
+    mmaps, umaps = [], []
+    for g, (rows, sig, p) in enumerate(blocks):
+        kg = len(sig)
+        q = np.asarray([pos[(g, j)] for j in range(kg)], np.int64)
+        mm_ = np.concatenate([q, k + q])
+        um = q if form == "real" else mm_
+        r = np.asarray(rows, np.int64)
+        at = {
+            "positions": np.ix_(r, mm_),
+            "rates": np.ix_(r, mm_),
+            "accel": np.ix_(r, um),
+            "rows": np.ix_(r, um),
+            "kin": np.ix_(um, um),
+            "kin_rhs": np.ix_(um, mm_),
+            "project": np.ix_(mm_, np.concatenate([r, nu + r])),
+        }
+        for key, idx in at.items():
+            out[key] = put(xp, out[key], idx, p[key])
+        mmaps.append(mm_)
+        umaps.append(um)
+    return out, [(g, j) for _, g, j in order], mmaps, umaps
+
+
+def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u, m):
+    """The precomputed substructure terms (:class:`Precomputed`), projected on the modes."""
+    xp = jnp if is_traced((model, tms, parts)) else np
+    ms, us = max(len(x) for x in mmaps), max(len(x) for x in umaps)
+    keys = ("aa0", "aa1", "wa0", "wa1", "aw0", "g0a", "g1a", "g2a", "g0w", "g1w", "g2w", "w0", "w1")
+    acc = {k: [] for k in keys}
+    ww0 = xp.zeros((u, u))
+    sprung = np.zeros(model.n)
+    sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
+    stiff = xp.asarray(model.stiffness) * sprung
+    damp = xp.asarray(model.damping) * sprung
+    for grp, tm, mc, uc in zip(groups, tms, mmaps, umaps):
+        idx = np.asarray([small.index(k) for k in grp.hinges], np.int64)
+        P = parts["positions"][np.ix_(idx, mc)]
+        Q = parts["rates"][np.ix_(idx, mc)]
+        Acc = parts["accel"][np.ix_(idx, uc)]
+        Rw = parts["rows"][np.ix_(idx, uc)]
+        A0, A1, G0, G1, G2 = (xp.asarray(x) for x in (tm.A0, tm.A1, tm.G0, tm.G1, tm.G2))
+        h = np.asarray(grp.hinges, np.int64) - 1
+        gbar = xp.asarray(gamma_nominal)[h]
+        pad_m = lambda x: xp.concatenate([x, xp.zeros(x.shape[:-1] + (ms - x.shape[-1],))], -1)
+
+        def pad_u(x, axis=0):
+            width = [(0, 0)] * x.ndim
+            width[axis] = (0, us - x.shape[axis])
+            return xp.pad(x, width)
+
+        acc["aa0"].append(A0[:6, :6])
+        acc["aa1"].append(pad_m(A1[:6, :6] @ P))
+        acc["wa0"].append(pad_u(Rw.T @ A0[6:, :6]))
+        acc["wa1"].append(pad_u(pad_m(xp.einsum("ju,jak,km->uam", Rw, A1[6:, :6], P))))
+        acc["aw0"].append(pad_u(A0[:6, 6:] @ Acc, 1))
+        acc["g0a"].append(G0[:6])
+        acc["g1a"].append(pad_m(G1[:6] @ P))
+        acc["g2a"].append(pad_m(G2[:6] @ Q))
+        acc["g0w"].append(pad_u(xp.einsum("ju,jbc->ubc", Rw, G0[6:])))
+        acc["g1w"].append(pad_u(pad_m(xp.einsum("ju,jbck,km->ubcm", Rw, G1[6:], P))))
+        acc["g2w"].append(pad_u(pad_m(xp.einsum("ju,jbk,km->ubm", Rw, G2[6:], Q))))
+        acc["w0"].append(pad_u(Rw.T @ (stiff[h] * gbar)))  # -tau_S at y = 0 (a spring preload)
+        acc["w1"].append(pad_u(pad_m(Rw.T @ (stiff[h][:, None] * P + damp[h][:, None] * Q))))
+        ww0 = put(xp, ww0, np.ix_(uc, uc), Rw.T @ A0[6:, 6:] @ Acc, add=True)
+    dtype = jnp.result_type(model.mass)
+    pad_idx = lambda x, n, width: tuple(tuple(int(i) for i in c) + (n,) * (width - len(c)) for c in x)
+    return Precomputed(
+        **{k: jnp.asarray(v, dtype) for k, v in _stacked_terms({k: xp.stack(v) for k, v in acc.items()}, xp).items()},
+        ww0=jnp.asarray(ww0, dtype),
+        mcols=pad_idx(mmaps, m, ms),
+        ucols=pad_idx(umaps, u, us),
+        bases=tuple(g.base for g in groups),
+    )
+
+
+def _nominal_motion(model, omega0, gamma, dcm):
+    dtype = jnp.result_type(model.mass)
+    # numpy defaults: an eager jnp.zeros compiles a program on a build's first call
+    w = np.zeros(3, dtype) if omega0 is None else omega0
+    g = np.zeros(model.n, dtype) if gamma is None else gamma
+    C = np.eye(3, dtype=dtype) if dcm is None else dcm
+    return tuple(x.astype(dtype) if is_traced(x) else jnp.asarray(np.asarray(x, dtype)) for x in (w, g, C))
+
+
+def _hybrid_model_args(
+    model,
+    small,
+    n_modes=None,
+    *,
+    cutoff=None,
+    omega0=None,
+    gamma=None,
+    dcm=None,
+    damping=None,
+    form=None,
+    precompute=None,
+    attitude: object = "quaternion",
+    rtol=1e-9,
+    basis=None,
+    tol=1e-2,
+):
+    """Arguments of :func:`jaxtree.hybrid_model`, checked before the linearization is traced."""
+    name = "hybrid_model"
+    linearize_args(name, model, small, omega0=omega0, gamma=gamma, dcm=dcm)
+    if getattr(model, "law", None) is not None or getattr(model, "controller", None) is not None:
+        raise SceneError(
+            f"{name}: the model carries hinge control laws (model.law / model.controller, from its scene's "
+            "'control'), which the hybrid equations do not include; drop them with model.with_control(None, None)"
+        )
+    if basis is not None and basis not in ("substructure", "set"):
+        raise SceneError(f"{name}: basis must be 'substructure', 'set' or None, got {short(basis)}")
+    t = float(as_float(tol, f"{name}: tol", ()))
+    if not t > 0.0:
+        raise SceneError(f"{name}: tol must be positive (the neglected share of the quasi-static response), got {t}")
+    if isinstance(n_modes, str):
+        if n_modes != "auto":
+            raise SceneError(
+                f"{name}: n_modes must be an integer, a sequence of integers, 'auto' or None, got {short(n_modes)}"
+            )
+    elif n_modes is not None:
+        if isinstance(n_modes, (list, tuple)):  # one number per substructure
+            if not n_modes:
+                raise SceneError(f"{name}: n_modes is an empty sequence")
+            for i, m in enumerate(n_modes):
+                as_int(m, f"{name}: n_modes[{i}]", minimum=1)
+        else:
+            as_int(n_modes, f"{name}: n_modes", minimum=1)
+    if cutoff is not None:
+        c = float(as_float(cutoff, f"{name}: cutoff", ()))
+        if c < 0:
+            raise SceneError(f"{name}: cutoff must be >= 0 (a frequency in rad/s), got {c}")
+    if damping is not None:
+        z = as_float(damping, f"{name}: damping")
+        nu = len((small,) if isinstance(small, (str, int, np.integer)) else list(small))
+        # at most one mode per small hinge is retained (the exact number is known after the modes)
+        if z.ndim > 1 or (z.ndim == 1 and z.shape[0] != 1 and z.shape[0] > nu):
+            raise SceneError(
+                f"{name}: damping must be a scalar or one ratio per retained mode (at most {nu}), got shape {z.shape}"
+            )
+        if np.any(z < 0):
+            raise SceneError(f"{name}: modal damping ratios must be >= 0, got {z.tolist()}")
+    if form is not None and form not in ("real", "first_order"):
+        raise SceneError(f"{name}: form must be 'real', 'first_order' or None, got {short(form)}")
+    if precompute is not None and not isinstance(precompute, (bool, np.bool_)):
+        raise SceneTypeError(f"{name}: precompute must be True, False or None, got {short(precompute)}")
+    attitude_argument(name, attitude)
+    tolerance(name, rtol)
+
+
+@full_precision
+def hybrid_model(
+    model: Model,
+    small,
+    n_modes=None,
+    *,
+    cutoff: float | None = None,
+    omega0=None,
+    gamma=None,
+    dcm=None,
+    damping=None,
+    form: str | None = None,
+    precompute: bool | None = None,
+    attitude: str | AbstractAttitude = "quaternion",
+    rtol: float = 1e-9,
+    basis: str | None = None,
+    tol: float = 1e-2,
+    like: HybridModel | None = None,
+) -> HybridModel:
+    """The hybrid-coordinate equations of `model` with the hinges of `small` (the set A) in
+    truncated large-deformation modal coordinates (Eqs. 105-123).
+
+    **Arguments:**
+
+    - `small`: the set A (hinge indices 1..n or body names), see :func:`jaxtree.linearize`;
+      it is split into substructures (connected groups of small hinges, e.g. one wing);
+    - `basis`: ``"substructure"`` (default when every substructure is terminal): each
+      substructure's own modes on its held base; ``"set"`` (default otherwise): the modes of the
+      whole set A with the large variables held (Eq. 42 for A);
+    - `n_modes`: modes retained, the lowest frequencies first: a number per substructure (an
+      int for each, or a sequence with one entry per substructure) with the substructure basis,
+      the total with the set basis; default all; `cutoff`: retain only modes with
+      ``sigma <= cutoff``. A repeated frequency is kept whole;
+    - ``n_modes="auto"``: per substructure (per set with ``basis="set"``) the fewest lowest modes
+      whose neglected part of the quasi-static response to the base's motion is at most `tol`
+      (default 1e-2): for each of the six unit accelerations of the base (rotations and
+      translations of the body it hangs from, ``A0[y'', a_b]`` of
+      :mod:`jaxtree.substructure`) that moves it, the largest angle of the neglected modes'
+      static response (``sum_j phi_j phi_j^T f / sigma_j^2``, the first-order modes of Eqs.
+      79-90 likewise) over the largest angle of the whole (``K^{-1} f``, Eq. 42 on the held
+      base). Rigid modes are kept when they rank first; a cutoff limits the choice (a warning
+      when `tol` cannot be met below it). The docstring of :mod:`jaxtree._src.hybrid.basis` compares
+      this rule with the residual modal effective mass;
+    - `omega0`, `gamma`, `dcm`: the nominal motion on which the modes are computed (``omega0``
+      constant, the other hinges held at `gamma`, a steady spin about the system mass center);
+      the small hinges' entries of `gamma` are the expansion point of Eq. (29);
+    - `damping`: modal damping ratios ``zeta`` (scalar or one per retained mode), added after
+      the transformation as in Sec. III E;
+    - `form`: ``"real"`` (Eq. 121, needs real modes) or ``"first_order"`` (Eq. 118); default
+      real when every substructure's modes are real, else first order;
+    - `precompute`: evaluate Eq. (30) from the precomputed substructure terms (a right side's
+      cost independent of the number of small hinges); possible when every substructure is
+      terminal and no external load acts on a small body; default: whenever possible;
+    - `attitude`: attitude variables of b_0 in the state (``"quaternion"``, ``"dcm"``,
+      ``"euler123"``).
+
+    - `like`: a hybrid model of the same vehicle and set A (built from concrete values): its
+      retained modes (indices in each substructure's modes, global order), basis, form and
+      precomputation are kept, and `n_modes`, `cutoff`, `tol`, `basis`, `form`, `precompute`
+      are ignored. This makes the build differentiable: under ``jax.grad`` (or ``jvp``) with
+      respect to the model's parameters (stiffness, masses, geometry) or the nominal motion, the
+      modes are recomputed from the traced matrices (``jnp``) with the selection fixed. Damped
+      (general) modes are differentiated by JAX's eigenvector derivatives, which need every mode
+      underdamped and distinct within its substructure (checked on `like`); rigid modes of the
+      reference are not supported in a traced build.
+
+    Rigid (zero-frequency) modes have no first-order eigenvectors (Sec. III E, all-small case):
+    the first-order form leaves them out.
+
+    **Returns:** :class:`HybridModel`.
+    """
+    _hybrid_model_args(
+        model,
+        small,
+        n_modes,
+        cutoff=cutoff,
+        omega0=omega0,
+        gamma=gamma,
+        dcm=dcm,
+        damping=damping,
+        form=form,
+        precompute=precompute,
+        attitude=attitude,
+        rtol=rtol,
+        basis=basis,
+        tol=tol,
+    )
+    S = resolve_hinges(model, small)
+    groups = _sub.substructures(model, S)
+    if like is not None:
+        _check_like(like, S, groups)
+        basis, precompute, form = like.basis, like.precomputed, like.form
+    elif is_traced((model, omega0, gamma, dcm)):
+        raise ValueError(
+            "hybrid_model: the model or the nominal motion is traced (jax.grad, jvp, vmap): pass "
+            "like=<hybrid_model of the same vehicle built from concrete values> to fix the retained modes"
+        )
+    basis, precompute = _basis_and_precompute(model, S, groups, basis, precompute)
+    if form not in (None, "real", "first_order"):
+        raise ValueError(f"hybrid_model: form must be 'real' or 'first_order', got {form!r}")
+    w_nom, g_nom, _ = _nominal_motion(model, omega0, gamma, dcm)
+    tms = [_sub.terms(model, g, g_nom) for g in groups] if (precompute or basis == "substructure") else None
+    if basis == "set":
+        lin = linearize(model, S, omega0=omega0, gamma=gamma, dcm=dcm)
+        xp = jnp if is_traced(lin) else np
+        systems = [(tuple(range(len(S))), xp.asarray(lin.I), xp.asarray(lin.J), xp.asarray(lin.K), lin.coordinates)]
+    else:
+        assert tms is not None, "computed for the substructure basis"
+        systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom)
+    mds = _system_modes(systems, like, rtol)
+    kinds = [md.kind for md in mds]
+    form = _form(form, kinds)
+    order = None
+    if like is not None:
+        blocks, picked, order = retained_like(like, systems, mds)
+    else:
+        loads = None
+        if isinstance(n_modes, str):  # "auto"
+            tms_all = tms if tms is not None else [_sub.terms(model, g, g_nom) for g in groups]
+            loads = base_loads(model, S, groups, tms_all, g_nom, basis)
+        blocks, picked = retained_modes(model, groups, systems, mds, n_modes, cutoff, form, basis, loads, float(tol))
+    zeta = _zeta(
+        damping,
+        sum(len(b[1]) for b in blocks),
+        kinds[0] if len(set(kinds)) == 1 else "general" if "general" in kinds else kinds[0],
+    )
+    return _assemble_model(
+        model,
+        S,
+        groups,
+        tms,
+        w_nom,
+        g_nom,
+        blocks,
+        picked,
+        zeta,
+        form,
+        kinds[0],
+        precompute,
+        basis,
+        attitude,
+        systems,
+        mds,
+        order,
+    )
+
+
+def _system_modes(systems, like: HybridModel | None, rtol) -> list:
+    """The modes (:func:`jaxtree.modes`) of each system ``(rows, I, J, K, labels)``; in a traced
+    build (a differentiable one, with a reference build `like`) of the kind of `like`'s modes."""
+    if not is_traced(systems):
+        return [_modes(I, J, K, labels=lab, rtol=rtol) for (_, I, J, K, lab) in systems]
+    assert like is not None, "checked by hybrid_model"
+    lam_ref = np.asarray(like.truncation.lam_parts) if like.truncation is not None else np.zeros((0, 2))
+    if like.kind == "general" and np.any(np.abs(lam_ref[:, 1]) <= 1e-9 * np.abs(lam_ref).max(initial=1.0)):
+        raise ValueError(
+            "hybrid_model: a traced build of general (damped) modes needs every mode underdamped (complex "
+            "pairs); the reference build has an overdamped mode (a pair of real eigenvalues)"
+        )
+    return [_modes(I, J, K, kind=like.kind, rtol=rtol) for (_, I, J, K, _lab) in systems]
+
+
+def _form(form: str | None, kinds: list) -> str:
+    """The form of the equations: `form`, or by default real when every system's modes are real."""
+    if form is None:
+        return "real" if all(kd == "real" for kd in kinds) else "first_order"
+    if form == "real" and any(kd != "real" for kd in kinds):
+        bad = next(kd for kd in kinds if kd != "real")
+        raise ModalError(
+            f"hybrid_model: form='real' needs real modes (J = 0, K symmetric); the modes of the set A "
+            f"are {bad!r}. Use form='first_order' (Eq. 118)."
+        )
+    return form
+
+
+def _check_like(like, S, groups) -> None:
+    """`like` of :func:`hybrid_model` describes the same set A and substructures."""
+    if not isinstance(like, HybridModel):
+        raise TypeError(f"hybrid_model: like must be a HybridModel, got {type(like).__name__}")
+    if tuple(like.small) != tuple(S) or tuple(like.groups) != tuple(groups):
+        raise ValueError(
+            f"hybrid_model: like was built for the small hinges {like.small}, not {tuple(S)} (or other substructures)"
+        )
+
+
+def _basis_and_precompute(model: Model, S, groups, basis: str | None, precompute: bool | None) -> tuple[str, bool]:
+    """The modal basis and whether to precompute the substructure terms (defaults and checks)."""
+    terminal = all(g.terminal for g in groups)
+    small_bodies = set(S)
+    loads_small = model.loads is not None and any(int(b) in small_bodies for b in model.loads.bodies)
+    if basis is None:
+        basis = "substructure" if terminal else "set"
+    if basis not in ("substructure", "set"):
+        raise ValueError(f"hybrid_model: basis must be 'substructure' or 'set', got {basis!r}")
+    if basis == "substructure" and not terminal:
+        raise ValueError(
+            "hybrid_model: basis='substructure' needs every substructure terminal (no large or "
+            "prescribed hinge outboard of a small one); use basis='set'"
+        )
+    possible = terminal and not loads_small
+    if precompute is None:
+        precompute = possible
+    if precompute and not possible:
+        raise ValueError(
+            "hybrid_model: precompute=True needs every substructure terminal (no large or prescribed "
+            "hinge outboard of a small one) and no external load on a small body"
+            + ("; the loads act on small bodies" if loads_small else "")
+        )
+    return basis, precompute
+
+
+@build_jit
+def _nominal_frames(model: Model, g_nom, w_nom, bases: tuple, small: tuple):
+    """The nominal vehicle at angles `g_nom` spinning at `w_nom` about its mass center, large and
+    prescribed hinges held: each base's spatial velocity ``(p, 6)`` in its frame about its mass
+    center (:func:`.precomputed._large_frame`'s convention), and ``a_bar`` of the small hinges
+    (Eq. 36d, the small rows and columns of Eq. 1's matrix), in one compilation for the build."""
+    cfg = configuration(model, g_nom)
+    b = np.asarray(bases, np.int64)
+    r = cfg.rho[b] - cfg.rho[0]  # the bases' mass centers from b_0's, {b^0}
+    E = jnp.swapaxes(cfg.R[b], -1, -2)  # {b^0} -> the base's frame
+    u0 = cross(-cfg.rho[0], w_nom)  # b_0's mass center in the spin about the system's
+    vb = jnp.concatenate([mv(E, w_nom), mv(E, u0 + cross(w_nom, r))], -1)
+    S = np.asarray(small, np.int64) + 2
+    return vb, mass_matrix(model, g_nom)[np.ix_(S, S)]
+
+
+def _substructure_systems(model: Model, S, groups, tms, g_nom, w_nom) -> list:
+    """Eq. (42) of each substructure on its held base in the nominal spin about the system mass
+    center: ``(rows in A, I, J, K, coordinate names)`` per substructure."""
+    vb, _ = _nominal_frames(model, g_nom, w_nom, tuple(g.base for g in groups), tuple(S))
+    # numpy for a concrete model; jnp where a parameter is traced (a differentiable build)
+    xp = jnp if is_traced((model, tms, vb)) else np
+    vb = xp.asarray(vb)
+    sprung = np.zeros(model.n)
+    sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
+    stiffness, damping = xp.asarray(model.stiffness) * sprung, xp.asarray(model.damping) * sprung
+    systems = []
+    for grp, tm, vg in zip(groups, tms, vb):
+        h = np.asarray(grp.hinges, np.int64) - 1
+        # steady spin: no spatial acceleration of the base
+        I, J, K = _sub.held_base(tm, vg, xp.zeros(6), stiffness[h], damping[h], xp=xp)
+        rows = tuple(S.index(k) for k in grp.hinges)
+        systems.append((rows, I, J, K, tuple(model.names[k] for k in grp.hinges)))
+    return systems
+
+
+def _assemble_model(
+    model,
+    S,
+    groups,
+    tms,
+    w_nom,
+    g_nom,
+    blocks,
+    picked,
+    zeta,
+    form,
+    kind,
+    precompute,
+    basis,
+    attitude,
+    systems,
+    mds,
+    order=None,
+):
+    """The :class:`HybridModel` of the retained modes: their modal matrices assembled over the set
+    A in ascending frequency (or in `order`, ``(_, block, local index)``, that of a reference
+    build), the modal damping `zeta` (in that order), the precomputed terms."""
+    nu = len(S)
+    dtype = jnp.result_type(model.mass)
+    xp = jnp if is_traced(blocks) else np
+    # modal damping follows the global (frequency) order of the modes: split it by group afterwards
+    if order is None:
+        order = sorted(((float(sig[j]), g, j) for g, (_, sig, *_r) in enumerate(blocks) for j in range(len(sig))))
+    zg = [np.zeros(len(b[1])) for b in blocks]
+    for q, (_, g, j) in enumerate(order):
+        zg[g][j] = zeta[q]
+    parts_g = [
+        (rows, sig, modal_matrices(md, I, K, cand, form, zg[g], xp))
+        for g, (rows, sig, cand, md, I, K) in enumerate(blocks)
+    ]
+    parts, mode_order, mmaps, umaps = _assemble(parts_g, nu, form, order)
+    mode_index = tuple(int(blocks[g][2][j]) for g, j in mode_order)
+    group_of = [picked[g][0] for g in range(len(blocks))]
+    owners = {(group_of[g], int(blocks[g][2][j])): q for q, (g, j) in enumerate(mode_order)}
+    f = lambda x: jnp.asarray(x, dtype)
+    u = parts["accel"].shape[1]
+    pre = _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, umaps, basis) if precompute else None
+    one_base = len({g.base for g in groups}) == 1
+    _, inertia = _nominal_frames(model, g_nom, w_nom, tuple(g.base for g in groups), tuple(S))
+    hm = HybridModel(
+        model=model,
+        gamma_nominal=g_nom,
+        omega0_nominal=w_nom,
+        inertia=f(inertia),
+        frequencies=f(xp.stack([blocks[g][1][j] for g, j in mode_order])),
+        damping_ratios=f(np.asarray([zg[g][j] for g, j in mode_order])),
+        positions=f(parts["positions"]),
+        rates=f(parts["rates"]),
+        accel=f(parts["accel"]),
+        rows=f(parts["rows"]),
+        kin=f(parts["kin"]),
+        kin_rhs=f(parts["kin_rhs"]),
+        project=f(parts["project"]),
+        keep=jnp.ones(len(mode_index), dtype),
+        modal_inverse=f(np.eye(u)) if (all(g.terminal for g in groups) and one_base) else None,
+        pre=pre,
+        attitude=get_attitude(attitude),
+        small=S,
+        large=tuple(k for k in model.unknown_hinges if k not in S),
+        form=form,
+        kind=kind,
+        mode_index=mode_index,
+        mode_group=tuple(int(group_of[g]) for g, _ in mode_order),
+        groups=groups,
+        basis=basis,
+        truncation=truncation_terms(systems, mds, form, owners, nu, dtype),
+    )
+    return with_inverse(hm)
+
+
+def _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, umaps, basis):
+    """:func:`_build_pre` with each substructure's modal columns: every substructure, also one
+    with no retained mode (its mass still moves with its base)."""
+    u, m = parts["accel"].shape[1], parts["positions"].shape[1]
+    gm, gu = [], []
+    for gi in range(len(groups)):
+        if gi in group_of:
+            gm.append(mmaps[group_of.index(gi)])
+            gu.append(umaps[group_of.index(gi)])
+        else:
+            gm.append(np.zeros(0, np.int64))
+            gu.append(np.zeros(0, np.int64))
+    if basis == "set":  # the set's modes span every substructure
+        gm = [np.arange(m)] * len(groups)
+        gu = [np.arange(u)] * len(groups)
+    return _build_pre(model, groups, tms, S, g_nom, parts, gm, gu, u, m)
