@@ -8,8 +8,8 @@ import jax
 
 def machine() -> str:
     """One line: OS, CPU model, cores, load average, Python and library versions, JAX backend
-    (the work-precision report's line, :func:`jaxtree._src.bench.machine_line`)."""
-    from jaxtree._src.bench import machine_line
+    (the work-precision report's line, :func:`jaxtree.bench.machine_line`)."""
+    from jaxtree.bench import machine_line
 
     return machine_line()
 

@@ -1,7 +1,7 @@
 """The peers' converters for the benchmark scripts: they live in the package
-(``jaxtree._src.peers``), which `jaxtree bench` uses too."""
+(``jaxtree.bench.peers``), which `jaxtree bench` uses too."""
 
-from jaxtree._src.peers import (
+from jaxtree.bench.peers import (
     MUJOCO_TINY_INERTIA,
     MUJOCO_TINY_MASS,
     mjcf,

@@ -2,7 +2,7 @@
 """Work-precision of Basilisk on `wings` over 10 s (a benchmark, not a test).
 
 Basilisk (pip package ``bsk``, the ``peers`` extra) integrates the scene as a spacecraft hub with
-one spinningBodyNDOFStateEffector per wing (:mod:`jaxtree._src.peer_basilisk`):
+one spinningBodyNDOFStateEffector per wing (:mod:`jaxtree.bench.peer_basilisk`):
 
 - svIntegratorRK4 at fixed steps dt = 0.02, 0.01, 0.005, 0.002 s;
 - svIntegratorRKF45 and svIntegratorRKF78 at relTol = absTol = 1e-4 ... 1e-10, task step (the
@@ -51,7 +51,7 @@ import jax
 import numpy as np
 
 import jaxtree
-from jaxtree._src.peer_basilisk import basilisk_available, basilisk_run, basilisk_supports
+from jaxtree.bench.peer_basilisk import basilisk_available, basilisk_run, basilisk_supports
 
 from _common import machine, timed, write_json
 

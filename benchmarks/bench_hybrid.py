@@ -72,11 +72,11 @@ def errors(omega0, gamma, ref, S):
 
 
 def pinocchio_rows(model, state, torque, ts, ref, S, tols, methods, repeats):
-    """Pinocchio's ABA under scipy (``jaxtree._src.peers.pinocchio_runner``, from `state`, the
+    """Pinocchio's ABA under scipy (``jaxtree.bench.peers.pinocchio_runner``, from `state`, the
     torque on the bus as the free flyer's generalized force)."""
     import equinox as eqx
 
-    from jaxtree._src.peers import pinocchio_runner
+    from jaxtree.bench.peers import pinocchio_runner
 
     model = eqx.tree_at(lambda m: m.initial, model.with_loads(None), state)
     # the scenario's pulse in numpy (a JAX call per right side would slow the peer by its dispatch)

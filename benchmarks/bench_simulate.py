@@ -380,7 +380,7 @@ def scene_model(name):
         return jaxtree.load_scene(name)
     import pinocchio as pin
 
-    from jaxtree._src.peers import from_pinocchio
+    from jaxtree.bench.peers import from_pinocchio
 
     rng = np.random.default_rng(0)
     n = pin.buildSampleModelHumanoid().nv - 6

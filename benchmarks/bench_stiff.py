@@ -14,7 +14,7 @@ Cases:
 Each method runs over a ladder of tolerances; the figure is the fastest run that meets the
 target (median of repeats, compile time apart). Pinocchio's right side is ``pin.aba`` with the
 torque on the free flyer, its Jacobian by forward differences (``jaxtree bench``'s peer,
-``jaxtree._src.peers.pinocchio_runner``).
+``jaxtree.bench.peers.pinocchio_runner``).
 
 Run:  python benchmarks/bench_stiff.py [--cases stiff flex95] [--json PATH]
 """
@@ -46,7 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxtree
-from jaxtree._src.peers import pinocchio_runner
+from jaxtree.bench.peers import pinocchio_runner
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _common import machine, write_json

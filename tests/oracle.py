@@ -79,7 +79,7 @@ def _kinematics(m, gamma):
     return R, r
 
 
-def _velocities(m, gamma, u):
+def mass_center_velocities(m, gamma, u):
     """Inertial velocity of each mass center and inertial angular velocity of each
     body, both in {b^0} components, from the time derivative of the kinematics."""
     v, w0, gd = u[:3], u[3:6], u[6:]
@@ -92,7 +92,7 @@ def _velocities(m, gamma, u):
 
 def _kinetic_energy(m, gamma, u):
     """Total (inertial) kinetic energy: sum 1/2 m |v|^2 + 1/2 w_b^T I w_b."""
-    R, _, vel, omg = _velocities(m, gamma, u)
+    R, _, vel, omg = mass_center_velocities(m, gamma, u)
     wb = jnp.einsum("kji,kj->ki", R, omg)  # angular velocity in own frame
     return 0.5 * jnp.sum(m["mass"] * jnp.sum(vel * vel, axis=1)) + 0.5 * jnp.sum(
         wb * jnp.einsum("kij,kj->ki", m["inertia"], wb)
@@ -115,7 +115,7 @@ def _full_system(m, gamma, u, tau, F, T):
     Tl = jnp.asarray(T).at[1:].add(ta).at[jnp.asarray(m["parents"])].add(-ta)
 
     def power(uu):  # virtual power of all loads
-        R, _, vel, omg = _velocities(m, gamma, uu)
+        R, _, vel, omg = mass_center_velocities(m, gamma, uu)
         return jnp.sum(vel * jnp.einsum("kij,kj->ki", R, F)) + jnp.sum(omg * jnp.einsum("kij,kj->ki", R, Tl))
 
     Q = jax.grad(power)(u)
@@ -137,7 +137,7 @@ def _reduced(m, gamma, omega0, gamma_dot, tau, F, T, v=None):
 def _relative_quantities(m, gamma, omega0, gamma_dot, dcm):
     """KE relative to system CM and H about system CM (inertial components)."""
     u = jnp.concatenate([jnp.zeros(3), omega0, gamma_dot])
-    R, r, vel, omg = _velocities(m, gamma, u)
+    R, r, vel, omg = mass_center_velocities(m, gamma, u)
     mt = jnp.sum(m["mass"])
     rc, vc = m["mass"] @ r / mt, m["mass"] @ vel / mt
     ke = _kinetic_energy(m, gamma, u) - 0.5 * mt * vc @ vc
@@ -246,7 +246,7 @@ def oracle_body_states(parents, mass, axis, hinge_on_parent, hinge_on_body, gamm
     gamma = jnp.asarray(gamma, dtype=jnp.float64).reshape(m["n"])
     w0 = jnp.zeros(3) if omega0 is None else jnp.asarray(omega0, dtype=jnp.float64)
     gd = jnp.zeros(m["n"]) if gamma_dot is None else jnp.asarray(gamma_dot, dtype=jnp.float64)
-    R, r, vel, omg = _velocities(m, gamma, jnp.concatenate([jnp.zeros(3), w0, gd]))
+    R, r, vel, omg = mass_center_velocities(m, gamma, jnp.concatenate([jnp.zeros(3), w0, gd]))
     mt = jnp.sum(m["mass"])
     out = dict(R=R, r=r - m["mass"] @ r / mt, r_body0=r)
     if omega0 is not None and gamma_dot is not None:

@@ -160,7 +160,7 @@ def test_bench_command_mistakes_print_one_line(capsys):
 def test_reports_run_in_parts_merge_in_case_order(tmp_path):
     """Two parts saved apart (JSON beside CSV and Markdown) load back and merge: rows in the order
     of jaxtree's case list, references and the solver choices of both parts, both commands named."""
-    from jaxtree._src.bench import BenchReport
+    from jaxtree.bench import BenchReport
 
     def part(case, command):
         row = dict(case=case, group="reference", formulation="full", engine="jaxtree", solver="Dopri8",
@@ -191,7 +191,7 @@ def test_a_reference_that_cannot_meet_its_tolerance_runs_looser_and_a_singular_s
     report names it; a float32 run from a start that is singular in float32 (gimbal frames 1e-3
     rad from lock) is *refused* and a run whose step size collapses is *collapsed*, not *failed*,
     and the findings say there were no failed runs."""
-    from jaxtree._src import bench
+    from jaxtree.bench import report as bench
 
     monkeypatch.setattr(bench, "REFERENCE_TOL", 1e-30)
     monkeypatch.setattr(bench, "REFERENCE_FALLBACK", (1e-9,))
@@ -221,8 +221,8 @@ def test_flex95_slew_case_drives_jaxtree_and_the_pinocchio_peer_with_the_same_bu
     time; over the first 2 s (the pulse's rise and top) Pinocchio + DOP853 with it follows jaxtree's
     run to 1e-7 of the hub rate's and wing angles' peaks (at 1e-10), while the same peer without it
     misses by more than 10 %; the peers that take no base torque are rows skipped with the reason."""
-    from jaxtree._src import bench
-    from jaxtree._src.peers import pinocchio_runner
+    from jaxtree.bench import report as bench
+    from jaxtree.bench.peers import pinocchio_runner
 
     case = jaxtree.bench_case("flex95")
     assert "flex95" in bench.CASES and case.group == "stiff" and "Radau5" in (case.solvers or ())

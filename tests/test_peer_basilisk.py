@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxtree
-from jaxtree._src.peer_basilisk import basilisk_available, basilisk_run, basilisk_supports
+from jaxtree.bench.peer_basilisk import basilisk_available, basilisk_run, basilisk_supports
 
 from helpers import random_state
 from trees import sprung_tree

@@ -1,4 +1,4 @@
-"""The Pinocchio adapters of the benchmarks (``jaxtree._src.peers``), against Pinocchio's ABA.
+"""The Pinocchio adapters of the benchmarks (``jaxtree.bench.peers``), against Pinocchio's ABA.
 
 ``from_pinocchio`` turns a Pinocchio tree (revolute joints on a free flyer, rotated joint frames
 included) into a jaxtree model; ``pinocchio_model`` goes the other way. Eq. (1)'s accelerations
@@ -14,7 +14,7 @@ import pinocchio as pin
 import pytest
 
 import jaxtree
-from jaxtree._src.peers import _laws, from_pinocchio, pinocchio_model
+from jaxtree.bench.peers import _laws, from_pinocchio, pinocchio_model
 
 
 def _compare(pm, model, iq, iv, rng):

@@ -42,11 +42,11 @@ import numpy as np
 
 import jaxtree
 
+from ..bench import CASES as BENCH_CASES
+from ..bench import SOLVERS as BENCH_SOLVERS
+from ..bench import BenchReport, bench_case, work_precision
 from . import output, plots
 from .autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
-from .bench import CASES as BENCH_CASES
-from .bench import SOLVERS as BENCH_SOLVERS
-from .bench import BenchReport, bench_case, work_precision
 from .chunked import ChunkedRunError, chunked_config, parse_hinges, simulate_to_file
 from .chunked import solver_named as solver_named
 from .diagnostics import check_scene

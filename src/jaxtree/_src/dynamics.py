@@ -240,7 +240,7 @@ def body_angular_velocities(model: Model, cfg: Configuration, omega0, gamma_dot)
     return ancestor_sum(model.topology, terms)
 
 
-def _velocities(model, cfg, omega):
+def mass_center_velocities(model, cfg, omega):
     """Velocities of the mass centers relative to the system mass center, {b^0} components."""
     par = _parents(model)
     inc = cross(omega[par], cfg.to_hinge) + cross(omega[1:], cfg.from_hinge)
@@ -637,7 +637,7 @@ def _solve_articulated(model, state, t, tau, gdd_p):
         torque = torque + tau
     loads = external_loads(model, t, state, cfg)
     w_dot, gdd, hold = articulated.solve(
-        model, cfg, omega, _velocities(model, cfg, omega), gamma_dot, torque, loads, gdd_p
+        model, cfg, omega, mass_center_velocities(model, cfg, omega), gamma_dot, torque, loads, gdd_p
     )
     return Accelerations(w_dot, gdd, hold)
 
@@ -760,7 +760,7 @@ def _momenta(model, state):
     cfg, omega = configuration_and_rates(
         model, state.gamma, jnp.asarray(state.omega0, dtype), jnp.asarray(state.gamma_dot, dtype)
     )
-    vel = _massive(model, _velocities(model, cfg, omega))
+    vel = _massive(model, mass_center_velocities(model, cfg, omega))
     w = _massive(model, omega)
     mass = _massive(model, model.mass.astype(vel.dtype))
     return cfg, mass, vel, w, mv(cfg.inertia, w)

@@ -17,7 +17,7 @@ records
   call minus the median), accepted and rejected steps, right sides, energy and momentum drift;
 
 and the same for the peers that are installed and can represent the scene
-(:mod:`jaxtree._src.peers`: Pinocchio's ABA under scipy's DOP853, RK45 and Radau; MuJoCo's RK4
+(:mod:`jaxtree.bench.peers`: Pinocchio's ABA under scipy's DOP853, RK45 and Radau; MuJoCo's RK4
 and implicitfast), each cross-checked against the reference at its tightest setting before
 its timings count.
 
@@ -50,9 +50,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._integrate import RK4
-from .model import Model
-from .radau import Radau5
+from jaxtree._src._integrate import RK4, failure_kind
+from jaxtree._src.autosolver import choose_solver
+from jaxtree._src.dynamics import mass_matrix
+from jaxtree._src.files import atomic_write
+from jaxtree._src.hybrid import hybrid_model, simulate_hybrid
+from jaxtree._src.loads import BodyTorque
+from jaxtree._src.model import Model
+from jaxtree._src.plots import plot_work_precision
+from jaxtree._src.radau import Radau5
+from jaxtree._src.scene import load_scene
+from jaxtree._src.simulate import simulate
+from jaxtree.bench.peer_basilisk import basilisk_available, basilisk_run, basilisk_supports
+from jaxtree.bench.peers import mujoco_runner, peer_support, pinocchio_runner
 
 # ----------------------------------------------------------------------------- solvers
 SOLVERS: dict[str, Callable[[], dfx.AbstractSolver]] = {
@@ -137,7 +147,6 @@ class BenchCase:
 
 
 def _scene(name):
-    from .scene import load_scene
 
     return load_scene(name)
 
@@ -212,7 +221,6 @@ def _slew_torque_np(t) -> np.ndarray:
 def flex95_slew() -> Model:
     """flex95 (the scene: rotor at 10 pi rad/s, the bus spinning, wings straight) with the slew
     torque of issue 24 on the bus: :data:`FLEX95_TORQUE` times :func:`_slew_pulse`."""
-    from .loads import BodyTorque
 
     return _scene("flex95").with_loads(BodyTorque(0, jnp.asarray(FLEX95_TORQUE), _slew_pulse))
 
@@ -368,7 +376,6 @@ def _drifts(sol, model: Model) -> tuple[float, float]:
     # relative to the initial momentum, or, for a run that starts with little or none (chain50, the
     # stiff chains), to sqrt(2 E J_max): the momentum of the whole vehicle turning rigidly with the
     # run's initial energy about its axis of largest inertia
-    from .dynamics import mass_matrix
 
     J = np.asarray(mass_matrix(model, model.initial.gamma), float)[:3, :3]
     rigid = math.sqrt(2.0 * abs(float(e[0])) * float(np.linalg.eigvalsh(J).max()))
@@ -420,7 +427,6 @@ REFUSALS = {
 
 
 def _failure_kind(sol) -> str | None:
-    from ._integrate import failure_kind
 
     return failure_kind(sol.failure) if hasattr(sol, "failure") else None
 
@@ -429,8 +435,6 @@ class _Runner:
     """The jaxtree runs of one case and formulation: ``run(solver name, setting)``."""
 
     def __init__(self, case: BenchCase, formulation: str):
-        from .hybrid import hybrid_model, simulate_hybrid
-        from .simulate import simulate
 
         self.case, self.formulation = case, formulation
         self.ts = np.linspace(0.0, case.t1, case.n_save)
@@ -716,7 +720,6 @@ class BenchReport:
         return "\n".join(out) + "\n"
 
     def plot(self, case: str, path=None):
-        from .plots import plot_work_precision
 
         methods: dict[str, tuple[list, list]] = {}
         for r in self.rows:
@@ -729,7 +732,6 @@ class BenchReport:
     def save(self, directory, *, stem: str = "work_precision", plots: bool = True) -> dict[str, str]:
         """Write ``<stem>.csv``, ``<stem>.md`` and one ``<stem>_<case>.png`` per case into
         `directory` (each atomically); returns the paths."""
-        from .files import atomic_write
 
         os.makedirs(directory, exist_ok=True)
         paths = {"csv": os.path.join(directory, f"{stem}.csv"), "md": os.path.join(directory, f"{stem}.md")}
@@ -860,7 +862,6 @@ def _references(case: BenchCase):
     1e8-stiff chain: its Newton iterations cannot meet 1e-12 against stiffness 1e12 in the
     round-off of float64), at the first of :data:`REFERENCE_FALLBACK` that it meets; the report
     names the tolerances and the floor shows what they cost."""
-    from .simulate import simulate
 
     pair = case.references or (("Kvaerno5", "Dopri8") if case.group == "stiff" else ("Dopri8", "Tsit5"))
     ts = jnp.asarray(np.linspace(0.0, case.t1, case.n_save))
@@ -918,8 +919,6 @@ def _peer_ladders(case, ts, quick):
     check)]`` for the peers that are installed and can represent `case`; `why` is "" or the
     reason a peer is not run (one row, skipped, at its first setting); `check` the setting of
     the cross-check (an engine's first integrator's)."""
-    from .peer_basilisk import basilisk_available, basilisk_run, basilisk_supports
-    from .peers import mujoco_runner, peer_support, pinocchio_runner
 
     ladders: list = []
     # a case's bus torque reaches the peers as a numpy function of time, not as jaxtree loads
@@ -1098,7 +1097,6 @@ def work_precision(
     - `on_case`: called with the report so far after each case (``jaxtree bench`` saves it
       there, so that a long run interrupted keeps the cases it finished).
     """
-    from .autosolver import choose_solver
 
     quick = bool(quick)
     repeats = max(1, (1 if quick else 3) if repeats is None else int(repeats))

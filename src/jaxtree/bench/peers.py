@@ -64,11 +64,11 @@ def _laws(model):
 def base_velocity(model, state=None) -> np.ndarray:
     """Velocity of b_0's mass center relative to the system mass center (b_0 axes): the peers
     integrate b_0's translation, which moves whenever the rest of the vehicle does."""
-    from .dynamics import _velocities, configuration_and_rates
+    from jaxtree._src.dynamics import configuration_and_rates, mass_center_velocities
 
     s = model.initial if state is None else state
     cfg, omega = configuration_and_rates(model, s.gamma, s.omega0, s.gamma_dot)
-    return np.asarray(_velocities(model, cfg, omega)[0], float)
+    return np.asarray(mass_center_velocities(model, cfg, omega)[0], float)
 
 
 def pinocchio_model(model):
@@ -108,7 +108,7 @@ def from_pinocchio(pin_model, *, initial=None, name: str = "", method: str = "au
     by the joint frames' orientation there, and the hinge vectors run between the mass centers
     and the joint origins in those axes. `initial` as for :func:`jaxtree.build_model`.
     """
-    from .scene import build_model
+    from jaxtree._src.scene import build_model
 
     joints = [pin_model.joints[j].shortname() for j in range(pin_model.njoints)]
     if pin_model.njoints < 2 or joints[1] != "JointModelFreeFlyer" or pin_model.parents[1] != 0:

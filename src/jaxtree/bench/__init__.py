@@ -1,0 +1,20 @@
+"""``jaxtree.bench``: error against run time, beside the engine rather than in it.
+
+The work-precision report of ``jaxtree bench`` (:mod:`jaxtree.bench.report`: the cases, the
+solvers, the tolerance ladders, the report) and the same vehicles in the peer packages that a
+spacecraft dynamicist would compare with (:mod:`jaxtree.bench.peers`: Pinocchio's ABA under
+scipy, MuJoCo; :mod:`jaxtree.bench.peer_basilisk`: Basilisk's spinning-body effectors). The
+peers are optional (the ``peers`` extra); a case a peer cannot represent, or a peer that is not
+installed, is skipped with the reason in the report. Nothing in :mod:`jaxtree`'s engine imports
+this package.
+"""
+
+from .report import CASES as CASES
+from .report import SOLVERS as SOLVERS
+from .report import BenchCase as BenchCase
+from .report import BenchReport as BenchReport
+from .report import bench_case as bench_case
+from .report import stiff_chain as stiff_chain
+from .report import work_precision as work_precision
+
+__all__ = ["CASES", "SOLVERS", "BenchCase", "BenchReport", "bench_case", "stiff_chain", "work_precision"]
