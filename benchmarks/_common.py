@@ -28,11 +28,11 @@ def timed(fn, repeats):
 
 
 def write_json(path, results) -> None:
-    """Write `results` as JSON to `path` atomically (jaxtree._src.output.atomic_write); numpy
+    """Write `results` as JSON to `path` atomically (jaxtree._src.io.output.atomic_write); numpy
     scalars are written as floats."""
     import json
 
-    from jaxtree._src.output import atomic_write
+    from jaxtree._src.io.output import atomic_write
 
     with atomic_write(path, "w") as fh:
         json.dump(results, fh, indent=1, default=float)

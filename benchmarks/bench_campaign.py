@@ -100,29 +100,21 @@ def error(ds, ref):
 def _peer_worker(job):
     """Pinocchio ABA + scipy DOP853 for a list of members: (omega0, gamma) histories, rhs counts."""
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
-    import pinocchio as pin
     from scipy.integrate import solve_ivp
 
-    from _peers import pinocchio_model
+    from _peers import pinocchio_initial, pinocchio_model, pinocchio_rhs
 
     model, members, tol = job
-    pm, _, iq, iv, _ = pinocchio_model(model)
-    data = pm.createData()
+    built = pinocchio_model(model)
     n = model.n
-    q, v, tau = pin.neutral(pm), np.zeros(pm.nv), np.zeros(pm.nv)
     ts = np.linspace(0.0, T1, SAVES)
     out, nfev = [], 0
     for stiffness, omega0, gamma, gamma_dot in members:
-
-        def rhs(t, x):
-            w, g, gd, lin = x[:3], x[3 : 3 + n], x[3 + n : 3 + 2 * n], x[3 + 2 * n :]
-            q[iq] = g
-            v[:3], v[3:6], v[iv] = lin, w, gd
-            tau[iv] = -stiffness * g
-            a = pin.aba(pm, data, q, v, tau)
-            return np.concatenate([a[3:6], gd, a[iv], a[:3]])
-
-        x0 = np.concatenate([omega0, gamma, gamma_dot, np.zeros(3)])
+        rhs = pinocchio_rhs(model, stiffness=stiffness, built=built)
+        state = model.initial._replace(
+            omega0=jnp.asarray(omega0), gamma=jnp.asarray(gamma), gamma_dot=jnp.asarray(gamma_dot)
+        )
+        x0 = pinocchio_initial(eqx.tree_at(lambda m: m.initial, model, state))
         r = solve_ivp(rhs, (0.0, T1), x0, method="DOP853", rtol=tol, atol=tol, t_eval=ts)
         out.append(r.y.T[:, : 3 + n])
         nfev += r.nfev

@@ -3,7 +3,7 @@
 
 For each tree: the Jacobian of the accelerations with respect to (omega0, gamma, gamma_dot) by
 ``jax.jacfwd``, (a) through the implicit-function rule (jaxtree's path:
-``jaxtree._src.dynamics._solve_completed_jvp``) and (b) through the operations of the plain solve
+``jaxtree._src.equations.dynamics._solve_completed_jvp``) and (b) through the operations of the plain solve
 (``_solve_plain``, what jacfwd did before the rule), one VJP of the accelerations, and one
 forward call; each in a jitted ``fori_loop`` of N calls (per-call time, compile time apart).
 The peer in the same run: Pinocchio's ``computeABADerivatives`` and ``aba`` on the same tree
@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxtree
-from jaxtree._src import dynamics
+from jaxtree._src.equations import dynamics
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)

@@ -353,7 +353,7 @@ def _assemble(model, dcm, omega0, gamma, gamma_dot, t):
 
 
 def _cholesky_solve(A, b):
-    return jaxtree._src.dynamics._cholesky_solve(A, b)  # what forward_dynamics runs (bordered Cholesky)
+    return jaxtree._src.equations.dynamics._cholesky_solve(A, b)  # what forward_dynamics runs (bordered Cholesky)
 
 
 def bench_scene(name, cfg):

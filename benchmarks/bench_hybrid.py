@@ -50,7 +50,7 @@ HUB_GOAL, SMALL_GOAL = 1e-3, 1e-2
 
 def scenario(name, torque_scale):
     model = jaxtree.load_scene(name)
-    pulse = lambda t: jaxtree._src.loads.thruster_pulse(t, 1.0, 2.0, rise=0.1)
+    pulse = lambda t: jaxtree._src.equations.loads.thruster_pulse(t, 1.0, 2.0, rise=0.1)
     if name in ("panels95", "flex95"):
         torque = np.array([15.0, 9.0, 0.0] if name == "flex95" else [5.0, 3.0, 0.0])
         small = tuple(k for k in range(1, model.n + 1) if model.names[k].startswith("wing"))

@@ -398,7 +398,7 @@ def main():
     model = scene_model(scene)
     if ARGS.method:
         model = model.with_method(ARGS.method)
-    say(f"  jaxtree method: {jaxtree._src.articulated.resolve_method(model)}")
+    say(f"  jaxtree method: {jaxtree._src.equations.articulated.resolve_method(model)}")
     large = scene != "fig4_free"
     reference_tol = 1e-12 if large else REFERENCE_TOL
     if large:

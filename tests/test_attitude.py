@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree._src.attitude import (
+from jaxtree._src.equations.attitude import (
     dcm_to_euler123,
     dcm_to_quaternion,
     euler123_rate_matrix,
@@ -17,7 +17,7 @@ from jaxtree._src.attitude import (
     quaternion_rate,
     quaternion_to_dcm,
 )
-from jaxtree._src.kinematics import tilde
+from jaxtree._src.equations.kinematics import tilde
 
 # float64 round-off of a few products of unit-size numbers
 ROUNDOFF = 1e-14

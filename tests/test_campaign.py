@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree._src.campaign import monte_carlo
+from jaxtree._src.campaigns.campaign import monte_carlo
 
 N, CHUNK, T1, SAVES, TOL, MAX_STEPS = 6, 4, 1.0, 11, 1e-8, 3000
 KEY = 7
@@ -119,7 +119,7 @@ def test_dataset_holds_each_member_as_run_alone_and_failed_members_apart(campaig
 def test_store_is_written_chunk_by_chunk_and_a_rerun_resumes(campaign, tmp_path, monkeypatch, suffix):
     """A campaign killed after its first chunk leaves that chunk in the store; the rerun computes
     only the second and returns the numbers of an uninterrupted in-memory run."""
-    import jaxtree._src.campaign as C  # (zarr, and scipy for NetCDF, come with the test extra)
+    import jaxtree._src.campaigns.campaign as C  # (zarr, and scipy for NetCDF, come with the test extra)
 
     out = tmp_path / f"mc{suffix}"
     real, calls = C.run_chunk, []

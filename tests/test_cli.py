@@ -290,9 +290,9 @@ def _stand_in_viewer(monkeypatch):
     def write_mode_animation(path, model, shape, frequency, *, gamma=None, amplitude=None, title=None):
         calls.append(("mode", path, model, shape, frequency, gamma, amplitude, title))
 
-    fake = types.ModuleType("jaxtree._src.viewer")
+    fake = types.ModuleType("jaxtree._src.io.viewer")
     fake.write_animation, fake.write_mode_animation = write_animation, write_mode_animation
-    monkeypatch.setitem(sys.modules, "jaxtree._src.viewer", fake)
+    monkeypatch.setitem(sys.modules, "jaxtree._src.io.viewer", fake)
     monkeypatch.setattr(jaxtree._src, "viewer", fake, raising=False)
     return calls
 

@@ -1,5 +1,5 @@
 """Derivatives of the solution of Eq. (1) by the implicit-function rule
-(jaxtree._src.dynamics._solve_completed_jvp) against two independent derivations:
+(jaxtree._src.equations.dynamics._solve_completed_jvp) against two independent derivations:
 
 - forward-mode differentiation through the operations of the plain solve (the Cholesky
   factorization or the articulated recursion, ``_solve_plain``), which knows nothing of the rule;
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree._src import dynamics
+from jaxtree._src.equations import dynamics
 
 from helpers import ConstantLoads, random_state
 from trees import chain, deep_and_wide, random_tree, star

@@ -4,7 +4,7 @@ The reference is tests/oracle.py: the kinetic energy built from scratch from the
 positions and attitudes of every body, and the equations of motion from it by
 automatic differentiation (Hamel's equations for the reference body's
 quasi-velocities, Lagrange's for the hinge angles). Conservation laws and the
-printed form of Defs. 38-41 (jaxtree._src.barycentric.seed_equations) give further,
+printed form of Defs. 38-41 (jaxtree._src.equations.barycentric.seed_equations) give further,
 separate checks.
 """
 
@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree._src.barycentric import seed_equations
+from jaxtree._src.equations.barycentric import seed_equations
 
 from helpers import ConstantLoads, count_equations, random_state, scene_names
-from oracle import oracle_body_states, oracle_eom
+from oracle import oracle_at, oracle_body_states
 from trees import chain, deep_and_wide, gimbal_model, random_tree, star
 
 RTOL = 1e-10  # the issue's bound; double-precision results agree to ~1e-15 relative
@@ -41,21 +41,7 @@ def rel(a, b):
 
 
 def oracle(model, state, tau=None, F=None, T=None):
-    return oracle_eom(
-        model.topology.parents,
-        np.asarray(model.mass),
-        np.asarray(model.inertia),
-        np.asarray(model.axis),
-        np.asarray(model.hinge_on_parent),
-        np.asarray(model.hinge_on_body),
-        np.asarray(state.omega0),
-        np.asarray(state.gamma),
-        np.asarray(state.gamma_dot),
-        tau=tau,
-        F=F,
-        T=T,
-        dcm=np.asarray(state.dcm),
-    )
+    return oracle_at(model, state, tau=tau, F=F, T=T)
 
 
 def with_random_loads(model, rng, bodies):
@@ -105,8 +91,8 @@ def test_eq1_equals_lagrange_oracle(scenes, name):
 @pytest.mark.parametrize("name", ["fig4", "panels95"])
 def test_eq1_with_separate_outboard_products_equals_the_oracle(scenes, name, monkeypatch):
     """The formulation traced on GPUs (two outboard-set products instead of one, see
-    jaxtree._src.dynamics.merge_outboard_sums) against the oracle too, with loads and a prescription."""
-    import jaxtree._src.dynamics as dynamics
+    jaxtree._src.equations.dynamics.merge_outboard_sums) against the oracle too, with loads and a prescription."""
+    import jaxtree._src.equations.dynamics as dynamics
 
     monkeypatch.setattr(dynamics, "merge_outboard_sums", lambda: False)
     rng = np.random.default_rng(7)
@@ -125,7 +111,7 @@ def test_eq1_equals_printed_defs_38_to_41(scenes, name):
     state = random_state(model, rng)
     tau = jnp.asarray(rng.normal(size=model.n))
     # the printed form fills in prescribed hinges; do the same on the fast side
-    state_full, _ = jaxtree._src.dynamics.complete_state(model, 0.0, state)
+    state_full, _ = jaxtree._src.equations.dynamics.complete_state(model, 0.0, state)
     A, rhs = equations(model, state_full, 0.0, tau)
     As, rhss = seed_form(model, state, 0.0, tau)
     assert rel(A, As) < RTOL
@@ -347,7 +333,7 @@ def test_gradients_match_finite_differences(scenes):
     f = jax.jit(objective)
     for field, index in [("mass", 6), ("hinge_on_parent", (5, 0)), ("stiffness", 7), ("inertia", (4, 2, 2))]:
         h = 1e-6 * max(1.0, abs(float(getattr(model, field)[index])))
-        bump = lambda d: jaxtree._src.model.eqx.tree_at(
+        bump = lambda d: jaxtree._src.vehicle.model.eqx.tree_at(
             lambda m: getattr(m, field), model, getattr(model, field).at[index].add(d)
         )
         fd = (f(bump(h)) - f(bump(-h))) / (2 * h)
@@ -374,7 +360,7 @@ def test_singular_matrix_diagnosis_names_the_locked_gimbal(scenes):
     """fig4 with the inner gimbal at 90 degrees: the outer gimbal's axis and the rotor's axis are
     parallel (checked from the configuration), Eq. (1)'s matrix is singular, and the diagnosis
     names exactly those two hinges."""
-    from jaxtree._src.dynamics import _diagnose
+    from jaxtree._src.equations.dynamics import _diagnose
 
     model = scenes["fig4"]
     s = model.initial

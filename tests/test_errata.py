@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxtree
-from jaxtree._src.barycentric import barycentric, coupling_inertia
+from jaxtree._src.equations.barycentric import barycentric, coupling_inertia
 
 from helpers import random_state
 from oracle import oracle_at

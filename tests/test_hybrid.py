@@ -27,7 +27,7 @@ from scipy.integrate import solve_ivp
 
 import jaxtree
 from jaxtree import State
-from jaxtree._src.kinematics import tilde
+from jaxtree._src.equations.kinematics import tilde
 
 from helpers import appendix_c
 
@@ -214,7 +214,9 @@ def hybrid_physical_accelerations(hm, t, y):
     return jnp.concatenate([dy[a : a + 3], dy[a + 3 + nl : a + 3 + 2 * nl], ydd]), yd
 
 
-def random_state(model, rng, scale=0.3):
+def small_random_state(model, rng, scale=0.3):
+    """A random state with hinge angles and rates of order `scale`: the hybrid model's regime of
+    small deformations (``helpers.random_state`` draws angles over the full circle)."""
     q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
     return State(
         jnp.asarray(q * np.sign(np.linalg.det(q))),
@@ -236,7 +238,7 @@ def check_rhs_against_eq30(hm, rng, trials=2):
     worst, caret = 0.0, np.inf
     for _ in range(trials):
         t = jnp.asarray(rng.uniform(0, 3))  # an array: a Python float would be static under filter_jit
-        y = hm.pack(random_state(model, rng))
+        y = hm.pack(small_random_state(model, rng))
         st = hm.state(t, y)
         got, yd = hybrid_physical_accelerations(hm, t, y)
         S = np.asarray(hm.small) - 1
@@ -613,7 +615,7 @@ def test_precomputed_equals_general_with_loads_moving_platform_and_several_bases
         gen = jaxtree.hybrid_model(model, small, precompute=False, **kw)
         assert pre.precomputed and not gen.precomputed and pre.basis == "substructure"
         for _ in range(3):
-            y = pre.pack(random_state(model, rng))
+            y = pre.pack(small_random_state(model, rng))
             t = jnp.asarray(rng.uniform(0, 3))
             m1, r1 = equations_jit(pre, t, y)
             m2, r2 = equations_jit(gen, t, y)
@@ -655,7 +657,9 @@ def test_truncation_under_a_slew_falls_as_modes_are_added():
     truncated model against the all-mode one falls as modes are added per wing and vanishes with
     all of them; a repeated frequency (the two identical wings) is never split."""
     model = _wings(damping=False).with_loads(
-        jaxtree.BodyTorque(0, [0.0, 8.0, 3.0], lambda t: jaxtree._src.loads.thruster_pulse(t, 0.5, 1.0, rise=0.1))
+        jaxtree.BodyTorque(
+            0, [0.0, 8.0, 3.0], lambda t: jaxtree._src.equations.loads.thruster_pulse(t, 0.5, 1.0, rise=0.1)
+        )
     )
     state = model.initial._replace(gamma=jnp.zeros(model.n), gamma_dot=jnp.zeros(model.n))
     small = tuple(range(1, 9))
@@ -874,7 +878,7 @@ def test_precomputed_equals_general_on_flex95_with_loads_large_hinges_and_spin()
     gen = jaxtree.hybrid_model(model, small, 2, precompute=False, **kw)
     assert pre.precomputed and not gen.precomputed and pre.form == "first_order" and len(pre.large) == 4
     for _ in range(2):
-        y = pre.pack(random_state(model, rng, scale=0.05))
+        y = pre.pack(small_random_state(model, rng, scale=0.05))
         t = jnp.asarray(rng.uniform(0, 3))
         m1, r1 = equations_jit(pre, t, y)
         m2, r2 = equations_jit(gen, t, y)
@@ -890,7 +894,9 @@ def test_gradient_through_hybrid_model_and_simulate_hybrid_against_central_diffe
     finite differences of the same loss (h = 1e-4: truncation error ~h^2 ~ 1e-8 relative,
     integration at 1e-12); and a traced build without `like` is refused in one line."""
     model = _wings().with_loads(
-        jaxtree.BodyTorque(0, [0.0, 8.0, 3.0], lambda t: jaxtree._src.loads.thruster_pulse(t, 0.5, 1.0, rise=0.1))
+        jaxtree.BodyTorque(
+            0, [0.0, 8.0, 3.0], lambda t: jaxtree._src.equations.loads.thruster_pulse(t, 0.5, 1.0, rise=0.1)
+        )
     )
     small = tuple(range(1, 9))
     state = model.initial._replace(gamma=jnp.zeros(model.n), gamma_dot=jnp.zeros(model.n))
@@ -922,7 +928,9 @@ def test_simulate_hybrid_takes_radau5_and_reports_its_counters():
     wing, first-order form) at 1e-8 against Dopri8 at 1e-12 on the same hybrid model, and
     ``sol.stats`` counts the Radau5 work (Jacobians, factorizations, Newton iterations)."""
     model = _wings().with_loads(
-        jaxtree.BodyTorque(0, [0.0, 8.0, 3.0], lambda t: jaxtree._src.loads.thruster_pulse(t, 0.5, 1.0, rise=0.1))
+        jaxtree.BodyTorque(
+            0, [0.0, 8.0, 3.0], lambda t: jaxtree._src.equations.loads.thruster_pulse(t, 0.5, 1.0, rise=0.1)
+        )
     )
     state = model.initial._replace(gamma=jnp.zeros(model.n), gamma_dot=jnp.zeros(model.n))
     hm = jaxtree.hybrid_model(model, tuple(range(1, 9)), 2)
@@ -944,7 +952,7 @@ def test_substructure_terms_by_one_batch_and_by_parts_agree_with_nested_jacfwd()
     (large ones, memory), against nested jacfwd / hessian of the same Gauss function at a bent
     nominal: the second derivatives of b in (y', v) and (v, v) and their derivative in y."""
     from jaxtree._src.hybrid import substructure as sub
-    from jaxtree._src.topology import Topology
+    from jaxtree._src.vehicle.topology import Topology
 
     model = _wings()
     grp = sub.substructures(model, (1, 2, 3, 4))[0]

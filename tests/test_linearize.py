@@ -13,7 +13,7 @@ import pytest
 
 import jaxtree
 from jaxtree import State
-from jaxtree._src.barycentric import barycentric
+from jaxtree._src.equations.barycentric import barycentric
 
 from helpers import appendix_c
 from oracle import oracle_at

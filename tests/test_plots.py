@@ -12,8 +12,10 @@ import pytest
 from PIL import Image
 
 import jaxtree
-from jaxtree._src import autosolver, cli, plots
-from jaxtree._src.results import simulation_dataset
+from jaxtree._src import cli
+from jaxtree._src.integration import autosolver
+from jaxtree._src.io import plots
+from jaxtree._src.io.results import simulation_dataset
 
 matplotlib.use("Agg")
 

@@ -17,8 +17,8 @@ import scipy.linalg
 from scipy.integrate import solve_ivp
 from scipy.integrate._ivp import radau as scipy_radau
 
-from jaxtree._src import radau
-from jaxtree._src.radau import Radau5, Radau5Interpolation
+from jaxtree._src.integration import radau
+from jaxtree._src.integration.radau import Radau5, Radau5Interpolation
 
 jax.config.update("jax_enable_x64", True)
 

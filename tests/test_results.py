@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree._src import results
+from jaxtree._src.io import results
 
 from helpers import TABLE_1, TABLE_2, table
 
@@ -52,7 +52,7 @@ def test_condition_names_the_gimbal_lock_direction_that_moves_no_mass():
     rates = np.zeros(model.n)
     rates[np.asarray(model.unknown_hinges) - 1] = v[3:]
     cfg = jaxtree.configuration(model, gamma)
-    from jaxtree._src.dynamics import body_angular_velocities
+    from jaxtree._src.equations.dynamics import body_angular_velocities
 
     w = np.asarray(body_angular_velocities(model, cfg, jnp.asarray(v[:3]), jnp.asarray(rates)))
     assert np.abs(w[list(model.massive)]).max() < 1e-7
@@ -145,7 +145,7 @@ def test_result_file_round_trip_with_units_dimensions_and_provenance(short_run, 
     m = ds["body_mass"].values
     assert np.abs(np.einsum("b,tbi->ti", m, rho)).max() < 1e-12 * m.sum()
     # CSV stays as an export
-    from jaxtree._src import output
+    from jaxtree._src.io import output
 
     output.save_csv(tmp_path / "run.csv", back)
     table = np.loadtxt(tmp_path / "run.csv", delimiter=",", skiprows=1)
@@ -218,7 +218,7 @@ def _hub_and_panel(offset=True):
 def test_tree_segments_of_a_hinged_panel_match_the_closed_form():
     """Hub and one panel hinged about b2: the panel's mass center sits at p + R_2(a) (0.5, 0, 0)
     from the hub's, and the drawing is measured from the system mass center."""
-    from jaxtree._src.plots import tree_segments
+    from jaxtree._src.io.plots import tree_segments
 
     model = _hub_and_panel()
     a = 0.4
@@ -234,7 +234,7 @@ def test_plots_draw_the_given_data(short_run, tmp_path):
     import matplotlib
 
     matplotlib.use("Agg")
-    from jaxtree._src import plots
+    from jaxtree._src.io import plots
 
     sol = short_run
     fig = plots.plot_histories(sol, tmp_path / "h.png")

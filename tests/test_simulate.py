@@ -21,7 +21,7 @@ from scipy.integrate import solve_ivp
 
 import jaxtree
 from jaxtree import State, simulate
-from jaxtree._src.control import hinge_torque_vector
+from jaxtree._src.equations.control import hinge_torque_vector
 
 from helpers import count_equations, random_state
 from oracle import oracle_at
@@ -135,7 +135,7 @@ def test_quaternion_dcm_and_euler_runs_agree_on_the_sample_problem(scenes):
     assert float(q.orthogonality.max()) < 1e-14 and float(sols["euler123"].orthogonality.max()) < 1e-14
     assert 0 < float(sols["dcm"].orthogonality.max()) < 1e-9
     # Euler angles and C agree with Eq. (23)
-    assert maxdiff(jaxtree._src.attitude.euler123_to_dcm(sols["euler123"].attitude), q.dcm) < GLOBAL
+    assert maxdiff(jaxtree._src.equations.attitude.euler123_to_dcm(sols["euler123"].attitude), q.dcm) < GLOBAL
 
 
 def spheres(k=3.0):
@@ -167,7 +167,7 @@ def test_euler_angles_stop_with_an_error_near_their_singularity():
     assert bool(sol.singular) and np.pi / 2 - 0.0087 < float(sol.t_final) < 3.0
     # the quaternion run goes through the same motion: C = C_2(t) of Eq. (23)
     sol = simulate(model, 3.0, y0=y0, attitude="quaternion")
-    assert maxdiff(sol.dcm[-1], jaxtree._src.attitude.euler123_to_dcm(jnp.asarray([0.0, 3.0, 0.0]))) < CLOSED
+    assert maxdiff(sol.dcm[-1], jaxtree._src.equations.attitude.euler123_to_dcm(jnp.asarray([0.0, 3.0, 0.0]))) < CLOSED
 
 
 # ----------------------------------------------------------------------------- prescribed hinges
@@ -605,7 +605,7 @@ def test_simulate_validates_its_model_once(scenes, monkeypatch):
     """simulate validates the model once: its automatic solver choice linearizes the checked
     model (choose_solver -> linearize_vehicle) without validating it again, while the public
     choose_solver, called alone, still validates it."""
-    from jaxtree._src import scene
+    from jaxtree._src.scene import scene
 
     calls = []
     validate = scene.validate_model

@@ -13,7 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import jaxtree
-from jaxtree._src import viewer
+from jaxtree._src.io import viewer
 
 CHROMIUM = "/usr/bin/chromium"
 # the page carries positions and unit quaternions as float32 (eps 6e-8) of numbers up to ~10

@@ -17,195 +17,134 @@ import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
 
-from ._src.dynamics import (
-    Accelerations as Accelerations,
-)
-from ._src.dynamics import (
-    DynamicsError as DynamicsError,
-)
-from ._src.dynamics import (
-    angular_momentum as angular_momentum,
-)
-from ._src.dynamics import (
-    configuration as configuration,
-)
-from ._src.dynamics import (
-    forward_dynamics as forward_dynamics,
-)
-from ._src.dynamics import (
-    hinge_torques as hinge_torques,
-)
-from ._src.dynamics import (
-    kinetic_energy as kinetic_energy,
-)
-from ._src.dynamics import (
-    mass_center_acceleration as mass_center_acceleration,
-)
-from ._src.dynamics import (
-    mass_matrix as mass_matrix,
-)
-from ._src.dynamics import (
-    rotational_equations as rotational_equations,
-)
-from ._src.dynamics import (
-    solve_accelerations as solve_accelerations,
-)
-from ._src.kinematics import (
-    body_rotations as body_rotations,
-)
-from ._src.kinematics import (
-    dcm_rate as dcm_rate,
-)
-from ._src.kinematics import (
-    hinge_rotation as hinge_rotation,
-)
-from ._src.kinematics import (
-    relative_rotations as relative_rotations,
-)
-from ._src.kinematics import (
-    tilde as tilde,
-)
-from ._src.model import (
-    BodyLoads as BodyLoads,
-)
-from ._src.model import (
-    FunctionLoads as FunctionLoads,
-)
-from ._src.model import (
-    Model as Model,
-)
-from ._src.model import (
-    Prescription as Prescription,
-)
-from ._src.model import (
-    SinePrescription as SinePrescription,
-)
-from ._src.model import (
-    State as State,
-)
-from ._src.scene import (
-    Body as Body,
-)
-from ._src.scene import (
-    Free as Free,
-)
-from ._src.scene import (
-    Joint as Joint,
-)
-from ._src.scene import (
-    Prescribed as Prescribed,
-)
-from ._src.scene import (
-    PrescribedRamp as PrescribedRamp,
-)
-from ._src.scene import (
-    PrescribedSine as PrescribedSine,
-)
-from ._src.scene import (
-    PrescribedSmoothStep as PrescribedSmoothStep,
-)
-from ._src.scene import (
-    PrescribedTable as PrescribedTable,
-)
-from ._src.scene import (
-    SpringDamper as SpringDamper,
-)
-from ._src.scene import (
-    build_model as build_model,
-)
-from ._src.scene import (
-    list_scenes as list_scenes,
-)
-from ._src.scene import (
-    load_scene as load_scene,
-)
-from ._src.scene import (
-    save_scene as save_scene,
-)
-from ._src.scene import (
-    scene_from_dict as scene_from_dict,
-)
-from ._src.scene import (
-    scene_path as scene_path,
-)
-from ._src.scene import (
-    scene_to_dict as scene_to_dict,
-)
-from ._src.scene import (
-    validate_model as validate_model,
-)
-from ._src.topology import Topology as Topology
-
-__version__ = "0.1.0"
+from ._src import VERSION as _VERSION
 from ._src._checks import SceneError as SceneError
 from ._src._checks import SceneTypeError as SceneTypeError
 from ._src._checks import SceneWarning as SceneWarning
-from ._src._integrate import DEFAULT_ATOL as DEFAULT_ATOL
-from ._src._integrate import DEFAULT_RTOL as DEFAULT_RTOL
-from ._src._integrate import (
-    RK4 as RK4,
-)
-from ._src._integrate import Failure as Failure
-from ._src.articulated import resolve_method as resolve_method
-from ._src.attitude import (
-    AbstractAttitude as AbstractAttitude,
-)
-from ._src.attitude import (
-    DirectionCosines as DirectionCosines,
-)
-from ._src.attitude import (
-    Euler123 as Euler123,
-)
-from ._src.attitude import (
-    Quaternion as Quaternion,
-)
-from ._src.attitude import get_attitude as get_attitude
-from ._src.autosolver import (
-    SolverChoice as SolverChoice,
-)
-from ._src.autosolver import (
-    choose_solver as choose_solver,
-)
-from ._src.barycentric import (
-    Barycentric as Barycentric,
-)
-from ._src.barycentric import (
-    barycentric as barycentric,
-)
-from ._src.barycentric import (
-    coupling_inertia as coupling_inertia,
-)
-from ._src.barycentric import (
-    seed_equations as seed_equations,
-)
-from ._src.campaign import FAILURES as FAILURES
-from ._src.campaign import (
+from ._src.campaigns.campaign import FAILURES as FAILURES
+from ._src.campaigns.campaign import (
     monte_carlo as monte_carlo,
 )
-from ._src.control import (
+from ._src.equations.articulated import resolve_method as resolve_method
+from ._src.equations.attitude import (
+    AbstractAttitude as AbstractAttitude,
+)
+from ._src.equations.attitude import (
+    DirectionCosines as DirectionCosines,
+)
+from ._src.equations.attitude import (
+    Euler123 as Euler123,
+)
+from ._src.equations.attitude import (
+    Quaternion as Quaternion,
+)
+from ._src.equations.attitude import get_attitude as get_attitude
+from ._src.equations.barycentric import (
+    Barycentric as Barycentric,
+)
+from ._src.equations.barycentric import (
+    barycentric as barycentric,
+)
+from ._src.equations.barycentric import (
+    coupling_inertia as coupling_inertia,
+)
+from ._src.equations.barycentric import (
+    seed_equations as seed_equations,
+)
+from ._src.equations.control import (
     AbstractController as AbstractController,
 )
-from ._src.control import (
+from ._src.equations.control import (
     Controller as Controller,
 )
-from ._src.control import (
+from ._src.equations.control import (
     HingePD as HingePD,
 )
-from ._src.control import (
+from ._src.equations.control import (
     HingePID as HingePID,
 )
-from ._src.control import hinge_torque_vector as hinge_torque_vector
-from ._src.diagnostics import (
+from ._src.equations.control import hinge_torque_vector as hinge_torque_vector
+from ._src.equations.diagnostics import (
     Condition as Condition,
 )
-from ._src.diagnostics import (
-    SceneReport as SceneReport,
-)
-from ._src.diagnostics import (
-    check_scene as check_scene,
-)
-from ._src.diagnostics import (
+from ._src.equations.diagnostics import (
     condition as condition,
+)
+from ._src.equations.dynamics import (
+    Accelerations as Accelerations,
+)
+from ._src.equations.dynamics import (
+    DynamicsError as DynamicsError,
+)
+from ._src.equations.dynamics import (
+    angular_momentum as angular_momentum,
+)
+from ._src.equations.dynamics import (
+    configuration as configuration,
+)
+from ._src.equations.dynamics import (
+    forward_dynamics as forward_dynamics,
+)
+from ._src.equations.dynamics import (
+    hinge_torques as hinge_torques,
+)
+from ._src.equations.dynamics import (
+    kinetic_energy as kinetic_energy,
+)
+from ._src.equations.dynamics import (
+    mass_center_acceleration as mass_center_acceleration,
+)
+from ._src.equations.dynamics import (
+    mass_matrix as mass_matrix,
+)
+from ._src.equations.dynamics import (
+    rotational_equations as rotational_equations,
+)
+from ._src.equations.dynamics import (
+    solve_accelerations as solve_accelerations,
+)
+from ._src.equations.kinematics import (
+    body_rotations as body_rotations,
+)
+from ._src.equations.kinematics import (
+    dcm_rate as dcm_rate,
+)
+from ._src.equations.kinematics import full_precision as full_precision
+from ._src.equations.kinematics import (
+    hinge_rotation as hinge_rotation,
+)
+from ._src.equations.kinematics import (
+    relative_rotations as relative_rotations,
+)
+from ._src.equations.kinematics import (
+    tilde as tilde,
+)
+from ._src.equations.loads import (
+    AttitudePD as AttitudePD,
+)
+from ._src.equations.loads import (
+    BodyTorque as BodyTorque,
+)
+from ._src.equations.loads import (
+    CircularOrbit as CircularOrbit,
+)
+from ._src.equations.loads import (
+    CombinedLoads as CombinedLoads,
+)
+from ._src.equations.loads import (
+    GravityGradient as GravityGradient,
+)
+from ._src.equations.loads import (
+    PerBodyLoads as PerBodyLoads,
+)
+from ._src.equations.loads import (
+    ScheduledLoads as ScheduledLoads,
+)
+from ._src.equations.loads import (
+    combine_loads as combine_loads,
+)
+from ._src.equations.loads import (
+    thruster_pulse as thruster_pulse,
 )
 from ._src.hybrid import (
     HybridModel as HybridModel,
@@ -227,149 +166,211 @@ from ._src.hybrid import (
     simulate_hybrid as simulate_hybrid,
 )
 from ._src.hybrid import substructures as substructures
-from ._src.kinematics import full_precision as full_precision
-from ._src.linearize import (
-    LinearSystem as LinearSystem,
+from ._src.integration.autosolver import (
+    SolverChoice as SolverChoice,
 )
-from ._src.linearize import (
-    PartialLinearization as PartialLinearization,
+from ._src.integration.autosolver import (
+    choose_solver as choose_solver,
 )
-from ._src.linearize import (
-    Structure as Structure,
+from ._src.integration.core import DEFAULT_ATOL as DEFAULT_ATOL
+from ._src.integration.core import DEFAULT_RTOL as DEFAULT_RTOL
+from ._src.integration.core import (
+    RK4 as RK4,
 )
-from ._src.linearize import (
-    linearize as linearize,
-)
-from ._src.linearize import (
-    linearize_vehicle as linearize_vehicle,
-)
-from ._src.linearize import (
-    linearized_equations as linearized_equations,
-)
-from ._src.linearize import (
-    structure as structure,
-)
-from ._src.loads import (
-    AttitudePD as AttitudePD,
-)
-from ._src.loads import (
-    BodyTorque as BodyTorque,
-)
-from ._src.loads import (
-    CircularOrbit as CircularOrbit,
-)
-from ._src.loads import (
-    CombinedLoads as CombinedLoads,
-)
-from ._src.loads import (
-    GravityGradient as GravityGradient,
-)
-from ._src.loads import (
-    PerBodyLoads as PerBodyLoads,
-)
-from ._src.loads import (
-    ScheduledLoads as ScheduledLoads,
-)
-from ._src.loads import (
-    combine_loads as combine_loads,
-)
-from ._src.loads import (
-    thruster_pulse as thruster_pulse,
-)
-from ._src.modes import (
-    DefectiveError as DefectiveError,
-)
-from ._src.modes import (
-    ModalError as ModalError,
-)
-from ._src.modes import (
-    Modes as Modes,
-)
-from ._src.modes import (
-    UnstableError as UnstableError,
-)
-from ._src.modes import (
-    first_order as first_order,
-)
-from ._src.modes import (
-    modes as modes,
-)
-from ._src.output import (
-    atomic_write as atomic_write,
-)
-from ._src.output import (
-    histories as histories,
-)
-from ._src.output import (
-    save_csv as save_csv,
-)
-from ._src.output import (
-    save_npz as save_npz,
-)
-from ._src.output import (
-    save_plot as save_plot,
-)
-from ._src.output import (
-    summary as summary,
-)
-from ._src.plots import (
-    plot_drift as plot_drift,
-)
-from ._src.plots import (
-    plot_histories as plot_histories,
-)
-from ._src.plots import (
-    plot_mode_shapes as plot_mode_shapes,
-)
-from ._src.plots import (
-    plot_work_precision as plot_work_precision,
-)
-from ._src.radau import Radau5 as Radau5
-from ._src.results import (
-    load_result as load_result,
-)
-from ._src.results import (
-    save_result as save_result,
-)
-from ._src.simulate import (
+from ._src.integration.core import Failure as Failure
+from ._src.integration.radau import Radau5 as Radau5
+from ._src.integration.simulate import (
     Problem as Problem,
 )
-from ._src.simulate import (
+from ._src.integration.simulate import (
     SimulationError as SimulationError,
 )
-from ._src.simulate import (
+from ._src.integration.simulate import (
     Solution as Solution,
 )
-from ._src.simulate import (
+from ._src.integration.simulate import (
     check_solution as check_solution,
 )
-from ._src.simulate import (
+from ._src.integration.simulate import (
     default_tolerance as default_tolerance,
 )
-from ._src.simulate import (
+from ._src.integration.simulate import (
     hinge_angle_event as hinge_angle_event,
 )
-from ._src.simulate import (
+from ._src.integration.simulate import (
     simulate as simulate,
 )
-from ._src.simulate import (
+from ._src.integration.simulate import (
     state_event as state_event,
 )
-from ._src.viewer import (
+from ._src.io.output import (
+    atomic_write as atomic_write,
+)
+from ._src.io.output import (
+    histories as histories,
+)
+from ._src.io.output import (
+    save_csv as save_csv,
+)
+from ._src.io.output import (
+    save_npz as save_npz,
+)
+from ._src.io.output import (
+    save_plot as save_plot,
+)
+from ._src.io.output import (
+    summary as summary,
+)
+from ._src.io.plots import (
+    plot_drift as plot_drift,
+)
+from ._src.io.plots import (
+    plot_histories as plot_histories,
+)
+from ._src.io.plots import (
+    plot_mode_shapes as plot_mode_shapes,
+)
+from ._src.io.plots import (
+    plot_work_precision as plot_work_precision,
+)
+from ._src.io.results import (
+    load_result as load_result,
+)
+from ._src.io.results import (
+    save_result as save_result,
+)
+from ._src.io.viewer import (
     animation_html as animation_html,
 )
-from ._src.viewer import (
+from ._src.io.viewer import (
     expand_shape as expand_shape,
 )
-from ._src.viewer import (
+from ._src.io.viewer import (
     mode_html as mode_html,
 )
-from ._src.viewer import (
+from ._src.io.viewer import (
     write_animation as write_animation,
 )
-from ._src.viewer import (
+from ._src.io.viewer import (
     write_mode_animation as write_mode_animation,
 )
+from ._src.linear.linearize import (
+    LinearSystem as LinearSystem,
+)
+from ._src.linear.linearize import (
+    PartialLinearization as PartialLinearization,
+)
+from ._src.linear.linearize import (
+    Structure as Structure,
+)
+from ._src.linear.linearize import (
+    linearize as linearize,
+)
+from ._src.linear.linearize import (
+    linearize_vehicle as linearize_vehicle,
+)
+from ._src.linear.linearize import (
+    linearized_equations as linearized_equations,
+)
+from ._src.linear.linearize import (
+    structure as structure,
+)
+from ._src.linear.modes import (
+    DefectiveError as DefectiveError,
+)
+from ._src.linear.modes import (
+    ModalError as ModalError,
+)
+from ._src.linear.modes import (
+    Modes as Modes,
+)
+from ._src.linear.modes import (
+    UnstableError as UnstableError,
+)
+from ._src.linear.modes import (
+    first_order as first_order,
+)
+from ._src.linear.modes import (
+    modes as modes,
+)
+from ._src.scene.check import (
+    SceneReport as SceneReport,
+)
+from ._src.scene.check import (
+    check_scene as check_scene,
+)
+from ._src.scene.scene import (
+    Body as Body,
+)
+from ._src.scene.scene import (
+    Free as Free,
+)
+from ._src.scene.scene import (
+    Joint as Joint,
+)
+from ._src.scene.scene import (
+    Prescribed as Prescribed,
+)
+from ._src.scene.scene import (
+    PrescribedRamp as PrescribedRamp,
+)
+from ._src.scene.scene import (
+    PrescribedSine as PrescribedSine,
+)
+from ._src.scene.scene import (
+    PrescribedSmoothStep as PrescribedSmoothStep,
+)
+from ._src.scene.scene import (
+    PrescribedTable as PrescribedTable,
+)
+from ._src.scene.scene import (
+    SpringDamper as SpringDamper,
+)
+from ._src.scene.scene import (
+    build_model as build_model,
+)
+from ._src.scene.scene import (
+    list_scenes as list_scenes,
+)
+from ._src.scene.scene import (
+    load_scene as load_scene,
+)
+from ._src.scene.scene import (
+    save_scene as save_scene,
+)
+from ._src.scene.scene import (
+    scene_from_dict as scene_from_dict,
+)
+from ._src.scene.scene import (
+    scene_path as scene_path,
+)
+from ._src.scene.scene import (
+    scene_to_dict as scene_to_dict,
+)
+from ._src.scene.scene import (
+    validate_model as validate_model,
+)
+from ._src.vehicle.model import (
+    BodyLoads as BodyLoads,
+)
+from ._src.vehicle.model import (
+    FunctionLoads as FunctionLoads,
+)
+from ._src.vehicle.model import (
+    Model as Model,
+)
+from ._src.vehicle.model import (
+    Prescription as Prescription,
+)
+from ._src.vehicle.model import (
+    SinePrescription as SinePrescription,
+)
+from ._src.vehicle.model import (
+    State as State,
+)
+from ._src.vehicle.topology import Topology as Topology
+
+__version__ = _VERSION
 
 # The public surface: everything a user imports comes from here (the modules under
 # jaxtree._src are the implementation and may change). Grouped by the seed's ideas.

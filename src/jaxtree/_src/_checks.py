@@ -13,8 +13,8 @@ numpy reaches the user. Values that are traced (under ``jax.jit``, ``jax.vmap``,
 
 This module holds the basic checks and imports nothing else of the package; the checks of
 one public function's arguments stand beside that function (``linearize_args`` in
-:mod:`~jaxtree._src.linearize`, ``check_model`` beside ``validate_model`` in
-:mod:`~jaxtree._src.scene`, ...) and return the values they parse.
+:mod:`~jaxtree._src.linear.linearize`, ``check_model`` beside ``validate_model`` in
+:mod:`~jaxtree._src.scene.scene`, ...) and return the values they parse.
 """
 
 from __future__ import annotations

@@ -45,17 +45,17 @@ import jaxtree
 from ..bench import CASES as BENCH_CASES
 from ..bench import SOLVERS as BENCH_SOLVERS
 from ..bench import BenchReport, bench_case, work_precision
-from . import output, plots
-from .autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
-from .chunked import ChunkedRunError, chunked_config, parse_hinges, simulate_to_file
-from .chunked import solver_named as solver_named
-from .diagnostics import check_scene
-from .linearize import linearize, structure
-from .modes import ModalError, modes
-from .results import command_line, load_result, modes_dataset, save_result, to_solution, versions, write_netcdf
-from .results import model_of as result_model
-from .scene import SceneError, list_scenes, load_scene
-from .simulate import simulate
+from .campaigns.chunked import ChunkedRunError, chunked_config, parse_hinges, simulate_to_file
+from .campaigns.chunked import solver_named as solver_named
+from .integration.autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
+from .integration.simulate import simulate
+from .io import output, plots
+from .io.results import command_line, load_result, modes_dataset, save_result, to_solution, versions, write_netcdf
+from .io.results import model_of as result_model
+from .linear.linearize import linearize, structure
+from .linear.modes import ModalError, modes
+from .scene.check import check_scene
+from .scene.scene import SceneError, list_scenes, load_scene
 
 SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "bench", "sample")
 EXIT_USAGE, EXIT_FAILED, EXIT_INTERRUPTED = 2, 1, 130
@@ -553,7 +553,7 @@ def cmd_check(args) -> int:
 
 # ----------------------------------------------------------------------------- simulate
 def _config(args, model):
-    """The run's configuration (:func:`~jaxtree._src.chunked.chunked_config` of the options)."""
+    """The run's configuration (:func:`~jaxtree._src.campaigns.chunked.chunked_config` of the options)."""
     return chunked_config(
         model,
         args.t1,
@@ -888,7 +888,7 @@ def cmd_modes(args) -> int:
 # ----------------------------------------------------------------------------- animate, plot
 def _viewer():
     try:
-        from . import viewer  # looked up when used: an installation may lack it (a test stands one in)
+        from .io import viewer  # looked up when used: an installation may lack it (a test stands one in)
     except ImportError:
         raise UserError("the 3D viewer (jaxtree.write_animation) is not available in this installation") from None
     return viewer

@@ -14,7 +14,17 @@ from .report import SOLVERS as SOLVERS
 from .report import BenchCase as BenchCase
 from .report import BenchReport as BenchReport
 from .report import bench_case as bench_case
+from .report import machine_line as machine_line
 from .report import stiff_chain as stiff_chain
 from .report import work_precision as work_precision
 
-__all__ = ["CASES", "SOLVERS", "BenchCase", "BenchReport", "bench_case", "stiff_chain", "work_precision"]
+__all__ = [
+    "CASES",
+    "SOLVERS",
+    "BenchCase",
+    "BenchReport",
+    "bench_case",
+    "machine_line",
+    "stiff_chain",
+    "work_precision",
+]

@@ -19,6 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from jaxtree._src.equations.dynamics import configuration_and_rates, mass_center_velocities
+from jaxtree._src.scene.scene import build_model
+
 MUJOCO_TINY_MASS, MUJOCO_TINY_INERTIA = 1e-9, 1e-12  # MuJoCo refuses massless bodies
 
 
@@ -64,7 +67,6 @@ def _laws(model):
 def base_velocity(model, state=None) -> np.ndarray:
     """Velocity of b_0's mass center relative to the system mass center (b_0 axes): the peers
     integrate b_0's translation, which moves whenever the rest of the vehicle does."""
-    from jaxtree._src.dynamics import configuration_and_rates, mass_center_velocities
 
     s = model.initial if state is None else state
     cfg, omega = configuration_and_rates(model, s.gamma, s.omega0, s.gamma_dot)
@@ -108,7 +110,6 @@ def from_pinocchio(pin_model, *, initial=None, name: str = "", method: str = "au
     by the joint frames' orientation there, and the hinge vectors run between the mass centers
     and the joint origins in those axes. `initial` as for :func:`jaxtree.build_model`.
     """
-    from jaxtree._src.scene import build_model
 
     joints = [pin_model.joints[j].shortname() for j in range(pin_model.njoints)]
     if pin_model.njoints < 2 or joints[1] != "JointModelFreeFlyer" or pin_model.parents[1] != 0:
@@ -154,18 +155,21 @@ def from_pinocchio(pin_model, *, initial=None, name: str = "", method: str = "au
     return build_model(bodies, initial, name=name, method=method)
 
 
-def pinocchio_rhs(model, base_torque=None):
+def pinocchio_rhs(model, base_torque=None, *, stiffness=None, built=None):
     """``rhs(t, x)``: Pinocchio's ABA as the right side of a first-order system in
     ``x = (omega0, gamma, gamma_dot, v)`` (:func:`pinocchio_initial`): omega0 and v the angular
     and linear velocity of the free flyer (body 0's mass center) in its own frame, whose
     derivatives ABA returns. Without gravity nothing depends on the position or attitude of body 0,
     so they are not integrated. `base_torque`: optional ``t -> (3,)``, a torque on body 0 in its
-    own axes (the free flyer's generalized force); the model's own loads are not translated."""
+    own axes (the free flyer's generalized force); the model's own loads are not translated.
+    `stiffness`: optional (n,) hinge stiffnesses in place of the model's (a dispersed member);
+    `built`: :func:`pinocchio_model` of `model` already built, shared by such members."""
     pin = _pinocchio()
 
-    pm, _, iq, iv, _ = pinocchio_model(model)
+    pm, _, iq, iv, _ = pinocchio_model(model) if built is None else built
     data = pm.createData()
-    stiffness, damping = _laws(model)
+    laws = _laws(model)
+    stiffness, damping = (laws[0] if stiffness is None else np.asarray(stiffness, float)), laws[1]
     n = model.n
     q = pin.neutral(pm)
     v = np.zeros(pm.nv)

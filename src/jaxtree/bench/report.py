@@ -50,17 +50,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxtree._src._integrate import RK4, failure_kind
-from jaxtree._src.autosolver import choose_solver
-from jaxtree._src.dynamics import mass_matrix
-from jaxtree._src.files import atomic_write
+from jaxtree._src.equations.dynamics import mass_matrix
+from jaxtree._src.equations.loads import BodyTorque
 from jaxtree._src.hybrid import hybrid_model, simulate_hybrid
-from jaxtree._src.loads import BodyTorque
-from jaxtree._src.model import Model
-from jaxtree._src.plots import plot_work_precision
-from jaxtree._src.radau import Radau5
-from jaxtree._src.scene import load_scene
-from jaxtree._src.simulate import simulate
+from jaxtree._src.integration.autosolver import choose_solver
+from jaxtree._src.integration.core import RK4, failure_kind
+from jaxtree._src.integration.radau import Radau5
+from jaxtree._src.integration.simulate import simulate
+from jaxtree._src.io.files import atomic_write
+from jaxtree._src.io.plots import plot_work_precision
+from jaxtree._src.scene.scene import load_scene
+from jaxtree._src.vehicle.model import Model
 from jaxtree.bench.peer_basilisk import basilisk_available, basilisk_run, basilisk_supports
 from jaxtree.bench.peers import mujoco_runner, peer_support, pinocchio_runner
 

@@ -27,14 +27,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import SceneError, SceneTypeError, as_float, as_int, is_traced, short, tolerance
-from .._math import build_jit
-from ..attitude import AbstractAttitude, attitude_argument, get_attitude
-from ..dynamics import configuration, mass_matrix
-from ..kinematics import cross, full_precision, mv
-from ..linearize import linearize, linearize_args, resolve_hinges
-from ..model import Model
-from ..modes import ModalError, _check_modal_damping
-from ..modes import modes as _modes
+from ..equations._math import build_jit
+from ..equations.attitude import AbstractAttitude, attitude_argument, get_attitude
+from ..equations.dynamics import configuration, mass_matrix
+from ..equations.kinematics import cross, full_precision, mv
+from ..linear.linearize import linearize, linearize_args, resolve_hinges
+from ..linear.modes import ModalError, check_modal_damping
+from ..linear.modes import modes as _modes
+from ..vehicle.model import Model
 from . import substructure as _sub
 from .basis import base_loads, modal_matrices, put, retained_like, retained_modes, truncation_terms
 from .model import PAIRS, HybridModel, Precomputed, with_inverse
@@ -78,7 +78,7 @@ def _zeta(damping, k, kind):
         )
     zeta = np.zeros(k) if damping is None else np.broadcast_to(np.asarray(damping, float), (k,)).copy()
     if damping is not None:
-        _check_modal_damping(zeta, kind, "hybrid_model", "Sec. III E", "the modes of this set A already have")
+        check_modal_damping(zeta, kind, "hybrid_model", "Sec. III E", "the modes of this set A already have")
     return zeta
 
 

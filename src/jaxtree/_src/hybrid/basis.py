@@ -58,7 +58,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import is_traced
-from ..model import Model
+from ..vehicle.model import Model
 from .model import HybridModel, Truncation
 
 

@@ -22,9 +22,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import is_traced
-from .._hinges import prescribed_motion, selector
-from ..attitude import AbstractAttitude
-from ..model import Model, State
+from ..equations.attitude import AbstractAttitude
+from ..vehicle._hinges import prescribed_motion, selector
+from ..vehicle.model import Model, State
 
 
 class Precomputed(eqx.Module):

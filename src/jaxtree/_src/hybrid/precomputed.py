@@ -18,10 +18,10 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from ..kinematics import ancestor_sum, body_rotations, cross, mm, mv
-from ..model import State
-from ..spatial import force_cross, inertia_apply, inertia_matrix, motion_cross
-from ..topology import Topology
+from ..equations.kinematics import ancestor_sum, body_rotations, cross, mm, mv
+from ..equations.spatial import force_cross, inertia_apply, inertia_matrix, motion_cross
+from ..vehicle.model import State
+from ..vehicle.topology import Topology
 from .model import PAIRS, HybridModel
 
 

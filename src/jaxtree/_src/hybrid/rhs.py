@@ -25,9 +25,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..dynamics import rotational_equations
-from ..kinematics import full_precision
-from ..model import State
+from ..equations.dynamics import rotational_equations
+from ..equations.kinematics import full_precision
+from ..vehicle.model import State
 from .model import HybridModel
 from .precomputed import pre_blocks, pre_system, substructure_order
 

@@ -27,7 +27,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import ArrayLike
 
-from .._integrate import (
+from ..equations.dynamics import energy_and_momentum, unbalanced
+from ..equations.kinematics import full_precision
+from ..integration.core import (
     DEFAULT_MAX_STEPS,
     MESSAGES,
     Failure,
@@ -44,9 +46,7 @@ from .._integrate import (
     solver_statistics,
     tolerances,
 )
-from ..dynamics import _unbalanced
-from ..kinematics import full_precision
-from ..model import State
+from ..vehicle.model import State
 from .model import HybridModel
 from .rhs import hybrid_rhs, solve
 
@@ -150,9 +150,7 @@ def _hybrid_failure_message(code, t, state, modal):
 
 def _energy_and_momentum(model, state):
     """Kinetic energy plus the hinge springs' potential energy, and the angular momentum."""
-    from ..dynamics import _energy_and_momentum as em
-
-    T, H = em(model, state)
+    T, H = energy_and_momentum(model, state)
     if model.sprung:
         k = np.asarray(model.sprung, np.int64) - 1
         T = T + 0.5 * jnp.sum(model.stiffness[k] * state.gamma[k] ** 2)
@@ -175,7 +173,7 @@ def _small_unbalanced(hm: HybridModel, t, y):
     gdd = gdd.at[np.asarray(hm.small, np.int64) - 1].set(hm.accel @ (acc * hm.keep_u().astype(dtype)))
     if gddP is not None:
         gdd = gdd.at[np.asarray(model.prescribed, np.int64) - 1].set(gddP)
-    f = _unbalanced(model, hm.state(t, y), t, None, wd, gdd)
+    f = unbalanced(model, hm.state(t, y), t, None, wd, gdd)
     return f[np.asarray(hm.small, np.int64) + 2]
 
 

@@ -51,10 +51,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import is_traced
-from .._math import build_jit
-from ..kinematics import ancestor_sum, body_rotations, cross, mm, mv
-from ..spatial import force_cross, inertia_apply, inertia_matrix, motion_cross
-from ..topology import Topology
+from ..equations._math import build_jit
+from ..equations.kinematics import ancestor_sum, body_rotations, cross, mm, mv
+from ..equations.spatial import force_cross, inertia_apply, inertia_matrix, motion_cross
+from ..vehicle.topology import Topology
 
 
 class Substructure(NamedTuple):

@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .topology import Topology
+from ..vehicle.topology import Topology
 
 _P = ParamSpec("_P")
 _R = TypeVar("_R")

@@ -21,11 +21,18 @@ from __future__ import annotations
 import equinox as eqx
 import numpy as np
 
-from ._checks import SceneError, SceneTypeError, as_float, rotation, short, unknown_keys
-from .control import HingePD, HingePID
-from .loads import AttitudePD, CircularOrbit, CombinedLoads, GravityGradient, ScheduledLoads, combine_loads
-from .model import Model, SinePrescription
-from .profiles import FunctionPrescription, PrescriptionGroup, ShapePrescription, TablePrescription, checked_table
+from .._checks import SceneError, SceneTypeError, as_float, rotation, short, unknown_keys
+from ..equations.attitude import dcm_to_euler123, euler123_to_dcm
+from ..equations.control import HingePD, HingePID
+from ..equations.loads import AttitudePD, CircularOrbit, CombinedLoads, GravityGradient, ScheduledLoads, combine_loads
+from ..vehicle.model import Model, SinePrescription
+from ..vehicle.profiles import (
+    FunctionPrescription,
+    PrescriptionGroup,
+    ShapePrescription,
+    TablePrescription,
+    checked_table,
+)
 
 SCENE_LAW_KEYS = ("loads", "control", "orbit")
 EARTH_MU = 3.986004418e14  # m^3/s^2, the default central body
@@ -202,8 +209,6 @@ def _attitude_pd(e: dict, where: str, names) -> AttitudePD:
     if "attitude_dcm" in e:
         C = rotation(e["attitude_dcm"], f"{w}: field 'attitude_dcm'")
     elif "euler123" in e:
-        from .attitude import euler123_to_dcm
-
         C = np.asarray(euler123_to_dcm(as_float(e["euler123"], f"{w}: field 'euler123'", (3,))))
     else:
         C = np.eye(3)
@@ -447,8 +452,6 @@ def describe_laws(model: Model) -> list[str]:
                     prof = f"times a table of {L} points, t = {_g(p.times[i, 0])} .. {_g(p.times[i, L - 1])} s"
                 lines.append(f"  load: {p.kinds[i]} {_vec(p.vector[i])} {unit} on {_body(k, names)}, {prof}")
         elif isinstance(p, AttitudePD):
-            from .attitude import dcm_to_euler123
-
             angles = _vec(dcm_to_euler123(p.set_point))
             lines.append(
                 f"  control: {_body(0, names)} attitude PD to Euler 1-2-3 angles {angles} rad, kp {_vec(p.kp)} N m/rad, "

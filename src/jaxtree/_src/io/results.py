@@ -20,7 +20,7 @@ per chunk of the integration, each atomic and holding the exact state where its 
 :meth:`ChunkedResult.merge` joins them into ``RESULT`` at the end. Until then
 :func:`load_result` of ``RESULT`` reads the parts written so far (a run that was interrupted or
 killed is readable up to its last part). The run that writes them, and continues from the last
-part after an interruption (``jaxtree simulate --resume``), is :mod:`jaxtree._src.chunked`.
+part after an interruption (``jaxtree simulate --resume``), is :mod:`jaxtree._src.campaigns.chunked`.
 
 xarray and a NetCDF-4 backend (h5netcdf) are imported when a result is written or read, not by
 ``import jaxtree``.
@@ -45,13 +45,14 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import ArrayLike
 
-from ._integrate import KINDS, failure_kind
-from .attitude import get_attitude
-from .dynamics import configuration
-from .model import Model, State
-from .modes import Modes
-from .scene import scene_from_dict, scene_to_dict
-from .simulate import Problem, Solution
+from .. import VERSION
+from ..equations.attitude import get_attitude
+from ..equations.dynamics import configuration
+from ..integration.core import KINDS, failure_kind
+from ..integration.simulate import Problem, Solution
+from ..linear.modes import Modes
+from ..scene.scene import scene_from_dict, scene_to_dict
+from ..vehicle.model import Model, State
 
 if TYPE_CHECKING:
     import xarray  # annotations only: xarray is imported when a result is written or read (_xr)
@@ -73,10 +74,8 @@ def versions() -> dict[str, str]:
     import diffrax
     import equinox
 
-    import jaxtree  # the package, whose __init__ imports this module
-
     out = {
-        "jaxtree_version": jaxtree.__version__,
+        "jaxtree_version": VERSION,
         "jax_version": jax.__version__,
         "diffrax_version": diffrax.__version__,
         "equinox_version": equinox.__version__,

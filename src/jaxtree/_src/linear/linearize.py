@@ -42,12 +42,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import BUILTIN_ERRORS, SceneTypeError, as_float, hinge_set, is_traced, nominal_motion
-from ._hinges import selector
-from .dynamics import rotational_equations
-from .kinematics import full_precision, tilde
-from .model import Model, State
-from .scene import check_model
+from .._checks import BUILTIN_ERRORS, SceneTypeError, as_float, hinge_set, is_traced, nominal_motion
+from ..equations.dynamics import rotational_equations
+from ..equations.kinematics import full_precision, tilde
+from ..scene.scene import check_model
+from ..vehicle._hinges import selector
+from ..vehicle.model import Model, State
 
 
 class LinearSystem(eqx.Module):

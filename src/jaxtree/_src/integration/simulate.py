@@ -29,9 +29,28 @@ import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
-from . import _hinges
-from ._checks import SceneError, SceneTypeError, as_float, short
-from ._integrate import (
+from .._checks import SceneError, SceneTypeError, as_float, short
+from ..equations._math import regular
+from ..equations.attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
+from ..equations.control import AbstractController, with_model_laws
+from ..equations.dynamics import (
+    SINGULAR_CONDITION,
+    energy_and_momentum,
+    mass_center_acceleration,
+    matrix_condition,
+    null_direction_text,
+    rotational_equations,
+    solve_accelerations,
+    solve_unchecked,
+    unknown_labels,
+    unknown_rows,
+)
+from ..equations.kinematics import full_precision
+from ..scene.scene import check_model
+from ..vehicle import _hinges
+from ..vehicle.model import Model, State
+from .autosolver import choose_checked, given
+from .core import (
     DEFAULT_MAX_STEPS,
     DEFAULT_SAVE_POINTS,
     MESSAGES,
@@ -50,27 +69,8 @@ from ._integrate import (
     solver_statistics,
     tolerances,
 )
-from ._integrate import default_tolerance as default_tolerance  # jaxtree.default_tolerance, named in the docs
-from ._math import regular
-from .attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
-from .autosolver import choose_checked, given
-from .control import AbstractController, with_model_laws
-from .dynamics import (
-    SINGULAR_CONDITION,
-    _energy_and_momentum,
-    mass_center_acceleration,
-    matrix_condition,
-    null_direction_text,
-    rotational_equations,
-    solve_accelerations,
-    solve_unchecked,
-    unknown_labels,
-    unknown_rows,
-)
-from .kinematics import full_precision
-from .model import Model, State
+from .core import default_tolerance as default_tolerance  # jaxtree.default_tolerance, named in the docs
 from .radau import Radau5
-from .scene import check_model
 
 
 def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw):
@@ -505,7 +505,7 @@ def _diagnostics(model: Model, law, controller, params, ts, states: State, zs):
     problem = Problem(model, Quaternion(), law, controller, params, False, 0)
 
     def row(t, state, z):
-        kinetic, H = _energy_and_momentum(model, state)
+        kinetic, H = energy_and_momentum(model, state)
         energy = kinetic + 0.5 * jnp.sum(model.stiffness * state.gamma**2)
         if model.prescription is None:
             hold = jnp.zeros((0,), state.gamma.dtype)
@@ -539,7 +539,7 @@ def _rhs_evaluations(solver, stats, dt0_given: bool):
 
 def _singular(problem: Problem, t, y):
     """True when the Eq. (1) matrix at (t, y) is singular to working precision (a pivot at
-    round-off level, :func:`~jaxtree._src._math.regular`): one factorization, no eigenvalues. An exactly singular matrix may leave the
+    round-off level, :func:`~jaxtree._src.equations._math.regular`): one factorization, no eigenvalues. An exactly singular matrix may leave the
     factorization a pivot at round-off level instead of failing it, and the solve then returns
     finite garbage; this catches both."""
     model = problem.model

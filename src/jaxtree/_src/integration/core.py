@@ -21,8 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import SceneError, SceneTypeError, as_float, as_int, is_traced, short
-from .model import Model, State
+from .._checks import SceneError, SceneTypeError, as_float, as_int, is_traced, short
+from ..vehicle.model import Model, State
 from .radau import Radau5
 
 # Default rtol and atol of float64 runs; other dtypes: see default_tolerance.

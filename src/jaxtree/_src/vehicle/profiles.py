@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import SceneError, as_float
+from .._checks import SceneError, as_float
 from .model import Prescription
 
 PRESCRIBED_SHAPES = ("ramp", "smooth_step")

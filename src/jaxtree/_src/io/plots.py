@@ -16,8 +16,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ..equations.dynamics import configuration
+from ..vehicle.model import Model
 from .files import atomic_write
-from .model import Model
+from .results import model_of
 
 # Every PNG written here: at 120 dpi a 9 pt label is 15 px high.
 DPI = 120
@@ -88,8 +90,6 @@ def _series(result) -> dict:
     """Arrays of a Solution or a result Dataset: t, gamma, gamma_dot, omega0, dcm, energy, H, names,
     and the model (None where a result does not carry its scene)."""
     if hasattr(result, "data_vars"):
-        from .results import model_of
-
         ds = result
         get = lambda k: ds[k].values if k in ds else None
         names = [str(s) for s in ds["hinge_name"].values] if "hinge_name" in ds.coords else None
@@ -447,8 +447,6 @@ def tree_segments(model: Model, gamma) -> np.ndarray:
     ``[mass center of the parent, hinge point h_k, mass center of body k]`` (n, 3, 3), from
     the system mass center in {b0} components (:func:`jaxtree.configuration`)."""
     import jax.numpy as jnp
-
-    from .dynamics import configuration
 
     cfg = configuration(model, jnp.asarray(gamma, jnp.result_type(model.mass)))
     rho, hinge = np.asarray(cfg.rho), np.asarray(cfg.hinge)

@@ -41,8 +41,10 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from ._checks import is_traced
-from .model import Model, State
+from .._checks import is_traced
+from ..linear.linearize import linearize_vehicle, vehicle_linearization
+from ..vehicle.model import Model, State
+from .core import default_tolerance
 from .radau import Radau5
 
 # Dopri8's stability region reaches |h lambda| of about 3 on the directions that matter here
@@ -144,7 +146,6 @@ def samples_per_period(points: int, span: float, rate: float) -> float:
 def _eigenvalues(model: Model, y0: State, t0, law, params, checked: bool) -> np.ndarray:
     """Eigenvalues of the first-order form of the linearized equations at `y0` (the model and
     `y0` checked by :func:`jaxtree.linearize_vehicle` unless `checked`)."""
-    from .linearize import linearize_vehicle, vehicle_linearization
 
     linearization = vehicle_linearization if checked else linearize_vehicle
     lin = linearization(model, omega0=y0.omega0, gamma=y0.gamma, dcm=y0.dcm, t=t0)
@@ -196,7 +197,6 @@ def choose_checked(
 
 
 def _choose(model: Model, t1, t0, y0, rtol, law, params, checked: bool):
-    from ._integrate import default_tolerance
 
     y0 = model.initial if y0 is None else y0
     if is_traced((model, y0, t0, t1, rtol, params)):

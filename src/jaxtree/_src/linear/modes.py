@@ -48,8 +48,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checks
-from ._checks import is_traced
+from .. import _checks
+from .._checks import is_traced
 from .linearize import LinearSystem, structure
 
 
@@ -420,11 +420,11 @@ def _modal_damping(damping, nu: int, dtype, kind: str, traced: bool) -> jax.Arra
         return jnp.asarray(np.zeros(nu, dtype))
     zeta = jnp.broadcast_to(jnp.asarray(damping, dtype), (nu,))
     if not traced and damping is not None:
-        _check_modal_damping(np.asarray(zeta), kind, "modes", "Eq. 104 / Sec. III E", "this system already has")
+        check_modal_damping(np.asarray(zeta), kind, "modes", "Eq. 104 / Sec. III E", "this system already has")
     return zeta
 
 
-def _check_modal_damping(zeta: np.ndarray, kind: str, who: str, where: str, system: str) -> None:
+def check_modal_damping(zeta: np.ndarray, kind: str, who: str, where: str, system: str) -> None:
     """Modal damping ratios (`where` in the report) are finite and >= 0, and apply to undamped real
     or gyroscopic modes only: not to those of a `system` with a general J (errors from `who`)."""
     if np.any(zeta < 0) or not np.all(np.isfinite(zeta)):

@@ -4,7 +4,7 @@
 (105)-(123) with ``hybrid_small``, over evenly spaced save times in ``chunks`` parts. Every part
 is one call of :func:`jaxtree.simulate` (:func:`jaxtree.simulate_hybrid`) padded to the same
 number of save times, so one compiled program runs them all. A part is written atomically as
-``RESULT.parts/part-NNNNN.nc`` (:class:`~jaxtree._src.results.ChunkedResult`) with the exact
+``RESULT.parts/part-NNNNN.nc`` (:class:`~jaxtree._src.io.results.ChunkedResult`) with the exact
 state where it ended, and the next part starts from that state as written: a run that was
 interrupted or killed reads back up to its last part, and ``resume=True`` continues it to the
 answer of the uninterrupted run, bit for bit. At the end the parts are merged into RESULT with
@@ -30,16 +30,16 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from ._integrate import KINDS, MESSAGES, SimulationError, default_tolerance, failure_kind
-from .autosolver import choose_solver, save_points
-from .dynamics import angular_momentum, kinetic_energy
-from .hybrid import hybrid_model, simulate_hybrid
-from .linearize import resolve_hinges
-from .model import Model, State
-from .modes import ModalError
-from .radau import Radau5
-from .results import ChunkedResult, body_positions, scene_json, simulation_dataset
-from .simulate import simulate
+from ..equations.dynamics import angular_momentum, kinetic_energy
+from ..hybrid import hybrid_model, simulate_hybrid
+from ..integration.autosolver import choose_solver, save_points
+from ..integration.core import KINDS, MESSAGES, SimulationError, default_tolerance, failure_kind
+from ..integration.radau import Radau5
+from ..integration.simulate import simulate
+from ..io.results import ChunkedResult, body_positions, scene_json, simulation_dataset
+from ..linear.linearize import resolve_hinges
+from ..linear.modes import ModalError
+from ..vehicle.model import Model, State
 
 
 class ChunkedRunError(ValueError):

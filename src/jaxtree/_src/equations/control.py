@@ -28,8 +28,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._hinges import selector
-from .model import State
+from ..vehicle._hinges import selector
+from ..vehicle.model import State
 
 
 def hinge_torque_vector(n: int, hinges, torque):

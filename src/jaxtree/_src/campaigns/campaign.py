@@ -50,9 +50,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .attitude import dcm_to_quaternion
-from .dynamics import SINGULAR_CONDITION
-from .model import Model
+from ..equations.attitude import dcm_to_quaternion
+from ..equations.dynamics import SINGULAR_CONDITION
+from ..integration.core import DEFAULT_MAX_STEPS, Failure, default_tolerance
+from ..integration.simulate import condition_jit, simulate
+from ..io.files import atomic_write
+from ..vehicle.model import Model, State
 
 # jaxtree's diagnosis of a failed member ("" for a run that reached t1)
 FAILURES = (
@@ -92,7 +95,6 @@ class _Config(NamedTuple):
 
 def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     """One member: its histories and per-run figures (a dict of arrays)."""
-    from .simulate import simulate
 
     kw: dict[str, Any] = {}
     if cfg.dt is not None:
@@ -133,7 +135,6 @@ def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     # for the failed members only: see _diagnose_failures)
     # a start that cannot be integrated (not finite, or Eq. 1 singular there) never ran: its
     # integrator result is that of the vehicle at rest simulate integrated in its place
-    from ._integrate import Failure
 
     started = (code != int(Failure.NONFINITE_START)) & (code != int(Failure.SINGULAR_START))
     return dict(
@@ -153,8 +154,6 @@ def _diagnose_failures(out: dict, models, model: Model) -> None:
     when Eq. (1)'s matrix is singular or nearly so there (gimbal lock, a vanishing mass). One
     eager evaluation per failed member, on the host (batched LAPACK calls in the vmapped chunk
     would cost every member a decomposition, and can deadlock on the CPU, see _sharded)."""
-    from .model import State
-    from .simulate import condition_jit
 
     code = out["diagnosis"]
     suspects = np.flatnonzero(np.isin(code, [FAILURES.index(k) for k in ("max_steps", "dt_min", "other")]))
@@ -169,7 +168,6 @@ def _diagnose_failures(out: dict, models, model: Model) -> None:
 
 def _pilot_member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     """The pilot: steps of the first part of the flight (to order members by cost)."""
-    from .simulate import simulate
 
     sol = simulate(
         model,
@@ -432,7 +430,6 @@ class _Store:
             assert isinstance(chunk_done, zarr.Array), "made an array with the template above"
             chunk_done[index] = True
             return
-        from .files import atomic_write
 
         os.makedirs(self.parts, exist_ok=True)
         meta = os.path.join(self.parts, "campaign.json")
@@ -622,7 +619,6 @@ class _Settings(NamedTuple):
 
 def _settings(model, sample, n, t1, saveat, rtol, atol, chunk_size, order, dt, max_steps, attitude) -> _Settings:
     """monte_carlo's arguments checked, with their defaults filled in."""
-    from ._integrate import DEFAULT_MAX_STEPS, default_tolerance
 
     n = int(n)
     if n < 1:

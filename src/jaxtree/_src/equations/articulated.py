@@ -42,7 +42,7 @@ and everything outboard of it is the quadratic form of
 
     M = [[A, K], [K^T, C]] + N^T P_out N
 
-in ``(gamma_ddot, a, 1)``. Eliminating the b hinge accelerations (:func:`jaxtree._src._math.eliminate`:
+in ``(gamma_ddot, a, 1)``. Eliminating the b hinge accelerations (:func:`jaxtree._src.equations._math.eliminate`:
 b Gauss-Jordan rank-one updates, the blocks of one level at once, no LAPACK call) leaves the
 Schur complement ``P = M22 - M21 M11^{-1} M12`` for the block's parent and ``G = M11^{-1} M12``
 for the way out: ``gamma_ddot = -G (a, 1)``, and the port's acceleration is

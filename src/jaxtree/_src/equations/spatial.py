@@ -1,5 +1,5 @@
 """Spatial (six-dimensional) algebra about one point: the rigid-body inertias, motion and force
-cross products that the articulated recursion (:mod:`jaxtree._src.articulated`) and the hybrid
+cross products that the articulated recursion (:mod:`jaxtree._src.equations.articulated`) and the hybrid
 model's large bodies and substructures (:mod:`jaxtree._src.hybrid`, :mod:`jaxtree._src.hybrid.substructure`)
 share. Motions are ``(w, u)`` (angular, then the velocity of the point), forces ``(n, f)`` (moment
 about the point, then force), all in {b^0} components (Featherstone's conventions).

@@ -1,14 +1,9 @@
-"""Public diagnostics of a vehicle: the conditioning of Eq. (1) and a scene check.
+"""What ``jaxtree check SCENE`` prints: :func:`check_scene`.
 
-:func:`condition` gives the condition number of the coefficient matrix of Eq. (1) (Defs. 38-40)
-in its unknowns (omega0 and the hinges that are neither prescribed nor inert, Sec. II B) and the
-direction of its eigenvalue nearest zero, named by hinges: where the matrix is nearly singular
-(gimbal lock: two hinge axes aligned through massless gimbal frames) that is the combination of
-rates that moves no mass. float64 keeps about ``16 - log10(cond)`` digits of the accelerations.
-
-:func:`check_scene` is what ``jaxtree check SCENE`` prints: the scene validated, its tree, the
-seed's Tables 1-2 for it (network elements N_kr of Def. 26, path elements epsilon_sk of Def. 27),
-masses, and the condition number of Eq. (1) at the initial state.
+The scene validated, its tree drawn with each body's hinge and law, the seed's Tables 1-2 for it
+(network elements N_kr of Def. 26, path elements epsilon_sk of Def. 27), the masses, the loads and
+laws it carries, and the condition number of Eq. (1) at the initial state
+(:func:`jaxtree.condition`) with a warning where digits are lost.
 """
 
 from __future__ import annotations
@@ -16,98 +11,15 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 
-import equinox as eqx
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from .dynamics import SINGULAR_CONDITION, matrix_condition, rotational_equations, unknown_labels
-from .model import Model, SinePrescription, State
+from ..equations.diagnostics import POOR_CONDITION, Condition, condition
+from ..equations.dynamics import SINGULAR_CONDITION
+from ..vehicle.model import Model, SinePrescription
+from .laws import describe_laws
 from .scene import SceneError, load_scene, scene_from_dict
-from .scene_laws import describe_laws
-
-# Above this condition number the summary warns that digits are being lost (float64 keeps
-# about 8 of its 16 digits there).
-POOR_CONDITION = 1e8
 
 
-class Condition(eqx.Module):
-    """Result of :func:`condition`.
-
-    - `number`: ``max |lambda| / min |lambda|`` of the Eq. (1) matrix in its unknowns (the
-      2-norm condition number of the symmetric positive definite matrix);
-    - `direction` (3 + len(model.unknown_hinges),): unit eigenvector of the eigenvalue nearest
-      zero, entries ordered as `labels` (``omega0x``, ``omega0y``, ``omega0z``, then
-      ``hinge k (name)`` for the unknown hinges);
-    - `labels` (static): the names of the entries of `direction`.
-    """
-
-    number: jax.Array
-    direction: jax.Array
-    labels: tuple[str, ...] = eqx.field(static=True)
-
-    @property
-    def singular(self) -> bool:
-        """True when the matrix is singular to float64 working accuracy (the threshold at which
-        :func:`jaxtree.simulate` diagnoses a failure as a singular Eq. (1))."""
-        c = float(self.number)
-        return not np.isfinite(c) or c > SINGULAR_CONDITION
-
-    def named_direction(self, threshold: float = 0.25) -> list[tuple[str, float]]:
-        """The entries of `direction` of at least `threshold` times its largest, as
-        ``(label, value)`` pairs, the largest first; the sign makes the largest positive."""
-        v = np.asarray(self.direction, dtype=float)
-        if not np.all(np.isfinite(v)) or not np.any(v):
-            return []
-        v = v * np.sign(v[np.argmax(np.abs(v))])
-        big = np.flatnonzero(np.abs(v) >= threshold * np.abs(v).max())
-        big = big[np.argsort(-np.abs(v[big]), kind="stable")]
-        return [(self.labels[i], float(v[i])) for i in big]
-
-    def describe(self) -> str:
-        """One line: the condition number, the digits it leaves, and the near-null direction."""
-        c = float(self.number)
-        parts = ", ".join(f"{name} {value:+.3f}" for name, value in self.named_direction())
-        if not np.isfinite(c):
-            return f"condition number of Eq. (1): infinite (singular matrix); near-null direction: {parts}"
-        digits = max(0.0, 16.0 - np.log10(max(c, 1.0)))
-        text = f"condition number of Eq. (1): {c:.3g} " + (
-            "(singular to float64 working accuracy)" if self.singular else f"(float64 keeps about {digits:.0f} digits)"
-        )
-        return text + f"; direction of its smallest eigenvalue: {parts}"
-
-    def __str__(self) -> str:
-        return self.describe()
-
-
-@eqx.filter_jit
-def _condition_core(model: Model, state: State, t):
-    gamma = state.gamma
-    if model.prescription is not None:
-        # the matrix depends on the angles of prescribed hinges: take them from the prescription
-        idx = np.asarray(model.prescription.hinges, dtype=np.int64) - 1
-        gamma = jnp.asarray(gamma).at[idx].set(jnp.asarray(model.prescription(t), jnp.result_type(gamma)))
-    A, _ = rotational_equations(model, state._replace(gamma=gamma), t)
-    return matrix_condition(model, A)
-
-
-def condition(model: Model, state: State | None = None, t=0.0) -> Condition:
-    """Condition number of Eq. (1) at `state` (default ``model.initial``) and time `t`, and the
-    direction of its smallest eigenvalue named by hinges (:class:`Condition`).
-
-    The matrix of Defs. 38-40 is restricted to the unknowns: omega0 and the hinges that are not
-    prescribed (their angles at time `t` come from the prescription) or inert (nothing but
-    massless bodies outboard). Only the hinge angles enter the matrix. Pure: the result is a
-    pytree (jit and vmap it over states or model parameters).
-    """
-    state = model.initial if state is None else state
-    if not isinstance(state, State):
-        raise TypeError(f"condition: state must be a jaxtree.State, got {type(state).__name__}")
-    number, direction = _condition_core(model, state, jnp.asarray(t, jnp.result_type(model.mass)))
-    return Condition(number, direction, unknown_labels(model))
-
-
-# ----------------------------------------------------------------------------- check_scene
 def _joint_text(model: Model, k: int) -> str:
     kind = model.joints[k - 1]
     if k in model.prescribed:

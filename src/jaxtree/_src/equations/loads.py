@@ -29,9 +29,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import ArrayLike
 
+from ..vehicle.model import BodyLoads, Model, State
+from ..vehicle.profiles import linear_table, pad_tables
 from .dynamics import configuration
-from .model import BodyLoads, Model, State
-from .profiles import linear_table, pad_tables
 
 
 class PerBodyLoads(BodyLoads):

@@ -23,9 +23,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import SceneError, SceneTypeError, as_float, is_traced, rotation, short, unknown_keys
-from .model import BodyLoads, Model, Prescription, SinePrescription, State
-from .profiles import (
+from .._checks import SceneError, SceneTypeError, as_float, is_traced, rotation, short, unknown_keys
+from ..vehicle.model import BodyLoads, Model, Prescription, SinePrescription, State
+from ..vehicle.profiles import (
     FunctionPrescription,
     PrescriptionGroup,
     ShapePrescription,
@@ -33,11 +33,11 @@ from .profiles import (
     checked_table,
     pad_tables,
 )
-from .scene_laws import laws_to_dict, prescribed_joints, with_scene_laws
-from .topology import Topology
+from ..vehicle.topology import Topology
+from .laws import laws_to_dict, prescribed_joints, with_scene_laws
 
 FORMAT = "jaxtree-scene/1"
-_SCENES = pathlib.Path(__file__).resolve().parents[1] / "scenes"  # jaxtree/scenes
+_SCENES = pathlib.Path(__file__).resolve().parents[2] / "scenes"  # jaxtree/scenes
 
 
 # ----------------------------------------------------------------------------- joints

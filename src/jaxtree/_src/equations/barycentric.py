@@ -20,9 +20,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..vehicle.model import Model, State
 from .dynamics import complete_state, external_loads, hinge_torques
 from .kinematics import body_rotations, full_precision, relative_rotations
-from .model import Model, State
 
 
 class Barycentric(NamedTuple):

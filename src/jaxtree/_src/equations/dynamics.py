@@ -41,8 +41,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _hinges, articulated
-from ._checks import is_traced
+from .._checks import is_traced
+from ..vehicle import _hinges
+from ..vehicle.model import Model, State
+from . import articulated
 from ._math import (
     SINGULAR_PIVOT,  # noqa: F401 (SINGULAR_PIVOT is public here)
     spd_inverse,
@@ -50,7 +52,6 @@ from ._math import (
 from ._math import regular as _regular
 from ._math import regular_pivots as _regular_pivots
 from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum, tilde
-from .model import Model, State
 
 
 class DynamicsError(ArithmeticError):
@@ -290,7 +291,7 @@ def _wrenches(model, cfg, omega, gamma_dot, loads, accelerations=None):
 
     With `accelerations` ``(omega0_dot (3,), gamma_ddot (n,))`` the inertia loads of those
     accelerations are included: the outboard sums then make ``rhs - A x`` (the unbalanced
-    generalized force of :func:`_unbalanced`), without assembling A."""
+    generalized force of :func:`unbalanced`), without assembling A."""
     topo = model.topology
     par = _parents(model)
     dtype = cfg.rho.dtype
@@ -460,7 +461,7 @@ def _full_accelerations(model, x_u, gdd_p):
     return x_u[:3], jnp.concatenate(parts)[inverse]
 
 
-def _unbalanced(model, state, t, tau, omega0_dot, gamma_ddot):
+def unbalanced(model, state, t, tau, omega0_dot, gamma_ddot):
     """The unbalanced generalized force ``rhs - A x`` of Eq. (1) at accelerations ``x =
     (omega0_dot, gamma_ddot)`` (n + 3,), by one pass of inverse dynamics: the inertia loads of
     the accelerations join the velocity-product loads of Def. 41 (:func:`_wrenches`), so A is
@@ -471,7 +472,7 @@ def _unbalanced(model, state, t, tau, omega0_dot, gamma_ddot):
 
 
 def _unbalanced_at(model, state, t, tau, cfg, omega, omega0_dot, gamma_ddot):
-    """:func:`_unbalanced` with the configuration and the body angular velocities given (the
+    """:func:`unbalanced` with the configuration and the body angular velocities given (the
     state's angles and rates are read only by the hinge laws and the loads)."""
     torque = hinge_torques(model, state.gamma, state.gamma_dot)
     if tau is not None:
@@ -544,7 +545,7 @@ def _solve_completed_jvp(primals, tangents):
 
     Eq. (1) is ``A(p) x = b(p)``, p everything the accelerations depend on (state, parameters,
     time, torques, prescribed accelerations). With the unbalanced force ``F(p, x) = b - A x``
-    (:func:`_unbalanced`, zero at the solution in the unknowns' rows u):
+    (:func:`unbalanced`, zero at the solution in the unknowns' rows u):
 
         x_u' = A_uu^{-1} (dF/dp p')   and   hold' = -(dF_p/dp p') + A_pu x_u',
 
@@ -552,7 +553,7 @@ def _solve_completed_jvp(primals, tangents):
     along the state in closed form, :func:`_unbalanced_jvp`) and ``A_uu^{-1}`` is
     applied to every tangent at once (``jax.jacfwd``: one solve with many right sides): with the
     dense method's Cholesky factor, or for the articulated method (which calls no LAPACK routine)
-    as an inverse by Gauss-Jordan elimination in a loop (:func:`jaxtree._src._math.spd_inverse`),
+    as an inverse by Gauss-Jordan elimination in a loop (:func:`jaxtree._src.equations._math.spd_inverse`),
     computed once from the primal configuration and applied to all tangents by one product. The
     rule's primal solves with the same factor (the dense matrix is assembled anyway), so the
     articulated recursion is not traced into derivatives. Reverse mode transposes this: one
@@ -612,11 +613,11 @@ def _unbalanced_jvp(primals, tangents, x_u, values, dots, rebuild):
             cfg_dot = jax.tree_util.tree_map(jnp.add, cfg_dot, c_dot)
             omega_dot = omega_dot + o_dot
 
-    def unbalanced(values, cfg, omega):
+    def force(values, cfg, omega):
         m, s, tt, ta, gp = rebuild(values)
         return _unbalanced_at(m, s, tt, ta, cfg, omega, *_full_accelerations(m, x_u, gp))
 
-    return jax.jvp(unbalanced, (values, cfg, omega), (dots, cfg_dot, omega_dot))[1]
+    return jax.jvp(force, (values, cfg, omega), (dots, cfg_dot, omega_dot))[1]
 
 
 def _cho_apply(L, b):
@@ -770,17 +771,17 @@ def _momenta(model, state):
 def kinetic_energy(model: Model, state: State):
     """Kinetic energy relative to the system mass center (the quadratic form of Eq. 1's matrix)."""
     _check_shapes("kinetic_energy", model, state)
-    return _energy_and_momentum(model, state)[0]
+    return energy_and_momentum(model, state)[0]
 
 
 @full_precision
 def angular_momentum(model: Model, state: State):
     """Angular momentum about the system mass center, inertial components ``{i}`` (3,)."""
     _check_shapes("angular_momentum", model, state)
-    return _energy_and_momentum(model, state)[1]
+    return energy_and_momentum(model, state)[1]
 
 
-def _energy_and_momentum(model, state):
+def energy_and_momentum(model, state):
     """:func:`kinetic_energy` and :func:`angular_momentum` from one evaluation of the velocities
     (``simulate``'s diagnostics need both: half the tracing)."""
     cfg, mass, vel, w, Jw = _momenta(model, state)

@@ -12,9 +12,9 @@ from typing import Any, cast
 import jax
 import numpy as np
 
+from ..integration.simulate import Solution
 from .files import atomic_write as atomic_write
 from .plots import plot_histories
-from .simulate import Solution
 
 
 def histories(sol: Solution) -> dict[str, np.ndarray]:
