@@ -248,7 +248,7 @@ def tolerance(name: str, rtol, label: str = "rtol") -> float:
 
 # ----------------------------------------------------------------------------- functions
 def _matrices(I, J, K):
-    """``(I, J, K)``, or those of a :class:`jaxtree.linearize.LinearSystem` given as `I` (known by
+    """``(I, J, K)``, or those of a :class:`jaxtree._src.linear.linearize.LinearSystem` given as `I` (known by
     its fields: this module imports nothing of the package)."""
     if all(hasattr(I, field) for field in ("I", "J", "K", "coordinates", "hinges")):
         return I.I, I.J, I.K

@@ -122,7 +122,7 @@ def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     if model.prescribed:
         hist["hold_torque"] = sol.hold_torque
     finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in hist.values()]))
-    code = sol.failure  # a jaxtree._integrate.Failure code (the first five of FAILURES)
+    code = sol.failure  # an integration.core.Failure code (the first five of FAILURES)
     state_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in sol.final]))
     diagnosis = jnp.where(
         code > 0,

@@ -1,6 +1,6 @@
 """Eq. (1) solved by a blocked articulated-body recursion over the tree's substructures.
 
-The dense solve (:mod:`jaxtree.dynamics`) assembles the (n+3)-square matrix of Eq. (1) and factors
+The dense solve (:mod:`jaxtree._src.equations.dynamics`) assembles the (n+3)-square matrix of Eq. (1) and factors
 it: n^2 assembly and n^3/3 factorization, right for small trees. This module solves *the same
 equations* by exploiting the tree: independent subtrees and deep chains. It is the
 spatial-operator (articulated-body) factorization that grew out of this line of work at JPL,
@@ -50,7 +50,7 @@ for the way out: ``gamma_ddot = -G (a, 1)``, and the port's acceleration is
 
 The cost is O(n (b + 7)^2) for the blocks (b their size) plus a few 7 x 7 operations per block level:
 linear in n for chains cut into blocks of fixed size, and one level for a hub with appendages.
-:func:`jaxtree.dynamics.solve_accelerations` uses it when ``model.method`` says so
+:func:`jaxtree._src.equations.dynamics.solve_accelerations` uses it when ``model.method`` says so
 (:func:`resolve_method`).
 """
 
@@ -245,7 +245,7 @@ def solve(model, cfg, omega, vel, gamma_dot, tau, loads, prescribed_acc=None):
     """Accelerations of Eq. (1) by the blocked articulated recursion.
 
     **Arguments:** the configuration `cfg` and body angular velocities `omega` of
-    :func:`jaxtree.dynamics.configuration_and_rates`, the mass-center velocities `vel` relative to the
+    :func:`jaxtree._src.equations.dynamics.configuration_and_rates`, the mass-center velocities `vel` relative to the
     system mass center, `gamma_dot` (n,), the hinge torques `tau` (n,), the external `loads`
     ``(bodies, force, torque)`` in {b^0} components or None, and the accelerations of the
     prescribed hinges (in ``model.prescribed`` order) or None.

@@ -6,7 +6,7 @@ differentiated with respect to masses, inertias and geometry. Index tables
 
 :func:`seed_equations` evaluates Defs. 38-41 term by term, with dense
 ``(n+1) x (n+1)`` block arrays. It is the reference that the fast assembly of
-:mod:`jaxtree.dynamics` is tested against, and a readable statement of the
+:mod:`jaxtree._src.equations.dynamics` is tested against, and a readable statement of the
 seed's formulas (with the corrections recorded in ``docs/errata.md``); its
 cost grows like n^3, so use :func:`jaxtree.rotational_equations` for work.
 """

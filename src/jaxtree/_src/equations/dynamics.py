@@ -404,7 +404,7 @@ def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelera
 
 def solve_unchecked(model, state, t, tau, completed=None):
     """Eq. (1) at a state; `completed`: the prescribed accelerations of a state already
-    completed with its prescribed hinges (:func:`jaxtree._hinges.complete`, once per right side),
+    completed with its prescribed hinges (:func:`jaxtree._src.vehicle._hinges.complete`, once per right side),
     or None to complete it here."""
     if completed is None:
         state, gdd_p = complete_state(model, t, state)
@@ -627,7 +627,7 @@ def _cho_apply(L, b):
 
 
 def _solve_articulated(model, state, t, tau, gdd_p):
-    """Eq. (1) by the blocked articulated-body recursion of :mod:`jaxtree.articulated` (the
+    """Eq. (1) by the blocked articulated-body recursion of :mod:`jaxtree._src.equations.articulated` (the
     state completed with its prescribed hinges, their accelerations `gdd_p`)."""
     dtype = _dtype(model, state.gamma, state.gamma_dot, state.omega0)
     gamma, gamma_dot = jnp.asarray(state.gamma, dtype), jnp.asarray(state.gamma_dot, dtype)

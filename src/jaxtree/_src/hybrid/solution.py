@@ -366,7 +366,7 @@ def simulate_hybrid(
     one-way response: the neglected modes' reaction on the large motion is left out, as is the
     linearization error of Eq. (30) and the integration error.
 
-    The integration is :func:`jaxtree.simulate`'s (:mod:`jaxtree._integrate`): the same
+    The integration is :func:`jaxtree.simulate`'s (:mod:`jaxtree._src.integration.core`): the same
     step-size control, save-time layout, failure kinds and failure report.
 
     Raises :class:`jaxtree.SimulationError` when the run fails and `throw` is set, naming the

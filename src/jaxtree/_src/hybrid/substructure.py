@@ -9,7 +9,7 @@ base, depends on its own small angles ``y`` and rates ``y'`` and on the motion o
 **Its share of the equations.** Take ``b``'s frame and its mass center as reference (spatial
 vectors ``(angular, linear)`` about that point, in {b} components). With ``a_b`` the spatial
 acceleration of ``b`` and ``v_b`` its spatial velocity, Gauss's function of the substructure's
-bodies (see :mod:`jaxtree.articulated`) is a quadratic in ``(a_b, y'')``:
+bodies (see :mod:`jaxtree._src.equations.articulated`) is a quadratic in ``(a_b, y'')``:
 
     Z_S = 1/2 [a_b; y'']^T A(y) [a_b; y''] + [a_b; y'']^T b(y, y', v_b) - tau_S . y''
 

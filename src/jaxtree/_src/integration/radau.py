@@ -70,7 +70,7 @@ factored for, and the time J was evaluated at. As in RADAU5:
 The skipped work is skipped with `jax.lax.cond` (under `jax.vmap` the conditionals become selects
 and both branches run, so a batched solve pays for a Jacobian and two factorizations every step).
 
-Rejected steps: diffrax discards the state a rejected step returns (`_integrate.py` keeps
+Rejected steps: diffrax discards the state a rejected step returns (`integration/core.py` keeps
 `state.solver_state` wherever the controller did not keep the step), so nothing learned in a
 failed attempt survives it. RADAU5 evaluates J again after every rejection (unless J is already
 current). Here a retry is recognised by its step size instead: diffrax's `PIDController` never

@@ -520,7 +520,7 @@ def _diagnostics(model: Model, law, controller, params, ts, states: State, zs):
 
 def _condition(model: Model, state: State, t):
     """Condition number and near-null direction of the Eq. (1) matrix at a state
-    (:func:`jaxtree.dynamics.matrix_condition`)."""
+    (:func:`jaxtree._src.equations.dynamics.matrix_condition`)."""
     return matrix_condition(model, rotational_equations(model, state, t)[0])
 
 
@@ -873,7 +873,7 @@ def simulate(
     - `dt0`: initial step (default: chosen by the controller).
     - `max_steps`: step limit (the run fails with a :class:`SimulationError` beyond it).
     - `attitude`: ``"quaternion"``, ``"dcm"`` (Eq. 3), ``"euler123"`` (Eqs. 23-24) or an
-      :class:`~jaxtree.attitude.AbstractAttitude`.
+      :class:`~jaxtree._src.equations.attitude.AbstractAttitude`.
     - `adjoint`: a diffrax adjoint (default :class:`diffrax.RecursiveCheckpointAdjoint`).
     - `event`: a :class:`diffrax.Event` (its functions get ``(t, y, args)`` with ``args`` the
       :class:`Problem`; ``args.state(t, y)`` is the :class:`~jaxtree.State`), or a function

@@ -309,7 +309,7 @@ def modes(
 
     **Arguments:**
 
-    - `I`, `J`, `K` (nu, nu), or a :class:`~jaxtree.linearize.LinearSystem` as the first
+    - `I`, `J`, `K` (nu, nu), or a :class:`~jaxtree._src.linear.linearize.LinearSystem` as the first
       argument (its coordinate names then label the modes);
     - `damping`: modal damping ratios ``zeta`` (scalar or (nu,)), Eq. (104) / Sec. III E;
     - `kind`: ``"real"``, ``"gyroscopic"`` or ``"general"``; detected with

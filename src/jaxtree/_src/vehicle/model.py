@@ -108,11 +108,11 @@ class Model(eqx.Module):
     Static fields: `topology`, `joints` (joint kind per hinge), `sprung` (hinges
     whose spring law is traced), `massive` (bodies whose mass or inertia is not
     structurally zero), `prescription`, `loads`, and `method`, how Eq. (1) is solved:
-    ``"dense"`` (its matrix assembled and factored, :mod:`jaxtree.dynamics`),
+    ``"dense"`` (its matrix assembled and factored, :mod:`jaxtree._src.equations.dynamics`),
     ``"articulated"`` (a blocked articulated-body recursion over the tree's substructures,
-    :mod:`jaxtree.articulated`: linear in n for deep chains, one level for a hub with
+    :mod:`jaxtree._src.equations.articulated`: linear in n for deep chains, one level for a hub with
     appendages) or ``"auto"`` (a static rule on the topology and the backend,
-    :func:`jaxtree.articulated.resolve_method`), with `block_size` the most hinges per block
+    :func:`jaxtree._src.equations.articulated.resolve_method`), with `block_size` the most hinges per block
     of the articulated method (0: its default). All give the same accelerations to round-off.
 
     Laws a scene carries (Sec. II D inputs 7-8; all optional, None when absent): `law`, a hinge
@@ -196,7 +196,7 @@ class Model(eqx.Module):
     def with_method(self, method: str, block_size: int | None = None) -> Model:
         """A copy of the model that solves Eq. (1) by `method` (``"auto"``, ``"dense"`` or
         ``"articulated"``; see the class docstring). `block_size`: the most hinges per block of
-        the articulated method (0: its default, :data:`jaxtree.articulated.DEFAULT_BLOCK`)."""
+        the articulated method (0: its default, :data:`jaxtree._src.equations.articulated.DEFAULT_BLOCK`)."""
         block_size = self.block_size if block_size is None else int(block_size)
         return dataclasses.replace(self, method=method, block_size=block_size)
 

@@ -1,7 +1,7 @@
 """Time profiles that scenes carry: prescribed hinge angles beyond the sine (Sec. II B) and the
 scalar histories of scheduled body loads (Defs. 19-20).
 
-Prescribed angles ``gamma_k(t)`` (a :class:`~jaxtree.model.Prescription`; rates and accelerations
+Prescribed angles ``gamma_k(t)`` (a :class:`~jaxtree._src.vehicle.model.Prescription`; rates and accelerations
 by forward-mode differentiation, as for every prescription):
 
 - *ramp*: ``a0 + (a1 - a0) s``, ``s = clip((t - start) / duration, 0, 1)`` (constant rate

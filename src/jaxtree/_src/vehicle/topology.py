@@ -125,7 +125,7 @@ class Topology:
         """``E[s, k] = 1`` iff body k is outboard of hinge s or is s (``epsilon_{sk}``); row 0 is all ones.
 
         Sums over outboard sets are products with this static matrix (see
-        :func:`jaxtree.kinematics.subtree_sum`).
+        :func:`jaxtree._src.equations.kinematics.subtree_sum`).
         """
         E = np.concatenate([np.ones((1, self.n + 1), np.int8), self.path_elements], 0)
         E.setflags(write=False)
