@@ -24,6 +24,19 @@ import jaxtree
 from jaxtree._src._checks import SceneError
 
 TOL = 1e-10  # the runs' tolerances: their integration error is far below the truncation error
+FACTOR = 3  # issue 24's bound: the truncation estimate within a factor 3 of the true error
+# the run corrected by adding the estimate keeps under this fraction of the true error (the estimate has the
+# error's sign and shape, not only its size)
+CORRECTED = 0.6
+AUTO_TOL = 1e-2  # n_modes="auto"'s accuracy on flex95, and the slew's goal on the wings' relative error (issue 24)
+HUB_GOAL = 1e-3  # the slew's goal on the hub rate's relative error (issue 24)
+# with every mode kept the neglected modes' flexibility is zero (computed exactly 0.0 on wings): the bound
+# allows round-off of its entries, up to 1e-2 with no mode kept
+ZERO = 1e-14
+ZERO_ERROR = 1e-12  # the same for the estimate's largest angle (rad)
+ROUNDOFF = 1e-12  # the same flexibility by two routes (masks, the one-mode model's system K), relative: round-off
+# the command line's estimate against the error from the full Eq. (1): to the run's own integration error
+CLI_ESTIMATE = 1e-3
 SPAN = 10.0
 TS = jnp.linspace(0.0, SPAN, 101)
 
@@ -92,11 +105,11 @@ def _check_estimate(case, hm, k):
         f"(ratio {est / true:.3f}; {rel:.2e} of the peak, hub {hub:.2e}); corrected {corrected:.3e}"
     )
     assert true > 1e-6  # the truncation error stands well above the runs' own errors
-    assert true / 3 <= est <= 3 * true
+    assert true / FACTOR <= est <= FACTOR * true
     assert sol.truncation_error.shape == (len(TS),)
     np.testing.assert_allclose(np.asarray(sol.truncation_error), np.abs(np.asarray(sol.truncation)).max(1))
     # the estimate has the error's sign and shape, not only its size: adding it corrects the run
-    assert corrected < 0.6 * true
+    assert corrected < CORRECTED * true
 
 
 @pytest.mark.parametrize("k", [1, 2, 3])
@@ -123,7 +136,7 @@ def test_auto_modes_meet_the_slew_goals(flex95):
     """``n_modes="auto"`` with ``tol=1e-2`` on flex95: the same number of modes on each of the six
     identical wings, fewer for a looser tolerance, and the 10 s slew within wings 1e-2 and hub
     1e-3 of the full Eq. (1) (measured 3 per wing: 3.6e-3 and 1.0e-4; 2 per wing gives 1.15e-2)."""
-    hm = jaxtree.hybrid_model(flex95.model, flex95.small, "auto", tol=1e-2)
+    hm = jaxtree.hybrid_model(flex95.model, flex95.small, "auto", tol=AUTO_TOL)
     per = hm.modes_per_substructure
     assert len(set(per)) == 1 and per[0] >= 1
     loose = jaxtree.hybrid_model(flex95.model, flex95.small, "auto", tol=1e-1).modes_per_substructure
@@ -132,9 +145,9 @@ def test_auto_modes_meet_the_slew_goals(flex95):
     sol = flex95.run(hm)
     true, wings, hub = _errors(sol, flex95.ref, flex95.small)
     print(f"auto: {per[0]} modes per wing; wings {wings:.2e}, hub {hub:.2e}")
-    assert wings <= 1e-2
-    assert hub <= 1e-3
-    assert float(sol.max_truncation_error()) <= 3 * true
+    assert wings <= AUTO_TOL
+    assert hub <= HUB_GOAL
+    assert float(sol.max_truncation_error()) <= FACTOR * true
 
 
 def test_all_modes_estimate_nothing_and_masked_modes_count():
@@ -145,16 +158,16 @@ def test_all_modes_estimate_nothing_and_masked_modes_count():
     hm = jaxtree.hybrid_model(model, small)
     tr = hm.truncation
     assert tr is not None
-    np.testing.assert_allclose(np.asarray(tr.static(hm.keep)), 0.0, atol=1e-14)
+    np.testing.assert_allclose(np.asarray(tr.static(hm.keep)), 0.0, atol=ZERO)
     sol = jaxtree.simulate_hybrid(hm, 0.5, saveat=6)
-    assert float(sol.max_truncation_error()) < 1e-12
+    assert float(sol.max_truncation_error()) < ZERO_ERROR
     assert np.abs(np.asarray(sol.gamma)).max() > 1e-6
     one = hm.retain(1)
     grows = np.asarray(one.truncation.static(one.keep))  # type: ignore[union-attr]
     assert np.abs(grows).max() > 1e-6
     none = np.asarray(tr.static(jnp.zeros_like(hm.keep)))
     systems_K = jaxtree.hybrid_model(model, small, 1).truncation.static(jnp.zeros(2))  # type: ignore[union-attr]
-    np.testing.assert_allclose(np.asarray(systems_K), none, atol=1e-12 * np.abs(none).max())
+    np.testing.assert_allclose(np.asarray(systems_K), none, atol=ROUNDOFF * np.abs(none).max())
     off = jaxtree.simulate_hybrid(one, 0.5, saveat=6, truncation_error=False)
     assert off.truncation is None and off.truncation_error is None
 
@@ -193,7 +206,7 @@ def test_command_line_prints_the_truncation_beside_the_integration_error(tmp_pat
     true = np.abs(ds["gamma"].values[:, :8] - np.asarray(ref.gamma)[:, :8]).max()
     est = float(ds.attrs["truncation_error"])
     print(f"wings, 1 mode per wing: estimate {est:.4e}, true {true:.4e}")
-    assert abs(est - true) <= 1e-3 * true
+    assert abs(est - true) <= CLI_ESTIMATE * true
     assert float(ds.attrs["error_estimate_gamma"]) < 1e-6 < est
     assert cli.main(args + ["--modes", "2", "--modes-tol", "0.1", "--out", str(tmp_path / "x.nc")]) != 0
     assert "--modes-tol needs --modes auto" in capsys.readouterr().err
