@@ -293,7 +293,7 @@ def _stand_in_viewer(monkeypatch):
     fake = types.ModuleType("jaxtree._src.io.viewer")
     fake.write_animation, fake.write_mode_animation = write_animation, write_mode_animation
     monkeypatch.setitem(sys.modules, "jaxtree._src.io.viewer", fake)
-    monkeypatch.setattr(jaxtree._src, "viewer", fake, raising=False)
+    monkeypatch.setattr(jaxtree._src.io, "viewer", fake, raising=False)
     return calls
 
 
