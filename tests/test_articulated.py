@@ -28,7 +28,7 @@ CONDITIONING = 20
 FORWARD_FLOOR = 1e-10
 # the holding torques of the articulated and the dense solve on fig4, relative: observed 3e-13, with margin
 HOLD_TORQUE = 1e-10
-# a vmapped call against single calls, the same arithmetic batched: a few ulps
+# a vmapped call against single calls, the same arithmetic batched: round-off
 SAME_ARITHMETIC = 1e-13
 # reverse mode against central differences with h = 1e-6 of the entry: truncation ~ h^2 ~ 1e-12 and
 # round-off ~ 1e-16 / h ~ 1e-10 of the objective's size, so this leaves a margin of 1e4
