@@ -22,6 +22,16 @@ from jaxtree._src import cli
 
 # one configuration shared by the in-process run and the interrupted subprocess runs
 T1, POINTS, CHUNKS = "1", "21", "4"
+# the run at the default rtol = atol = 1e-9: its reported error estimate (the difference from a run at 10x
+# the tolerances) within a thousand times that, and its angular momentum (no loads) conserved to it
+ESTIMATE = 1e-6
+DRIFT = 1e-9
+# float64 round-off: the damped run's energy never rises by more (relative), and the modes command's
+# frequency against its closed form
+ROUNDOFF = 1e-12
+# --hybrid-small against the full Eq. (1): Eq. (30) drops terms of second order in the amplitude, with this
+# coefficient (observed 4e-4 rad for amplitudes of 0.05-0.08 rad)
+SECOND_ORDER = 0.5
 
 
 def _args(out, *extra):
@@ -90,11 +100,11 @@ def test_simulate_writes_a_complete_result_within_its_error_estimate(run):
     model = jaxtree.load_scene("wings")
     ref = jaxtree.simulate(model, 1.0, saveat=int(POINTS), rtol=1e-12, atol=1e-12)
     err = np.abs(ds["gamma"].values - np.asarray(ref.gamma)).max()
-    assert 0 < err <= a["error_estimate_gamma"] < 1e-6
+    assert 0 < err <= a["error_estimate_gamma"] < ESTIMATE
     # physics: no external loads (angular momentum conserved), dampers only dissipate energy
-    assert a["momentum_drift"] < 1e-9
+    assert a["momentum_drift"] < DRIFT
     E = ds["energy"].values
-    assert np.all(np.diff(E) <= 1e-12 * E[0]) and E[-1] < E[0]
+    assert np.all(np.diff(E) <= ROUNDOFF * E[0]) and E[-1] < E[0]
     folder = out.parent
     assert np.loadtxt(folder / "wings.csv", delimiter=",", skiprows=1).shape[0] == int(POINTS)
     for name in ("wings_histories.png", "wings_drift.png"):
@@ -275,7 +285,7 @@ def test_modes_command_matches_the_closed_form(modes_run, capsys):
     ds = jaxtree.load_result(modes_run, as_dataset=True)
     mu = 100.0 * 4.0 / 104.0
     sigma = np.sqrt(50.0 / (0.5 + mu * 0.25))
-    np.testing.assert_allclose(ds["frequency"].values, [sigma], rtol=1e-12)
+    np.testing.assert_allclose(ds["frequency"].values, [sigma], rtol=ROUNDOFF)
     np.testing.assert_array_equal(ds["hinge_shape"].values != 0, [[True]])
     assert ds.attrs["kind"] == "modes" and ds["frequency"].attrs["units"] == "rad s-1"
     assert (modes_run.parent / "m.png").read_bytes()[:4] == b"\x89PNG"
@@ -380,8 +390,8 @@ def test_hybrid_simulation_follows_the_full_equations_at_small_amplitude(tmp_pat
     assert ds.attrs["hybrid_small"] == "1-4" and ds["modal"].dims == ("time", "modal_coordinate")
     ref = jaxtree.simulate(jaxtree.load_scene("wings"), 0.5, saveat=11)
     amplitude = np.abs(np.asarray(ref.gamma)).max()
-    assert np.abs(ds["gamma"].values - np.asarray(ref.gamma)).max() < 0.5 * amplitude**2
-    assert np.abs(ds["omega0"].values - np.asarray(ref.omega0)).max() < 0.5 * amplitude**2
+    assert np.abs(ds["gamma"].values - np.asarray(ref.gamma)).max() < SECOND_ORDER * amplitude**2
+    assert np.abs(ds["omega0"].values - np.asarray(ref.omega0)).max() < SECOND_ORDER * amplitude**2
     capsys.readouterr()
 
 
