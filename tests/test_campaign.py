@@ -19,6 +19,14 @@ from jaxtree._src.campaigns.campaign import monte_carlo
 N, CHUNK, T1, SAVES, TOL, MAX_STEPS = 6, 4, 1.0, 11, 1e-8, 3000
 KEY = 7
 LOCK = 0.3  # share of members whose inner gimbal starts at 90 deg: gimbal lock
+# a batched member against the lone run of its vehicle, two integrations at TOL: batched and single kernels
+# round differently, which can flip an accept/reject decision and give another step sequence, so they
+# agree to the integration error (a few TOL), not to round-off
+SAME_RUN = 10 * TOL
+ROUNDOFF = 1e-12  # C from the stored Euler parameters (Def. 9) against the run's C: float64 round-off
+# relative drift of the conserved energy and angular momentum over a run at TOL: its global error,
+# observed <= 2e-8 on these members run alone (about 70 steps each)
+DRIFT = 1e-6
 
 
 def sample(key, model):
@@ -95,22 +103,20 @@ def test_dataset_holds_each_member_as_run_alone_and_failed_members_apart(campaig
         np.testing.assert_array_equal(ds["param.initial.omega0"].values[i], np.asarray(m.initial.omega0))
     # a successful member equals the run of its vehicle alone (one lone simulate, independent of the batch)
     i = int(np.flatnonzero(ok)[-1])
-    # The batched member and the lone run are two integrations at TOL: batched and single kernels
-    # round differently, which can flip an accept/reject decision and give another step sequence,
-    # so they agree to the integration error (a few TOL), not to round-off.
+    # two integrations at TOL: they agree to its integration error, not to round-off (SAME_RUN)
     alone = jaxtree.simulate(sample(keys[i], model), T1, saveat=SAVES, rtol=TOL, atol=TOL)
-    np.testing.assert_allclose(ds.omega0.values[i], np.asarray(alone.omega0), rtol=0, atol=10 * TOL)
-    np.testing.assert_allclose(ds.gamma.values[i], np.asarray(alone.gamma), rtol=0, atol=10 * TOL)
+    np.testing.assert_allclose(ds.omega0.values[i], np.asarray(alone.omega0), rtol=0, atol=SAME_RUN)
+    np.testing.assert_allclose(ds.gamma.values[i], np.asarray(alone.gamma), rtol=0, atol=SAME_RUN)
     C = np.asarray(alone.dcm)  # the stored Euler parameters give back C (Def. 9)
     q = ds.attitude.values[i]
     q0, v = q[:, :1, None], q[:, 1:]
     vx = np.cross(np.eye(3)[None], v[:, None, :])
     Cq = (q0**2 - np.sum(v * v, -1)[:, None, None]) * np.eye(3) + 2 * v[:, :, None] * v[:, None, :] - 2 * q0 * vx
-    np.testing.assert_allclose(Cq, C, atol=1e-12)
+    np.testing.assert_allclose(Cq, C, atol=ROUNDOFF)
     # no loads, no damping: every successful run conserves energy and angular momentum
     E, H = ds.energy.values[ok], ds.angular_momentum.values[ok]
-    assert np.abs(E - E[:, :1]).max() / np.abs(E).max() < 1e-6
-    assert np.abs(H - H[:, :1]).max() / np.abs(H).max() < 1e-6
+    assert np.abs(E - E[:, :1]).max() / np.abs(E).max() < DRIFT
+    assert np.abs(H - H[:, :1]).max() / np.abs(H).max() < DRIFT
     eff = ds.attrs["chunk_efficiency"]
     assert len(eff) == 2 and all(0 < e <= 1 for e in eff)
 
