@@ -21,6 +21,25 @@ from oracle import oracle_at, oracle_body_states
 from trees import chain, deep_and_wide, gimbal_model, random_tree, star
 
 RTOL = 1e-10  # the bound; double-precision results agree to ~1e-15 relative
+# backward error of the accelerations in the oracle's equations, relative to |A| |x|: a stable solve
+# gives ~1e-16
+BACKWARD = 1e-13
+# the forward error of the accelerations: CONDITIONING * kappa * EPS, the float64 forward error of a solve
+# of condition kappa (EPS the machine epsilon, 20 for the different operation orders), and never under RTOL
+EPS = 2.2e-16
+CONDITIONING = 20
+ROUNDOFF = 1e-12  # O(1) float64 identities (A symmetric, two unit axes aligned): round-off
+SAME_ARITHMETIC = 1e-13  # a vmapped call against single calls, the same arithmetic batched: round-off
+ULPS = 1e-14  # the prescription's sine against numpy's, O(1) numbers: tens of ulps
+# reverse mode against central differences with h ~ 1e-6: ~1e-9 relative truncation and rounding
+# error, so this leaves a margin of 1000
+FD = 1e-6
+# single precision: ~1e-7 unit roundoff times the condition number of the matrix (~5e3 for fig4_free)
+FLOAT32 = 2e-3
+# one rigid body: Euler's equations by a 3 x 3 solve against numpy's (a few hundred ulps, and an absolute
+# floor for components near zero), the mass matrix against the inertia given (a few ulps)
+EULER_RTOL, EULER_ATOL = 1e-13, 1e-15
+EULER_INERTIA = 1e-15
 
 
 equations = jax.jit(jaxtree.rotational_equations)
@@ -71,12 +90,12 @@ def check_against_oracle(model, state, rng, loads=True):
     if not model.prescribed:
         x = np.concatenate([acc.omega0_dot, acc.gamma_ddot])
         Aref, bref = np.asarray(ref["mass_matrix"]), np.asarray(ref["rhs"])
-        # backward error of our solution in the oracle's equations: a stable solve gives ~1e-16
-        assert np.abs(Aref @ x - bref).max() <= 1e-13 * np.abs(Aref).max() * np.abs(x).max()
+        # backward error of our solution in the oracle's equations
+        assert np.abs(Aref @ x - bref).max() <= BACKWARD * np.abs(Aref).max() * np.abs(x).max()
         # forward error: the accelerations inherit the conditioning of Eq. (1) (kappa ~ 3e8 for
         # chain200 at rest), so the bound is the larger of 1e-10 and a few kappa * epsilon
         kappa = np.linalg.cond(Aref)
-        assert rel(x, np.concatenate([ref["omega0_dot"], ref["gamma_ddot"]])) < max(RTOL, 20 * kappa * 2.2e-16)
+        assert rel(x, np.concatenate([ref["omega0_dot"], ref["gamma_ddot"]])) < max(RTOL, CONDITIONING * kappa * EPS)
     return model, ref
 
 
@@ -125,7 +144,7 @@ def test_matrix_is_symmetric_positive_definite(scenes, name):
     for _ in range(3):
         A, _ = equations(model, random_state(model, rng), 0.0, None)
         A = np.asarray(A)
-        assert np.abs(A - A.T).max() <= 1e-12 * np.abs(A).max()
+        assert np.abs(A - A.T).max() <= ROUNDOFF * np.abs(A).max()
         assert np.linalg.eigvalsh(0.5 * (A + A.T))[0] > 0
 
 
@@ -298,8 +317,8 @@ def test_prescribed_hinge_hold_torque(scenes):
     t = 1.7
     acc = accelerations(model, s, t, None)
     g, gd, gdd = model.prescription.derivatives(t)
-    np.testing.assert_allclose(g, np.sin(0.5 * t), rtol=1e-14)
-    np.testing.assert_allclose(gdd, -0.25 * np.sin(0.5 * t), rtol=1e-14)
+    np.testing.assert_allclose(g, np.sin(0.5 * t), rtol=ULPS)
+    np.testing.assert_allclose(gdd, -0.25 * np.sin(0.5 * t), rtol=ULPS)
     s_free = jaxtree.State(s.dcm, s.omega0, s.gamma.at[0].set(g[0]), s.gamma_dot.at[0].set(gd[0]))
     tau = jnp.zeros(model.n).at[0].set(acc.hold_torque[0])
     ref = accelerations(free, s_free, t, tau)
@@ -317,7 +336,7 @@ def test_vmap_matches_single_calls(scenes):
     w, g = f(model, batch.dcm, batch.omega0, batch.gamma, batch.gamma_dot, 0.4)
     for i, s in enumerate(states):
         w1, g1 = jaxtree.forward_dynamics(model, s.dcm, s.omega0, s.gamma, s.gamma_dot, 0.4)
-        assert rel(w[i], w1) < 1e-13 and rel(g[i], g1) < 1e-13
+        assert rel(w[i], w1) < SAME_ARITHMETIC and rel(g[i], g1) < SAME_ARITHMETIC
 
 
 def test_gradients_match_finite_differences(scenes):
@@ -337,8 +356,7 @@ def test_gradients_match_finite_differences(scenes):
             lambda m: getattr(m, field), model, getattr(model, field).at[index].add(d)
         )
         fd = (f(bump(h)) - f(bump(-h))) / (2 * h)
-        # central differences with h ~ 1e-6 carry ~1e-9 relative truncation and rounding error
-        assert abs(float(getattr(grads, field)[index] - fd)) <= 1e-6 * max(1.0, abs(float(fd))), field
+        assert abs(float(getattr(grads, field)[index] - fd)) <= FD * max(1.0, abs(float(fd))), field
 
 
 def test_eager_nonfinite_accelerations_raise_with_a_diagnosis(scenes):
@@ -368,7 +386,7 @@ def test_singular_matrix_diagnosis_names_the_locked_gimbal(scenes):
     gamma[2] = np.pi / 2
     cfg = jaxtree.configuration(model, jnp.asarray(gamma))
     g2, g4 = np.asarray(cfg.axis[1]), np.asarray(cfg.axis[3])
-    assert np.linalg.norm(np.cross(g2, g4)) < 1e-12  # the two axes are aligned
+    assert np.linalg.norm(np.cross(g2, g4)) < ROUNDOFF  # the two axes are aligned
     text = _diagnose("forward_dynamics", model, s._replace(gamma=jnp.asarray(gamma)), 0.0, None)
     assert "singular" in text and "gimbal lock" in text
     direction = text.split("near-null direction:")[1].split(". Rates")[0]
@@ -384,8 +402,7 @@ def test_float32(scenes):
     s32 = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32), s)
     w32, g32 = jax.jit(jaxtree.forward_dynamics)(m32, s32.dcm, s32.omega0, s32.gamma, s32.gamma_dot)
     assert w32.dtype == jnp.float32 and g32.dtype == jnp.float32
-    # single precision: ~1e-7 unit roundoff times the condition number of the matrix (~5e3 here)
-    assert rel(w32, w64) < 2e-3 and rel(g32, g64) < 2e-3
+    assert rel(w32, w64) < FLOAT32 and rel(g32, g64) < FLOAT32
 
 
 def _dot_precisions(closed_jaxpr):
@@ -448,9 +465,11 @@ def test_single_rigid_body_is_eulers_equations():
     model = jaxtree.build_model([jaxtree.Body("rock", 2.0, J)], {"omega0": [0.3, -0.2, 0.5]})
     w = np.array([0.3, -0.2, 0.5])
     wd, gdd = jaxtree.forward_dynamics(model, np.eye(3), w, np.zeros(0), np.zeros(0))
-    np.testing.assert_allclose(np.asarray(wd), -np.linalg.solve(J, np.cross(w, J @ w)), rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(
+        np.asarray(wd), -np.linalg.solve(J, np.cross(w, J @ w)), rtol=EULER_RTOL, atol=EULER_ATOL
+    )
     assert gdd.shape == (0,)
-    np.testing.assert_allclose(np.asarray(jaxtree.mass_matrix(model, np.zeros(0))), J, rtol=1e-15)
+    np.testing.assert_allclose(np.asarray(jaxtree.mass_matrix(model, np.zeros(0))), J, rtol=EULER_INERTIA)
 
 
 def test_wrong_state_shapes_are_named():
