@@ -58,7 +58,11 @@ def test_notebook_is_stored_executed_and_runs(path):
     km = KernelManager(kernel_name="python3", kernel_spec_manager=KernelSpecManager(kernel_dirs=[]))
     assert km.kernel_spec.argv[0] == sys.executable
     # a kernel that starts importing JAX on a loaded 2-core machine can take over the default 60 s
-    NotebookClient(
-        nb, km=km, timeout=600, startup_timeout=300, resources={"metadata": {"path": str(path.parent)}}
-    ).execute()
+    try:
+        NotebookClient(
+            nb, km=km, timeout=600, startup_timeout=300, resources={"metadata": {"path": str(path.parent)}}
+        ).execute()
+    finally:  # the client does not stop a kernel manager it was given
+        if km.has_kernel:
+            km.shutdown_kernel(now=True)
     assert [c.execution_count for c in nb.cells if c.cell_type == "code"] == list(range(1, len(code) + 1))
