@@ -280,3 +280,22 @@ def test_flex95_slew_case_drives_jaxtree_and_the_pinocchio_peer_with_the_same_bu
     assert bench._error(free[0], free[1], ref, case.relative) > 0.1
     skipped = [r for r in rows if r["engine"] in ("mujoco", "basilisk")]
     assert skipped and all(r["status"] == "skipped" and "no bus torque" in r["note"] for r in skipped)
+
+
+def test_bench_lives_outside_the_engine_and_its_names_still_resolve():
+    """``jaxtree.bench`` is not imported by ``import jaxtree`` (a fresh interpreter), its names are
+    outside the engine's ``__all__``, and the old spellings ``jaxtree.work_precision`` ... resolve
+    to the same objects on first use."""
+    import subprocess
+    import sys
+
+    from jaxtree import bench
+
+    code = "import sys, jaxtree; print(sorted(m for m in sys.modules if m.startswith('jaxtree.bench')))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+    for old, new in [("work_precision", "work_precision"), ("BENCH_CASES", "CASES"), ("stiff_chain", "stiff_chain")]:
+        assert old not in jaxtree.__all__ and old in dir(jaxtree)
+        assert getattr(jaxtree, old) is getattr(bench, new)
+    with pytest.raises(AttributeError):
+        jaxtree.no_such_name  # noqa: B018

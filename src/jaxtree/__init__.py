@@ -531,3 +531,7 @@ def __getattr__(name):
 
         return getattr(bench, _BENCH[name])
     raise AttributeError(f"module 'jaxtree' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted([*globals(), *_BENCH])
