@@ -157,6 +157,9 @@ from ._src.hybrid import (
     hybrid_equations as hybrid_equations,
 )
 from ._src.hybrid import (
+    hybrid_jacobian as hybrid_jacobian,
+)
+from ._src.hybrid import (
     hybrid_model as hybrid_model,
 )
 from ._src.hybrid import (
@@ -482,6 +485,7 @@ __all__ = [
     "simulate_hybrid",
     "HybridModel",
     "HybridSolution",
+    "hybrid_jacobian",
     "hybrid_rhs",
     "hybrid_equations",
     "Substructure",

@@ -20,13 +20,14 @@ The modules, along the stages of the computation (``README.md`` beside them tell
 - :mod:`.assembly`: :func:`hybrid_model`, from the vehicle to a :class:`HybridModel`;
 - :mod:`.precomputed`: Eq. (30) from the precomputed substructure terms;
 - :mod:`.rhs`: the projected system (Eqs. 115-118, 121), :func:`hybrid_equations`,
-  :func:`hybrid_rhs`;
+  :func:`hybrid_rhs`, :func:`hybrid_jacobian`;
 - :mod:`.solution`: :func:`simulate_hybrid`, :class:`HybridSolution`, the truncation estimate.
 """
 
 from .assembly import hybrid_model as hybrid_model
 from .model import HybridModel as HybridModel
 from .rhs import hybrid_equations as hybrid_equations
+from .rhs import hybrid_jacobian as hybrid_jacobian
 from .rhs import hybrid_rhs as hybrid_rhs
 from .solution import HybridSolution as HybridSolution
 from .solution import simulate_hybrid as simulate_hybrid

@@ -151,10 +151,12 @@ def _loads_state(hm, t, dcm, w, gL, gdL):
     return State(dcm, w, gamma, gamma_dot)
 
 
-def pre_blocks(hm: HybridModel, t, y, with_ww: bool = True):
+def pre_blocks(hm: HybridModel, t, parts, with_ww: bool = True):
     """Eq. (30) from the precomputed substructure terms, its modal rows and columns in
     substructure order (``P = p * uS`` of them: substructure j's rows at ``j * uS ...``, padding
-    rows zero; :func:`substructure_order` maps them to the global ones).
+    rows zero; :func:`substructure_order` maps them to the global ones). `parts`: the state's
+    ``hm.unpack(y)`` (kept apart, so that a tangent of the modal coordinates alone does not enter
+    the large bodies' frame: a Jacobian's modal columns skip it).
 
     Each substructure's bias is one product with the features ``psi = [v_b v_c, v, c, 1]`` of its
     base's motion (velocity v, velocity-product acceleration c): the zeroth-order part
@@ -168,8 +170,8 @@ def pre_blocks(hm: HybridModel, t, y, with_ww: bool = True):
     modal unknowns, without the constant modal block ``kin`` and the spring rows ``kin_rhs . s``
     (added by the callers); `Mww`, the part of the modal block that the elimination adds, only
     when `with_ww`."""
-    att, w, gL, gdL, s = hm.unpack(y)
-    dtype = y.dtype
+    att, w, gL, gdL, s = parts
+    dtype = w.dtype
     s_in = s * hm.keep_m().astype(dtype)
     pre = hm.pre
     assert pre is not None, "called for a model with precomputed terms only"
@@ -180,7 +182,10 @@ def pre_blocks(hm: HybridModel, t, y, with_ww: bool = True):
     iu, ju = PAIRS
     psi = jnp.concatenate([vb[:, iu] * vb[:, ju], vb, cb, jnp.ones((p, 1), dtype)], 1)
     f0 = jnp.einsum("pil,pl->pi", pre.bias0, psi)
-    f1 = jnp.einsum("pil,pl->pi", pre.bias1, (psi[:, :, None] * sS[:, None, :]).reshape(p, -1))
+    # the caret part: bias1 . (psi (x) s) as (bias1 . psi) . s (linear in s through a (p, rows, mS)
+    # coefficient: tangents of s, a Jacobian's columns, do not pass through the features)
+    C1 = jnp.einsum("pilm,pl->pim", pre.bias1.reshape(p, pre.bias1.shape[1], psi.shape[1], -1), psi)
+    f1 = jnp.einsum("pim,pm->pi", C1, sS)
     B = jnp.stack([pre.mat0, jnp.einsum("pijm,pm->pij", pre.mat1, sS)])  # (2, p, 6 + uS, 6)
     X = jnp.einsum("xpia,pak->xpik", B, Jb)  # (2, p, 6 + uS, nz): bar and caret, base and modal rows
     Azz = jnp.stack([A, jnp.zeros_like(A)]) + jnp.einsum("pak,xpal->xkl", Jb, X[:, :, :6])
@@ -221,17 +226,18 @@ def substructure_order(hm: HybridModel):
     return order, len(set(real.tolist())) == len(real)
 
 
-def pre_system(hm: HybridModel, t, y):
+def pre_system(hm: HybridModel, t, parts):
     """Eq. (118)/(121) from the precomputed substructure terms (:func:`pre_blocks`) in the
-    global order: ``(matrix, rhs)`` as :func:`.rhs._project` returns them from the general form."""
-    Mxx, Mxw, Mwx, Pww, rx, rw = pre_blocks(hm, t, y)
+    global order: ``(matrix, rhs)`` as :func:`.rhs._project` returns them from the general form
+    (`parts`: ``hm.unpack(y)``)."""
+    Mxx, Mxw, Mwx, Pww, rx, rw = pre_blocks(hm, t, parts)
     order, _ = substructure_order(hm)
-    dtype = y.dtype
+    dtype = parts[1].dtype
     U = np.zeros((len(order), hm.u + 1))
     U[np.arange(len(order)), order] = 1.0
     U = jnp.asarray(U[:, : hm.u], dtype)  # substructure rows -> global rows (summed)
     minv = 1.0 / jnp.sum(hm.model.mass.astype(dtype))
-    s_in = hm.unpack(y)[4] * hm.keep_m().astype(dtype)
+    s_in = parts[4] * hm.keep_m().astype(dtype)
     assert hm.pre is not None and Pww is not None
     Mww = hm.pre.ww0 - minv * U.T @ Pww @ U + hm.kin
     mat = jnp.concatenate([jnp.concatenate([Mxx, Mxw @ U], 1), jnp.concatenate([U.T @ Mwx, Mww], 1)], 0)

@@ -92,45 +92,52 @@ def hybrid_equations(hybrid: HybridModel, t, y):
     ``(matrix, rhs)`` for the unknowns ``[omega0_dot, gamma_ddot_L, modal]`` (modal: ``eta_r''``
     or ``Y_r'``), masked modes included as ``1 * x = 0`` rows. For inspection and tests; the
     right-hand side :func:`hybrid_rhs` solves the same system."""
-    if hybrid.pre is not None:
-        mat, rhs = pre_system(hybrid, t, y)
+    return _equations(hybrid, t, hybrid.unpack(y))
+
+
+def _equations(hm: HybridModel, t, parts):
+    """:func:`hybrid_equations` of the state's parts (``hm.unpack(y)``)."""
+    if hm.pre is not None:
+        mat, rhs = pre_system(hm, t, parts)
     else:
-        att, w, gL, gdL, s = hybrid.unpack(y)
-        s_in = s * hybrid.keep_m().astype(y.dtype)
-        dcm = hybrid.attitude.to_dcm(att)
-        Ml, Ms, R = _eq30(hybrid, t, dcm, w, gL, gdL, hybrid.positions @ s_in, hybrid.rates @ s_in)
-        mat, rhs = _project(hybrid, Ml, Ms, R, s_in)
-    return _mask(hybrid, mat, rhs)
+        att, w, gL, gdL, s = parts
+        s_in = s * hm.keep_m().astype(w.dtype)
+        dcm = hm.attitude.to_dcm(att)
+        Ml, Ms, R = _eq30(hm, t, dcm, w, gL, gdL, hm.positions @ s_in, hm.rates @ s_in)
+        mat, rhs = _project(hm, Ml, Ms, R, s_in)
+    return _mask(hm, mat, rhs)
 
 
-def solve(hm: HybridModel, t, y):
-    """``(omega0_dot, gamma_ddot_L, modal accelerations)`` of Eq. (118)/(121)."""
+def solve(hm: HybridModel, t, parts):
+    """``(omega0_dot, gamma_ddot_L, modal accelerations)`` of Eq. (118)/(121) at the state whose
+    parts (``hm.unpack(y)``) are given."""
     nx = 3 + len(hm.large)
+    dtype = parts[1].dtype
     if hm.modal_inverse is None:
-        mat, rhs = hybrid_equations(hm, t, y)
+        mat, rhs = _equations(hm, t, parts)
         x = jnp.linalg.solve(mat, rhs)
         return x[:3], x[3:nx], x[nx:]
     # constant modal block: a Schur complement on the large unknowns
-    ku = hm.keep_u().astype(y.dtype)
+    ku = hm.keep_u().astype(dtype)
     if hm.pre is not None and substructure_order(hm)[1]:
         # in substructure order (no scatter of the substructures' rows): permute the constant
         # inverse and the spring rows instead, and the modal accelerations back
-        Mxx, Mxw, Mwx, _, rx, rw = pre_blocks(hm, t, y, with_ww=False)
+        Mxx, Mxw, Mwx, _, rx, rw = pre_blocks(hm, t, parts, with_ww=False)
         order, _ = substructure_order(hm)
         pos = np.zeros(hm.u, np.int64)
         pos[order[order < hm.u]] = np.nonzero(order < hm.u)[0]
-        s_in = hm.unpack(y)[4] * hm.keep_m().astype(y.dtype)
-        pad = lambda v: jnp.concatenate([v, jnp.zeros((1,), y.dtype)])
+        s_in = parts[4] * hm.keep_m().astype(dtype)
+        pad = lambda v: jnp.concatenate([v, jnp.zeros((1,), dtype)])
         kp = pad(ku)[order]
         Hinv = jnp.pad(hm.modal_inverse, ((0, 1), (0, 1)))[np.ix_(order, order)]
         rw = (rw + pad(hm.kin_rhs @ s_in)[order]) * kp
         x, acc = _schur_solve(Hinv, Mxx, Mxw * kp[None, :], Mwx * kp[:, None], rx, rw)
         return x[:3], x[3:], acc[pos]
     if hm.pre is not None:
-        mat, rhs = pre_system(hm, t, y)
+        mat, rhs = pre_system(hm, t, parts)
     else:
-        att, w, gL, gdL, s = hm.unpack(y)
-        s_in = s * hm.keep_m().astype(y.dtype)
+        att, w, gL, gdL, s = parts
+        s_in = s * hm.keep_m().astype(dtype)
         Ml, Ms, R = _eq30(hm, t, hm.attitude.to_dcm(att), w, gL, gdL, hm.positions @ s_in, hm.rates @ s_in)
         mat, rhs = _project(hm, Ml, Ms, R, s_in)
     x, acc = _schur_solve(
@@ -152,16 +159,50 @@ def hybrid_rhs(t, y, args: HybridModel):
     ``[omega0_dot, gamma_ddot_L, modal]`` and returns the time derivative of the flat state
     ``[attitude, omega0, gamma_L, gamma_dot_L, s]``. Jittable and vmappable.
     """
-    hm = args
-    att, w, gL, gdL, s = hm.unpack(y)
-    km = hm.keep_m().astype(y.dtype)
+    return _field(args, t, args.unpack(y))
+
+
+def _field(hm: HybridModel, t, parts):
+    """:func:`hybrid_rhs` of the state's parts (``hm.unpack(y)``)."""
+    att, w, gL, gdL, s = parts
+    dtype = w.dtype
+    km = hm.keep_m().astype(dtype)
     s_in = s * km
-    wd, gddL, acc = solve(hm, t, y)
+    wd, gddL, acc = solve(hm, t, parts)
     if hm.form == "real":
         k = hm.n_modes
-        ds = jnp.concatenate([s_in[k:], acc * hm.keep.astype(y.dtype)])
+        ds = jnp.concatenate([s_in[k:], acc * hm.keep.astype(dtype)])
     else:
         ds = acc * km
     dy = jnp.concatenate([hm.attitude.rate(att, w), wd, gdL, gddL, ds])
-    big = jnp.asarray(np.sqrt(np.finfo(np.dtype(y.dtype)).max), y.dtype)
+    big = jnp.asarray(np.sqrt(np.finfo(np.dtype(dtype)).max), dtype)
     return jnp.where(jnp.isfinite(dy), dy, big)
+
+
+@full_precision
+def hybrid_jacobian(t, y, args: HybridModel):
+    """``d hybrid_rhs / d y`` (size x size), for :class:`jaxtree.Radau5` (its `jacobian` option;
+    :func:`jaxtree.simulate_hybrid` passes it by default).
+
+    Two forward-mode passes over the parts of the state: the large variables (attitude,
+    ``omega0``, ``gamma_L``, ``gamma_dot_L``), whose tangents go through the large bodies' frame,
+    and the modal coordinates, whose tangents do not (the frame does not depend on them: with the
+    precomputed terms Eq. 30 is affine in them after the frame). One pass over the flat state
+    would carry every modal column through the frame as well (measured on flex95 with 3 modes per
+    wing: the modal pass is then most of the Jacobian's cost)."""
+    hm = args
+    parts = hm.unpack(y)
+    blocks = []
+    for group in ((0, 1, 2, 3), (4,)):
+        idx = tuple(i for i in group if parts[i].size > 0)
+        if not idx:
+            continue
+
+        def field(*chosen, idx=idx):
+            p = list(parts)
+            for i, v in zip(idx, chosen):
+                p[i] = v
+            return _field(hm, t, tuple(p))
+
+        blocks += jax.jacfwd(field, argnums=tuple(range(len(idx))))(*(parts[i] for i in idx))
+    return jnp.concatenate(blocks, axis=1)

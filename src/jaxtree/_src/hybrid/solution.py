@@ -46,9 +46,10 @@ from ..integration.core import (
     solver_statistics,
     tolerances,
 )
+from ..integration.radau import Radau5
 from ..vehicle.model import State
 from .model import HybridModel
-from .rhs import hybrid_rhs, solve
+from .rhs import hybrid_jacobian, hybrid_rhs, solve
 
 
 class HybridSolution(eqx.Module):
@@ -164,7 +165,7 @@ def _small_unbalanced(hm: HybridModel, t, y):
     part along the retained modes is balanced by their equations (to second order); the rest
     drives the neglected modes (mode-acceleration method)."""
     model = hm.model
-    wd, gddL, acc = solve(hm, t, y)
+    wd, gddL, acc = solve(hm, t, hm.unpack(y))
     _, _, gL, gdL, _ = hm.unpack(y)
     _, _, gddP = hm.large_configuration(t, gL, gdL)
     dtype = y.dtype
@@ -302,6 +303,20 @@ def _solve_hybrid(
 
 
 @eqx.filter_jit
+@eqx.filter_jit
+def _jacobian(t, y, args: HybridModel):
+    """:func:`.rhs.hybrid_jacobian`, jitted so that the solver's several traces share one jaxpr."""
+    return hybrid_jacobian(t, y, args)
+
+
+def _with_jacobian(solver):
+    """`solver`, and for a :class:`jaxtree.Radau5` without a Jacobian of its own the hybrid
+    model's structured one (:func:`.rhs.hybrid_jacobian`)."""
+    if isinstance(solver, Radau5) and solver.jacobian is None:
+        return eqx.tree_at(lambda s: s.jacobian, solver, _jacobian, is_leaf=lambda x: x is None)
+    return solver
+
+
 def _pack_with_residual(hybrid: HybridModel, y0: State):
     # One compiled call: op by op (eagerly) the projection took ~50 ms of dispatches, more than
     # a whole 10 s run of wings in hybrid coordinates.
@@ -397,7 +412,7 @@ def simulate_hybrid(
     check_times("simulate_hybrid", t0, t1, ts)
     t0a, t1a = jnp.asarray(t0, dtype), jnp.asarray(t1, dtype)
     dt0 = 1e-3 * (t1a - t0a) if dt0 is None else jnp.asarray(dt0, dtype)
-    solver = dfx.Dopri8() if solver is None else solver
+    solver = _with_jacobian(dfx.Dopri8() if solver is None else solver)
     traced = is_traced((hybrid, y, t0a, t1a, ts, rtol, atol, dt0, solver, stepsize_controller))
     sol = _solve_hybrid(
         hybrid,
