@@ -317,6 +317,7 @@ def _with_jacobian(solver):
     return solver
 
 
+@eqx.filter_jit
 def _pack_with_residual(hybrid: HybridModel, y0: State):
     # One compiled call: op by op (eagerly) the projection took ~50 ms of dispatches, more than
     # a whole 10 s run of wings in hybrid coordinates.
