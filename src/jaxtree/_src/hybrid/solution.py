@@ -361,7 +361,8 @@ def simulate_hybrid(
     - `y0`: a physical :class:`~jaxtree.State` (default ``hybrid.model.initial``), projected on
       the retained modes by :meth:`HybridModel.pack`, or a flat hybrid state;
     - `saveat`: a number of evenly spaced save times (default 101) or an array of times;
-    - `solver`: default :class:`diffrax.Dopri8`; `stepsize_controller`: default a PID controller
+    - `solver`: default :class:`diffrax.Dopri8` (a :class:`jaxtree.Radau5` without a Jacobian of
+      its own gets :func:`jaxtree.hybrid_jacobian`); `stepsize_controller`: default a PID controller
       with `rtol`, `atol` (as :func:`jaxtree.simulate`: default :func:`jaxtree.default_tolerance`
       of the model's dtype); `dt0`: default ``1e-3 |t1 - t0|``;
     - `progress`: diffrax's progress meter, as in :func:`jaxtree.simulate`;
