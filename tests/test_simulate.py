@@ -63,6 +63,7 @@ FLOAT32_CLOSED = 1e-4
 FLOAT32 = 2e-3
 # runs at rtol = atol = 1e-6 (explicit, Kvaerno5, Radau5) against one at 1e-10: ten times their tolerance
 STIFF_GLOBAL = 1e-5
+FD_JACOBIAN = 1e-7  # central differences (h = 1e-6) against an exact Jacobian, relative to its largest entry
 
 I0 = np.diag([2.0, 3.0, 4.0])
 I1 = np.diag([0.5, 0.6, 0.7])
@@ -623,6 +624,33 @@ def test_implicit_solver_passes_through_on_a_stiff_hinge(scenes):
     st = radau.stats
     assert int(st["jacobians"]) * 3 < int(st["num_accepted_steps"]) and int(st["factorizations"]) > 0, st
     assert int(st["newton_iterations"]) >= int(st["num_accepted_steps"])
+
+
+def test_radau_jacobian_by_parts_equals_jacfwd_and_central_differences(scenes):
+    """The Jacobian simulate gives jaxtree.Radau5 (Problem.jacobian: the configuration, then the
+    rates, in two forward passes) against jax.jacfwd of the vector field over the flat state
+    (round-off) and central differences (h = 1e-6), on Fig. 4 with its prescribed platform at a
+    random state with a torque law on the hinges."""
+    model = scenes["fig4"]
+    law = lambda t, st, params: -2.0 * st.gamma - 0.3 * st.gamma_dot
+    problem = jaxtree.Problem(model, jaxtree.Quaternion(), law, None, None, False, 0)
+    rng = np.random.default_rng(7)
+    y = problem.pack(random_state(model, rng))
+    t = jnp.asarray(0.37)
+    J = np.asarray(eqx.filter_jit(lambda t, y, p: p.jacobian(t, y))(t, y, problem))
+    ref = np.asarray(eqx.filter_jit(lambda t, y, p: jax.jacfwd(lambda z: p.vector_field(t, z))(y))(t, y, problem))
+    assert J.shape == (y.size, y.size) and model.prescribed
+    np.testing.assert_allclose(J, ref, atol=TIGHT * np.abs(ref).max())
+    f = eqx.filter_jit(lambda t, y, p: p.vector_field(t, y))
+    h = 1e-6
+    fd = np.stack(
+        [
+            (np.asarray(f(t, y + h * e, problem)) - np.asarray(f(t, y - h * e, problem))) / (2 * h)
+            for e in np.eye(y.size)
+        ],
+        1,
+    )
+    np.testing.assert_allclose(J, fd, atol=FD_JACOBIAN * np.abs(fd).max())
 
 
 def test_simulate_validates_its_model_once(scenes, monkeypatch):

@@ -27,6 +27,7 @@ import numpy as np
 
 from ..equations.dynamics import rotational_equations
 from ..equations.kinematics import full_precision
+from ..integration.radau import jacobian_by_parts
 from ..vehicle.model import State
 from .model import HybridModel
 from .precomputed import pre_blocks, pre_system, substructure_order
@@ -190,19 +191,4 @@ def hybrid_jacobian(t, y, args: HybridModel):
     precomputed terms Eq. 30 is affine in them after the frame). One pass over the flat state
     would carry every modal column through the frame as well (measured on flex95 with 3 modes per
     wing: the modal pass is then most of the Jacobian's cost)."""
-    hm = args
-    parts = hm.unpack(y)
-    blocks = []
-    for group in ((0, 1, 2, 3), (4,)):
-        idx = tuple(i for i in group if parts[i].size > 0)
-        if not idx:
-            continue
-
-        def field(*chosen, idx=idx):
-            p = list(parts)
-            for i, v in zip(idx, chosen):
-                p[i] = v
-            return _field(hm, t, tuple(p))
-
-        blocks += jax.jacfwd(field, argnums=tuple(range(len(idx))))(*(parts[i] for i in idx))
-    return jnp.concatenate(blocks, axis=1)
+    return jacobian_by_parts(lambda *p: _field(args, t, p), args.unpack(y), ((0, 1, 2, 3), (4,)))

@@ -169,6 +169,30 @@ def _constants():
 C, A, GAMMA, ALPHA, BETA, T, T_INV, E, LAGRANGE = _constants()
 
 
+def jacobian_by_parts(fn, parts, groups) -> Array:
+    """``d fn(*parts) / d [parts]`` as one matrix, its columns in the order of `parts`, by one
+    ``jax.jacfwd`` pass per group of parts (tuples of indices; parts that are None or empty are
+    left out). In a pass the other parts carry no tangent, so what depends on them alone is
+    evaluated once, not once per column: the Jacobians that :func:`jaxtree.simulate` and
+    :func:`jaxtree.simulate_hybrid` give :class:`Radau5` (the configuration, then the rates; the
+    large variables, then the modal coordinates)."""
+    columns = {}
+    for group in groups:
+        idx = tuple(i for i in group if parts[i] is not None and parts[i].size > 0)
+        if not idx:
+            continue
+
+        def field(*chosen, idx=idx):
+            p = list(parts)
+            for i, v in zip(idx, chosen):
+                p[i] = v
+            return fn(*p)
+
+        blocks = jax.jacfwd(field, argnums=tuple(range(len(idx))))(*(parts[i] for i in idx))
+        columns.update(zip(idx, blocks))
+    return jnp.concatenate([columns[i] for i in sorted(columns)], axis=1)
+
+
 def _lagrange_weights(tau: Array) -> Array:
     """Weights of the stage increments Z_1..3 in the collocation polynomial at `tau` (any shape)."""
     powers = jnp.stack([tau**3, tau**2, tau, jnp.ones_like(tau)], axis=-1)

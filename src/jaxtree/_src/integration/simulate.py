@@ -70,7 +70,7 @@ from .core import (
     tolerances,
 )
 from .core import default_tolerance as default_tolerance  # jaxtree.default_tolerance, named in the docs
-from .radau import Radau5
+from .radau import Radau5, jacobian_by_parts
 
 
 def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw):
@@ -239,22 +239,7 @@ class Problem(eqx.Module):
         tangent, so the implicit-function rule of Eq. (1) differentiates only the velocity terms
         (the geometry is computed once, not once per tangent); one pass over all columns would
         push every rate's tangent through the geometry as well. For :class:`jaxtree.Radau5`."""
-        parts = list(self.unpack(y))
-        columns = {}
-        for group in ((0, 2, 5), (1, 3, 4, 6)):
-            idx = tuple(i for i in group if parts[i] is not None and parts[i].size > 0)
-            if not idx:
-                continue
-
-            def field(*chosen, idx=idx):
-                p = list(parts)
-                for i, v in zip(idx, chosen):
-                    p[i] = v
-                return self._field(t, *p)
-
-            blocks = jax.jacfwd(field, argnums=tuple(range(len(idx))))(*(parts[i] for i in idx))
-            columns.update(zip(idx, blocks))
-        return jnp.concatenate([columns[i] for i in sorted(columns)], axis=1)
+        return jacobian_by_parts(lambda *p: self._field(t, *p), self.unpack(y), ((0, 2, 5), (1, 3, 4, 6)))
 
     def pack(self, state: State, z=None, X=None, X_dot=None):
         """Flat state from a :class:`~jaxtree.State` (prescribed entries dropped), controller
