@@ -44,7 +44,7 @@ import numpy as np
 from .._checks import is_traced
 from ..vehicle import _hinges
 from ..vehicle.model import Model, State
-from . import articulated
+from . import articulated, batched
 from ._math import (
     SINGULAR_PIVOT,  # noqa: F401 (SINGULAR_PIVOT is public here)
     spd_inverse,
@@ -423,7 +423,74 @@ def _solve_completed(model, state, t, tau, gdd_p):
     return _solve_plain(model, state, t, tau, gdd_p)
 
 
+# Batches of at least this many members run the batch-first recursion (:mod:`.batched`) when Eq. (1)
+# is vmapped on a CPU; smaller ones vmap the single-member solve. The batch-first program pays a
+# fixed cost per call (~550 kernels on fig4_free, ~1300 on flex95: 57 and 190 us) that a small batch
+# does not amortize (benchmarks/bench_batch.py: fig4_free 9.4 us a member at B = 16 against 6 us
+# vmapped, 3.2 at B = 128).
+BATCH_FIRST_MIN = 64
+
+
 def _solve_plain(model, state, t, tau, gdd_p):
+    """Eq. (1) by the model's method; under ``jax.vmap`` on a CPU, by the batch-first recursion
+    of :mod:`jaxtree._src.equations.batched` (the same accelerations to round-off)."""
+    if jax.default_backend() != "cpu":
+        return _solve_one(model, state, t, tau, gdd_p)
+    dyn, static = eqx.partition((model, state, t, tau, gdd_p), eqx.is_array)
+
+    @jax.custom_batching.custom_vmap
+    def solve(dyn):
+        return _solve_one(*eqx.combine(dyn, static))
+
+    @solve.def_vmap
+    def _rule(axis_size, in_batched, dyn):
+        (flags,) = in_batched
+        if axis_size < BATCH_FIRST_MIN:
+            axes = jax.tree_util.tree_map(lambda b: 0 if b else None, flags)
+            out = jax.vmap(lambda d: _solve_one(*eqx.combine(d, static)), in_axes=(axes,))(dyn)
+        else:
+            out = _solve_members(axis_size, dyn, flags, static)
+        return out, jax.tree_util.tree_map(lambda _: True, out)
+
+    return solve(dyn)
+
+
+def _solve_members(size, dyn, flags, static):
+    """Eq. (1) for a batch (members on axis 0 of the leaves flagged in `flags`) by the batch-first
+    recursion: the hinge laws, torques and loads of each member by ``jax.vmap``, then one
+    recursion over all members with the members as the contiguous axis."""
+    model, state, t, tau, gdd_p = eqx.combine(dyn, static)
+    mflags, sflags = eqx.combine(flags, static)[:2]
+    axes = jax.tree_util.tree_map(lambda b: 0 if b else None, flags)
+    prescribed = _hinges.index(model.prescribed)
+
+    def member(d):
+        m, s, tt, ta, gp = eqx.combine(d, static)
+        torque = hinge_torques(m, s.gamma, s.gamma_dot)
+        if ta is not None:
+            torque = torque + ta
+        gdd = jnp.zeros_like(s.gamma) if gp is None else jnp.zeros_like(s.gamma).at[prescribed].set(gp)
+        loads = None if m.loads is None else m.loads(tt, s)
+        return torque, gdd, loads
+
+    torque, gdd, loads = jax.vmap(member, in_axes=(axes,), axis_size=size)(dyn)
+    if loads is not None:
+        loads = (model.loads.bodies, loads[0], loads[1])
+    pl = batched.plan(model.topology.parents, model.prescribed + model.inert, model.prescribed)
+    keys = ("mass", "inertia", "axis", "hinge_on_parent", "hinge_on_body")
+    on = {k: bool(getattr(mflags, k)) for k in keys}
+    on.update(omega0=bool(sflags.omega0), gamma=bool(sflags.gamma), gamma_dot=bool(sflags.gamma_dot))
+    on.update(tau=True, gdd=True, loads=True)
+    x = batched.inputs(model, pl, state.omega0, state.gamma, state.gamma_dot, torque, gdd, loads, on)
+    w, gdd_rows, hold_rows, _ = batched.solve(pl, x)
+    w = jnp.broadcast_to(jnp.concatenate([jnp.reshape(c, (1, -1)) for c in w], 0), (3, size)).T
+    hinge_row = np.argsort(pl.order - 1)
+    gdd_out = jnp.broadcast_to(gdd_rows, (model.n, size))[hinge_row].T
+    hold = jnp.broadcast_to(hold_rows, (model.n, size))[pl.prescribed_rows].T
+    return Accelerations(w, gdd_out, hold)
+
+
+def _solve_one(model, state, t, tau, gdd_p):
     if articulated.resolve_method(model) == "articulated":
         return _solve_articulated(model, state, t, tau, gdd_p)
     A, rhs = rotational_equations(model, state, t, tau)

@@ -1,0 +1,672 @@
+"""Eq. (1) for a batch of members: an articulated-body recursion with the batch as the last axis.
+
+A single call of Eq. (1) pays XLA:CPU's cost per kernel, which is why :mod:`.dynamics` (one dense
+matrix) and :mod:`.articulated` (blocks of hinges eliminated densely) use few, large kernels. In
+a batch one kernel serves every member and the flops and bytes decide: this module solves the
+same equations by the articulated-body recursion, a few hundred flops per body, with every array
+laid out as ``(components..., bodies of one level, members)`` so that XLA's fused loops run along
+the contiguous members.
+
+**Formulation** (the same as :mod:`.articulated` with one hinge per block). Every spatial
+quantity is taken about O, the mass center of b_0 at this instant, in {b^0} components; the
+velocity of the point of b_0 at O is taken as zero, i.e. velocities are relative to the inertial
+frame that moves with it (a uniform velocity of every body changes no acceleration, so the
+hinge accelerations and ``omega0_dot`` are those of Eq. (1); the translation of the mass center
+separates, Eq. 2). With ``S_k = (g^k, h_k x g^k)`` the motion of hinge k (``h_k`` its hinge
+point from O), ``M_k`` the rigid-body inertia of b_k about O, ``v_k`` its spatial velocity,
+``c_k = v_{N_k} x S_k gamma_dot_k`` the velocity-product acceleration of Def. 41 and
+``p_k = v_k x* (M_k v_k) - f_k`` its bias force (``f_k`` the external force and its moment
+about O):
+
+- outward, level by level: rotations ``C^{0k}``, hinge points, mass centers, velocities, ``c_k``;
+- inward: the articulated inertia ``I^A_k = M_k + sum (children's I^a)`` and bias force
+  ``p^A_k``; for an unknown hinge ``U = I^A S``, ``D = S . U``, ``u = tau - S . p^A``,
+  ``I^a = I^A - U U^T / D``, ``p^a = p^A + I^a c + U u / D``; for a prescribed or inert hinge
+  (locked to its given acceleration) ``I^a = I^A``, ``p^a = p^A + I^A (c + S gamma_ddot)``;
+- b_0: ``I^A_0 a_0 = -p^A_0`` (6 x 6), ``omega0_dot`` the angular part of ``a_0``;
+- outward: ``a_k = a_{N_k} + c_k``, ``gamma_ddot_k = (u - U . a_k) / D``, ``a_k += S gamma_ddot_k``;
+  the holding torque of a prescribed hinge ``S . (I^A a_k + p^A) - tau_k``.
+
+Each level is a few batched operations over its bodies and all members (static gathers between
+neighbouring levels, none where a level continues chains slot for slot); runs of such chained
+levels are one ``lax.scan``, so compile time follows the number of distinct levels, not the depth.
+Symmetric 6 x 6 inertias are kept as their 21 entries, vectors as tuples of component arrays.
+
+**What XLA:CPU needs** (measured, ``benchmarks/FINDINGS.md``): XLA fuses an elementwise producer
+into every consumer and recomputes it there, and drops ``optimization_barrier`` before fusion,
+so the recursion is cut into *stages* whose results are buffers (:func:`_stages`); a
+concatenation of more than 8 operands is not fused, so a stage returns chunks of at most 8
+components (:func:`_stack`). Without the stages flex95 cost 1.1 Mflop a member (the rotations
+recomputed ~120 times), with them ~50 k.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+# ----------------------------------------------------------------------------- component algebra
+# A 3-vector is a tuple of three arrays of one shape (bodies of a level, members); a symmetric
+# 6 x 6 matrix a dict {(i, j): array} over i <= j.
+
+
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _add(a, b):
+    return tuple(x + y for x, y in zip(a, b))
+
+
+def _scale(a, s):
+    return tuple(x * s for x in a)
+
+
+def _mv(R, x):
+    """``R @ x`` for R a 3 x 3 tuple of rows."""
+    return tuple(R[i][0] * x[0] + R[i][1] * x[1] + R[i][2] * x[2] for i in range(3))
+
+
+def _mm(A, B):
+    return tuple(tuple(A[i][0] * B[0][j] + A[i][1] * B[1][j] + A[i][2] * B[2][j] for j in range(3)) for i in range(3))
+
+
+_PAIRS = tuple((i, j) for i in range(6) for j in range(i, 6))
+
+
+def _sym(M, i, j):
+    return M[(i, j)] if i <= j else M[(j, i)]
+
+
+def _sym_apply(M, x):
+    """``M @ x`` for a symmetric 6 x 6 M and a 6-tuple x."""
+    return tuple(sum(_sym(M, i, j) * x[j] for j in range(6)) for i in range(6))
+
+
+def _body_inertia(m, J, c):
+    """The rigid-body inertia about O of a body of mass m, inertia J (symmetric 3 x 3 dict
+    {(i, j)}, {b^0} components, about its mass center) and mass center c from O:
+    ``[[J + m (|c|^2 U - c c^T), m c~], [-m c~, m U]]``."""
+    M = {}
+    cc = _dot(c, c)
+    for i in range(3):
+        for j in range(i, 3):
+            M[(i, j)] = J[(i, j)] + m * ((cc if i == j else 0.0) - c[i] * c[j])
+    mc = _scale(c, m)
+    # m c~ : rows (0, -c3, c2), (c3, 0, -c1), (-c2, c1, 0), in the upper right block
+    zero = jnp.zeros_like(m * c[0])
+    tilde = ((zero, -mc[2], mc[1]), (mc[2], zero, -mc[0]), (-mc[1], mc[0], zero))
+    for i in range(3):
+        for j in range(3):
+            M[(i, 3 + j)] = tilde[i][j]
+    for i in range(3):
+        for j in range(i, 3):
+            M[(3 + i, 3 + j)] = m if i == j else zero
+    return M
+
+
+# ----------------------------------------------------------------------------- static plan
+
+
+class _Level(NamedTuple):
+    bodies: np.ndarray  # bodies of this level, in slot order
+    parent_slot: np.ndarray  # slot of each body's parent in the level before
+    locked: np.ndarray  # bool: prescribed or inert hinge (its acceleration given)
+    chained: bool  # parent_slot == arange and the levels have one width: no gather
+    children: np.ndarray  # (width of the level before, most children): slots, or width (none)
+
+
+class Plan(NamedTuple):
+    levels: tuple[_Level, ...]  # levels 1..depth
+    order: np.ndarray  # the bodies 1..n level by level: order[i] is the body of row i
+    prescribed_rows: np.ndarray  # for each prescribed hinge (model order), its row in `order`
+
+
+@functools.lru_cache(maxsize=64)
+def plan(parents: tuple[int, ...], locked: tuple[int, ...], prescribed: tuple[int, ...]) -> Plan:
+    """Levels of the tree (depth from b_0) with the slots of their bodies, arranged so that a
+    body continues the slot of its parent where it can (chains: no gathers between levels)."""
+    n = len(parents)
+    par = np.asarray((-1,) + tuple(parents))
+    depth = np.zeros(n + 1, np.int64)
+    for k in range(1, n + 1):
+        depth[k] = depth[par[k]] + 1
+    slot = np.zeros(n + 1, np.int64)
+    prev = np.array([0])
+    levels = []
+    for d in range(1, int(depth.max(initial=0)) + 1):
+        bodies = np.flatnonzero(depth == d)
+        # first children (one per parent) in their parent's slot order, then the others
+        first, rest, seen = {}, [], set()
+        for k in bodies:
+            if par[k] not in seen:
+                seen.add(par[k])
+                first[slot[par[k]]] = k
+            else:
+                rest.append(k)
+        ordered = [first[s] for s in sorted(first)] + rest
+        bodies = np.asarray(ordered, np.int64)
+        slot[bodies] = np.arange(len(bodies))
+        pslot = slot[par[bodies]]
+        chained = len(bodies) == len(prev) and bool(np.all(pslot == np.arange(len(bodies))))
+        counts = np.bincount(pslot, minlength=len(prev))
+        children = np.full((len(prev), int(counts.max())), len(bodies), np.int64)
+        fill = np.zeros(len(prev), np.int64)
+        for i, p in enumerate(pslot):
+            children[p, fill[p]] = i
+            fill[p] += 1
+        lock = np.isin(bodies, np.asarray(locked, np.int64))
+        levels.append(_Level(bodies, pslot, lock, chained, children))
+        prev = bodies
+    order = np.concatenate([lv.bodies for lv in levels]) if levels else np.zeros(0, np.int64)
+    row = np.zeros(n + 1, np.int64)
+    row[order] = np.arange(len(order))
+    return Plan(tuple(levels), order, row[np.asarray(prescribed, np.int64)])
+
+
+# ----------------------------------------------------------------------------- the recursion
+
+
+class Inputs(NamedTuple):
+    """Arrays of one batch, rows in plan order (``plan.order`` for the bodies 1..n), members
+    last: `mass` (n+1, B), `inertia` (6 entries i <= j of 3 x 3, each (n+1, B)), `axis`,
+    `hinge_on_parent`, `hinge_on_body` (3, each (n, B)), `omega0` (3 of (1, B)), `gamma`,
+    `gamma_dot`, `tau`, `gdd` (each (n, B); gdd the given accelerations of locked hinges, zero
+    elsewhere), `force`, `torque` (3 of (n+1, B), body frames) or None. B may be 1 for
+    constants."""
+
+    mass: object
+    inertia: object
+    axis: object
+    hinge_on_parent: object
+    hinge_on_body: object
+    omega0: object
+    gamma: object
+    gamma_dot: object
+    tau: object
+    gdd: object
+    force: object
+    torque: object
+
+
+def _stages(key):
+    """``stage(fn, *args)``: ``fn(*args)`` (a pytree of arrays) computed as one unit whose results
+    are buffers.
+
+    XLA:CPU fuses an elementwise producer into each of its consumers and recomputes it there, and
+    removes ``optimization_barrier`` before fusion: written as one expression, a level's rotations
+    were recomputed by each of the dozens of entries that read them (flex95: 1.1 Mflop a member
+    instead of ~60 k). A conditional's operands and results are buffers, so each stage runs as
+    the branch of one whose two branches XLA cannot merge: `key` is a scalar of the inputs; for
+    a NaN key the values are `fn`'s, for any other ``0 * key`` (exactly zero) is added to them.
+    A stage returns few stacked arrays (components leading): one loop each, not one per
+    component."""
+
+    def stage(fn, *args):
+        def finite(*a):
+            return jax.tree_util.tree_map(lambda z: z + jnp.zeros((), z.dtype) * key.astype(z.dtype), fn(*a))
+
+        return jax.lax.cond(jnp.isnan(key), fn, finite, *args)
+
+    return stage
+
+
+# XLA:CPU fuses a concatenation of at most 8 operands into one loop; a stage's stacked results
+# are therefore chunks of at most 8 components (one loop each).
+_CHUNK = 8
+
+
+def _components(a):
+    """The components of a stacked array or of a tuple of chunks (leading axes)."""
+    if isinstance(a, (tuple, list)):
+        return tuple(c for chunk in a for c in _components(chunk))
+    return tuple(a[i] for i in range(a.shape[0]))
+
+
+def _split(a, sizes):
+    """Components of the stacked array (or chunks) `a` in groups of `sizes` (tuples of arrays)."""
+    comps = _components(a)
+    out, i = [], 0
+    for k in sizes:
+        out.append(comps[i : i + k])
+        i += k
+    return out
+
+
+def _stack(*groups):
+    """The components of `groups` stacked along a new leading axis, in chunks of `_CHUNK`."""
+    comps = [c for g in groups for c in g]
+    shape = jnp.broadcast_shapes(*[jnp.shape(z) for z in comps])
+    comps = [jnp.broadcast_to(c, shape) for c in comps]
+    return tuple(jnp.stack(comps[i : i + _CHUNK]) for i in range(0, len(comps), _CHUNK))
+
+
+def _gather_rows(a, lv: _Level, parent_width):
+    """Rows of the parent level's stacked array `a` (k, width, B) for the bodies of level `lv`."""
+    if lv.chained or parent_width == 1 and len(lv.bodies) == 1:
+        return a
+    if isinstance(a, tuple):
+        return tuple(_gather_rows(c, lv, parent_width) for c in a)
+    return a[:, lv.parent_slot]
+
+
+def _sum_children(a, lv: _Level):
+    """Sums over the children of each slot of the level before, of level `lv`'s stacked (k, w, B)."""
+    if lv.chained:
+        return a
+    if isinstance(a, tuple):
+        return tuple(_sum_children(c, lv) for c in a)
+    pad = jnp.concatenate([a, jnp.zeros(a.shape[:1] + (1,) + a.shape[2:], a.dtype)], 1)
+    g = pad[:, lv.children]  # (k, parent width, most children, B)
+    return jnp.sum(g, 2) if g.shape[2] > 1 else g[:, :, 0]
+
+
+def _rotation(co, si, g):
+    """``C^{N_k k}`` (transpose of Eq. 4's ``C^{k N_k}``): ``cos U + sin g~ + (1 - cos) g g^T``."""
+    one_c = 1.0 - co
+    sk = ((None, -g[2], g[1]), (g[2], None, -g[0]), (-g[1], g[0], None))
+    return tuple(tuple(one_c * g[i] * g[j] + (co if i == j else si * sk[i][j]) for j in range(3)) for i in range(3))
+
+
+def _level_kinematics(K_prev, co_si, g, hp, hb, gd, first):
+    """Stage of one level, outward: ``(R (9), c (3), w (3), v (3))`` of its bodies and
+    ``(S (6), c_k (6))``, from its parents' `K_prev` (same layout; for b_0 without R)."""
+    if first:
+        (cp, wp, vp) = _split(K_prev, (3, 3, 3))
+        Rp = None
+    else:
+        R9, cp, wp, vp = _split(K_prev, (9, 3, 3, 3))
+        Rp = (R9[0:3], R9[3:6], R9[6:9])
+    E = _rotation(co_si[0], co_si[1], g)
+    R = E if Rp is None else _mm(Rp, E)
+    gw = g if Rp is None else _mv(Rp, g)
+    h = _add(cp, hp if Rp is None else _mv(Rp, hp))
+    c = tuple(a - b for a, b in zip(h, _mv(R, hb)))
+    sL = _cross(h, gw)
+    sw, sl = _scale(gw, gd), _scale(sL, gd)
+    w, v = _add(wp, sw), _add(vp, sl)
+    cb = _cross(wp, sw) + _add(_cross(wp, sl), _cross(vp, sw))
+    R9 = R[0] + R[1] + R[2]
+    return _stack(R9, c, w, v), _stack(gw + sL, cb)
+
+
+def _rigid_inertia(R9, c, m, Jb):
+    """Stage: the rigid-body inertias about O (21 entries) of a level's bodies."""
+    if R9 is None:
+        J = Jb
+    else:
+        R = (R9[0:3], R9[3:6], R9[6:9])
+        Jfull = tuple(tuple(Jb[(min(i, j), max(i, j))] for j in range(3)) for i in range(3))
+        RJ = _mm(R, Jfull)
+        J = {
+            (i, j): RJ[i][0] * R[j][0] + RJ[i][1] * R[j][1] + RJ[i][2] * R[j][2] for i in range(3) for j in range(i, 3)
+        }
+    M = _body_inertia(m, J, c)
+    return _stack(tuple(M[k] for k in _PAIRS))
+
+
+def _bias(M21, c, w, v, F, T, R9):
+    """Stage: the bias force ``p = v x* (M v) - f`` (6) of a level's bodies, ``f`` the external
+    force F at the mass center c and torque T (body frames, or None) as a wrench about O."""
+    M = dict(zip(_PAIRS, M21))
+    h = _sym_apply(M, w + v)
+    pA = _add(_cross(w, h[:3]), _cross(v, h[3:]))
+    pL = _cross(w, h[3:])
+    if F is not None:
+        if R9 is not None:
+            R = (R9[0:3], R9[3:6], R9[6:9])
+            F, T = _mv(R, F), _mv(R, T)
+        pA = tuple(a - b for a, b in zip(pA, _add(T, _cross(c, F))))
+        pL = tuple(a - b for a, b in zip(pL, F))
+    return _stack(pA, pL)
+
+
+def _articulate(M21, p, carry, S, tau, free):
+    """Stage, inward: ``I^A`` (21), ``p^A`` (6), ``U = I^A S`` (6), ``1/D`` (1) and ``u`` (1) of a
+    level's bodies from their own inertia and bias and their children's sums `carry` (27 or None).
+    `free`: None when every hinge of the level is unknown, else its 0/1 mask (1/D = 0 where locked)."""
+    if carry is None:
+        IA, pA = M21, p
+    else:
+        IA = tuple(M21[i] + carry[i] for i in range(21))
+        pA = tuple(p[i] + carry[21 + i] for i in range(6))
+    M = dict(zip(_PAIRS, IA))
+    U = _sym_apply(M, S)
+    D = sum(S[i] * U[i] for i in range(6))
+    Dinv = 1.0 / D if free is None else free / jnp.where(free > 0, D, 1.0)
+    u = tau - sum(S[i] * pA[i] for i in range(6))
+    return _stack(IA, pA, U, (Dinv, u))
+
+
+def _articulated(IA, pA, U, Dinv, u, S, cb, gdd, free, all_locked):
+    """Stage, inward: what a level's bodies pass to their parents, ``(I^a (21), p^a (6))``."""
+    if all_locked:
+        Ia = IA
+        acc = tuple(cb[i] + S[i] * gdd for i in range(6))
+        pa = _add(pA, _sym_apply(dict(zip(_PAIRS, Ia)), acc))
+        return _stack(Ia, pa)
+    Ia = tuple(IA[k] - U[i] * U[j] * Dinv for k, (i, j) in enumerate(_PAIRS))
+    acc = cb if free is None else tuple(cb[i] + S[i] * gdd * (1.0 - free) for i in range(6))
+    pa = _add(tuple(pA[i] + u * Dinv * U[i] for i in range(6)), _sym_apply(dict(zip(_PAIRS, Ia)), acc))
+    return _stack(Ia, pa)
+
+
+def _accelerate(a_prev, cb, S, U, Dinv, u, gdd, free, all_locked):
+    """Stage, outward: ``a`` (6) and ``gamma_ddot`` (1) of a level's bodies."""
+    a = _add(a_prev, cb)
+    if all_locked:
+        q = gdd + jnp.zeros_like(a[0])
+    else:
+        q = (u - sum(U[i] * a[i] for i in range(6))) * Dinv
+        if free is not None:
+            q = q + gdd * (1.0 - free)
+    return _stack(tuple(a[i] + S[i] * q for i in range(6)), (q,))
+
+
+def _hold(a, IA, pA, S, tau):
+    """Stage: the holding torque ``S . (I^A a + p^A) - tau`` of a level's locked hinges."""
+    f = _add(_sym_apply(dict(zip(_PAIRS, IA)), a), pA)
+    return sum(S[i] * f[i] for i in range(6)) - tau
+
+
+def _ldl6(M21):
+    """Stage: the LDL^T factors of the symmetric 6 x 6 matrix (21 entries): L's 15 entries below
+    the diagonal (column by column) and the pivots d (6)."""
+    M = dict(zip(_PAIRS, M21))
+    L, d = {}, []
+    for j in range(6):
+        s = _sym(M, j, j) - sum(L[(j, k)] * L[(j, k)] * d[k] for k in range(j))
+        d.append(s)
+        for i in range(j + 1, 6):
+            L[(i, j)] = (_sym(M, i, j) - sum(L[(i, k)] * L[(j, k)] * d[k] for k in range(j))) / s
+    return _stack(tuple(L[(i, j)] for j in range(6) for i in range(j + 1, 6)), tuple(d))
+
+
+def _ldl6_solve(Ld, b):
+    """Stage: ``M^{-1} b`` from :func:`_ldl6`'s factors."""
+    names = [(i, j) for j in range(6) for i in range(j + 1, 6)]
+    Lc, d = _split(Ld, (15, 6))
+    L = dict(zip(names, Lc))
+    y = []
+    for i in range(6):
+        y.append(b[i] - sum(L[(i, k)] * y[k] for k in range(i)))
+    x = [None] * 6
+    for i in reversed(range(6)):
+        x[i] = y[i] / d[i] - sum(L[(k, i)] * x[k] for k in range(i + 1, 6))
+    return _stack(tuple(x))
+
+
+# A run of at least this many consecutive levels that continue chains slot for slot (same width,
+# same locked hinges) is traversed by one ``lax.scan`` instead of unrolled: compile time then
+# grows with the number of distinct levels, not with the depth (chain200 unrolled: 172 s).
+SCAN_MIN = 4
+
+
+def _units(levels):
+    """The levels (1-based) as units: ``("one", d)``, or ``("run", a, b)`` for levels a..b that
+    each continue the level before slot for slot with the same locked hinges."""
+    units, d, n = [], 1, len(levels)
+    while d <= n:
+        units.append(("one", d))
+        b = d
+        while b + 1 <= n and levels[b].chained and np.array_equal(levels[b].locked, levels[d - 1].locked):
+            b += 1
+        if b - d >= SCAN_MIN:
+            units.append(("run", d + 1, b))
+        else:
+            units.extend(("one", k) for k in range(d + 1, b + 1))
+        d = b + 1
+    return units
+
+
+def solve(pl: Plan, x: Inputs):
+    """``(omega0_dot (3 of (1, B)), gamma_ddot (n, B), hold (n, B), pivots (6 of (1, B)))``: rows of
+    the hinges in plan order; `hold` zero but in the rows of locked hinges; `pivots` those of
+    b_0's articulated inertia (LDL^T)."""
+    levels = pl.levels
+    stage = _stages(jnp.ravel(x.omega0[0])[0])
+    starts = np.cumsum([0] + [len(lv.bodies) for lv in levels])
+    dtype = x.gamma.dtype
+
+    def data(a, b):
+        """The inputs of levels a..b (1-based), with a leading axis of levels when b > a."""
+
+        def rows(arr):  # hinge rows
+            out = arr[starts[a - 1] : starts[b]]
+            return out if a == b else out.reshape((b - a + 1, -1) + out.shape[1:])
+
+        def brows(arr):  # body rows (row 0: b_0)
+            out = arr[1 + starts[a - 1] : 1 + starts[b]]
+            return out if a == b else out.reshape((b - a + 1, -1) + out.shape[1:])
+
+        return dict(
+            g=tuple(rows(c) for c in x.axis),
+            hp=tuple(rows(c) for c in x.hinge_on_parent),
+            hb=tuple(rows(c) for c in x.hinge_on_body),
+            gam=rows(x.gamma),
+            gd=rows(x.gamma_dot),
+            tau=rows(x.tau),
+            gdd=rows(x.gdd),
+            m=brows(x.mass),
+            J={k: brows(c) for k, c in x.inertia.items()},
+            F=None if x.force is None else tuple(brows(c) for c in x.force),
+            T=None if x.torque is None else tuple(brows(c) for c in x.torque),
+        )
+
+    def mask(lv):
+        if not lv.locked.any():
+            return None
+        return jnp.asarray((~lv.locked).astype(np.float64), dtype)[:, None]
+
+    def kinematics(d, K_prev, xd):
+        lv = levels[d - 1]
+        first, par_w = d == 1, 1 if d == 1 else len(levels[d - 2].bodies)
+        co_si = stage(lambda q: jnp.stack([jnp.cos(q), jnp.sin(q)]), xd["gam"])
+        K, Sc = stage(
+            lambda K_prev, cs, g, hp, hb, gd: _level_kinematics(
+                _gather_rows(K_prev, lv, par_w), cs, g, hp, hb, gd, first
+            ),
+            K_prev,
+            co_si,
+            xd["g"],
+            xd["hp"],
+            xd["hb"],
+            xd["gd"],
+        )
+        R9, c, w, v = _split(K, (9, 3, 3, 3))
+        M = stage(_rigid_inertia, R9, c, xd["m"], xd["J"])
+        p = stage(
+            lambda M, c, w, v, F, T, R9: _bias(_components(M), c, w, v, F, T, R9), M, c, w, v, xd["F"], xd["T"], R9
+        )
+        return K, (Sc, M, p)
+
+    def articulate(d, carry, saved, xd):
+        lv = levels[d - 1]
+        Sc, M, p = saved
+        S, cb = _split(Sc, (6, 6))
+        free, all_locked = mask(lv), bool(lv.locked.all())
+        A = stage(
+            lambda M, p, carry, S, tau, free: _articulate(
+                _components(M), _components(p), None if carry is None else _components(carry), S, tau, free
+            ),
+            M,
+            p,
+            carry,
+            S,
+            xd["tau"],
+            free,
+        )
+        out = stage(
+            lambda A, S, cb, gdd, free: _articulated(*_unpack(A), S, cb, gdd, free, all_locked),
+            A,
+            S,
+            cb,
+            xd["gdd"],
+            free,
+        )
+        return _sum_children(out, lv), A
+
+    def accelerate(d, a_prev, saved, A, xd):
+        lv = levels[d - 1]
+        par_w = 1 if d == 1 else len(levels[d - 2].bodies)
+        Sc = saved[0]
+        free, all_locked = mask(lv), bool(lv.locked.all())
+        aq = stage(
+            lambda a_prev, Sc, A, gdd, free: _accelerate_from(a_prev, Sc, A, gdd, free, all_locked, lv, par_w),
+            a_prev,
+            Sc,
+            A,
+            xd["gdd"],
+            free,
+        )
+        a_new, (q,) = _split(aq, (6, 1))
+        if lv.locked.any():
+            hold = stage(
+                lambda a, A, Sc, tau: _hold(a, *_split(A, (21, 6)), _split(Sc, (6,))[0], tau),
+                a_new,
+                A,
+                Sc,
+                xd["tau"],
+            ) * (1.0 - free if free is not None else 1.0)
+        else:
+            hold = jnp.zeros_like(q)
+        return _stack(a_new), (q, hold)
+
+    # --- b_0
+    w0 = tuple(jnp.broadcast_to(a, jnp.broadcast_shapes(*[jnp.shape(z) for z in x.omega0])) for a in x.omega0)
+    zero = jnp.zeros_like(w0[0])
+    z3 = (zero, zero, zero)
+    J0 = {k: v[:1] for k, v in x.inertia.items()}
+    M0 = _split(stage(lambda m, J: _rigid_inertia(None, z3, m, J), x.mass[:1], J0), (21,))[0]
+    F0 = None if x.force is None else tuple(c[:1] for c in x.force)
+    T0 = None if x.torque is None else tuple(c[:1] for c in x.torque)
+    p0 = _split(stage(lambda M, w, F, T: _bias(M, z3, w, z3, F, T, None), M0, w0, F0, T0), (6,))[0]
+
+    units = _units(levels)
+
+    # --- outward: kinematics
+    K = _stack(z3, w0, z3)  # (c, w, v) of b_0
+    saved = {}
+    for u in units:
+        if u[0] == "one":
+            K, saved[u] = kinematics(u[1], K, data(u[1], u[1]))
+        else:
+            K, saved[u] = jax.lax.scan(lambda K, xd, d=u[1]: kinematics(d, K, xd), K, data(u[1], u[2]))
+
+    # --- inward
+    carry = None
+    art = {}
+    for u in reversed(units):
+        if u[0] == "one":
+            carry, art[u] = articulate(u[1], carry, saved[u], data(u[1], u[1]))
+        else:
+            d = u[1]
+            if carry is None:  # the deepest levels: nothing outboard
+                width = len(levels[d - 1].bodies)
+                shape = (width,) + jnp.shape(x.gamma)[1:]
+                carry = _stack(*[(jnp.zeros(shape, dtype),)] * 27)
+            carry, art[u] = jax.lax.scan(
+                lambda c, inp, d=d: articulate(d, c, inp[0], inp[1]), carry, (saved[u], data(u[1], u[2])), reverse=True
+            )
+
+    cs = None if carry is None else _components(carry)
+    IA0 = M0 if cs is None else tuple(M0[i] + cs[i] for i in range(21))
+    pA0 = p0 if cs is None else tuple(p0[i] + cs[21 + i] for i in range(6))
+    Ld = stage(_ldl6, IA0)
+    a0 = stage(lambda Ld, b: _ldl6_solve(Ld, b), Ld, tuple(-a for a in pA0))
+    pivots = _split(Ld, (15, 6))[1]
+
+    # --- outward: accelerations
+    a_prev = a0
+    q_rows, hold_rows = [], []
+    for u in units:
+        if u[0] == "one":
+            a_prev, (q, hold) = accelerate(u[1], a_prev, saved[u], art[u], data(u[1], u[1]))
+        else:
+            d = u[1]
+            a_prev, (q, hold) = jax.lax.scan(
+                lambda a, inp, d=d: accelerate(d, a, inp[0], inp[1], inp[2]),
+                a_prev,
+                (saved[u], art[u], data(u[1], u[2])),
+            )
+            q, hold = (z.reshape((-1,) + z.shape[2:]) for z in (q, hold))
+        q_rows.append(q)
+        hold_rows.append(hold)
+    width = jnp.shape(_components(a0)[0])
+    gdd = jnp.concatenate(q_rows, 0) if q_rows else jnp.zeros((0,) + tuple(width[1:]), dtype)
+    hold = jnp.concatenate(hold_rows, 0) if hold_rows else gdd
+    return _split(a0, (3,))[0], gdd, hold, pivots
+
+
+def _unpack(A):
+    """``(I^A, p^A, U, 1/D, u)`` of :func:`_articulate`'s stacked result."""
+    IA, pA, U, (Dinv, u) = _split(A, (21, 6, 6, 2))
+    return IA, pA, U, Dinv, u
+
+
+def _accelerate_from(a_prev, Sc, A, gdd, free, all_locked, lv, par_w):
+    S, cb = _split(Sc, (6, 6))
+    _, _, U, (Dinv, u) = _split(A, (21, 6, 6, 2))
+    return _accelerate(_components(_gather_rows(a_prev, lv, par_w)), cb, S, U, Dinv, u, gdd, free, all_locked)
+
+
+# ----------------------------------------------------------------------------- from a model
+
+
+def _members_last(a, batched):
+    """`a` with its member axis (0 when `batched`) moved last; a constant gains an axis of 1."""
+    a = jnp.asarray(a)
+    if batched:
+        return jnp.moveaxis(a, 0, -1)
+    return a[..., None]
+
+
+def inputs(model, pl: Plan, omega0, gamma, gamma_dot, tau, gdd, loads, batched):
+    """The kernel's :class:`Inputs` from one member's or a batch's arrays (`batched`: a dict of
+    flags for 'mass', 'inertia', 'axis', 'hinge_on_parent', 'hinge_on_body', 'omega0', 'gamma',
+    'gamma_dot', 'tau', 'gdd', 'loads'; a batched array has the members on axis 0)."""
+    rows = pl.order - 1  # hinge rows in plan order
+    brows = np.concatenate([[0], pl.order])
+    mass = _members_last(model.mass, batched["mass"])[brows]
+    I = _members_last(model.inertia, batched["inertia"])[brows]  # (n+1, 3, 3, B)
+    inertia = {(i, j): I[:, i, j] for i in range(3) for j in range(i, 3)}
+
+    def vec(a, key):  # (n, 3) -> 3 of (n, B) in plan order
+        a = _members_last(a, batched[key])[rows]
+        return (a[:, 0], a[:, 1], a[:, 2])
+
+    w0 = _members_last(omega0, batched["omega0"])
+    force = torque = None
+    if loads is not None:
+        bodies, F, T = loads
+        nb = len(brows)
+        where = np.zeros(model.n + 1, np.int64)
+        where[brows] = np.arange(nb)
+        Fz = _members_last(F, batched["loads"])
+        Tz = _members_last(T, batched["loads"])
+        full = lambda a: jnp.zeros((nb,) + a.shape[1:], a.dtype).at[where[np.asarray(bodies)]].set(a)
+        Fz, Tz = full(Fz), full(Tz)
+        force = (Fz[:, 0], Fz[:, 1], Fz[:, 2])
+        torque = (Tz[:, 0], Tz[:, 1], Tz[:, 2])
+    return Inputs(
+        mass,
+        inertia,
+        vec(model.axis, "axis"),
+        vec(model.hinge_on_parent, "hinge_on_parent"),
+        vec(model.hinge_on_body, "hinge_on_body"),
+        (w0[0:1], w0[1:2], w0[2:3]),
+        _members_last(gamma, batched["gamma"])[rows],
+        _members_last(gamma_dot, batched["gamma_dot"])[rows],
+        _members_last(tau, batched["tau"])[rows],
+        _members_last(gdd, batched["gdd"])[rows],
+        force,
+        torque,
+    )
