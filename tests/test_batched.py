@@ -1,0 +1,189 @@
+"""The batch-first evaluation of Eq. (1) (``jaxtree._src.equations.batched``), which ``jax.vmap``
+of the engine runs on a CPU from ``BATCH_FIRST_MIN`` members on: the same accelerations and
+holding torques as the single-member solves (each held to the Lagrange oracle and the printed
+equations elsewhere) on every bundled scene, on random trees with massless gimbal frames, inert
+hinges, a prescribed hinge, loads and dispersed parameters, in float32, and under derivatives."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxtree
+from jaxtree._src.equations import dynamics
+
+from helpers import random_state, scene_names
+from trees import deep_and_wide, gimbal_model, random_tree
+
+# Both paths solve the same equations in a different order of operations (an articulated-body
+# recursion against a Cholesky factorization or a blocked recursion): round-off amplified by the
+# condition number of Eq. (1)'s matrix (random states put gimbals near lock: up to ~1e8). A
+# difference relative to the largest acceleration within CONDITIONED x cond x eps, and never above
+# ROUNDOFF where the matrix is well conditioned.
+CONDITIONED = 100.0
+ROUNDOFF = 1e-11
+# float32 against float64 on the same members: single precision amplified by the condition
+FLOAT32 = 2e-3
+
+B = dynamics.BATCH_FIRST_MIN
+
+
+def rel(a, b):
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
+
+
+def states(model, seed, size=B, scale=0.5):
+    rng = np.random.default_rng(seed)
+    members = [random_state(model, rng, scale) for _ in range(size)]
+    return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *members)
+
+
+def accelerations(model, state, t=0.3, tau=None):
+    """``jaxtree.solve_accelerations`` of a batch of states (and of models, when `model` has
+    stacked leaves: ``model_axes``), vmapped: the batch-first path."""
+    return jax.vmap(lambda s: jaxtree.solve_accelerations(model, s, t, tau))(state)
+
+
+def one_by_one(model, state, t=0.3, tau=None, members=range(0, B, 9)):
+    f = jax.jit(lambda s: jaxtree.solve_accelerations(model, s, t, tau))
+    return {i: f(jax.tree_util.tree_map(lambda x: x[i], state)) for i in members}
+
+
+def tolerance(model, state):
+    """The round-off bound of a member: CONDITIONED x cond(Eq. 1) x eps, at least ROUNDOFF."""
+    A, _ = dynamics.rotational_equations(model, state)
+    cond = float(dynamics.matrix_condition(model, A)[0])
+    return max(ROUNDOFF, CONDITIONED * cond * float(jnp.finfo(A.dtype).eps))
+
+
+def assert_same(batch, singles, model, state):
+    """`batch` (vmapped) against the single solves `singles` {member: Accelerations} of the
+    members of `state` (a dict {member: State} or a stacked State)."""
+    for i, acc in singles.items():
+        si = state[i] if isinstance(state, dict) else jax.tree_util.tree_map(lambda x: x[i], state)
+        tol = tolerance(model, si)
+        for field in ("omega0_dot", "gamma_ddot", "hold_torque"):
+            got, want = getattr(batch, field)[i], getattr(acc, field)
+            if want.size:
+                assert rel(got, want) < tol, (field, i, rel(got, want), tol)
+
+
+def test_vmap_runs_the_batch_first_recursion(scenes):
+    """From BATCH_FIRST_MIN members on, vmap lands in the batch-first program (its stages are
+    conditionals, ~30 on this scene); a smaller batch vmaps the single-member solve (whose one
+    conditional is the platform switch of a library call)."""
+    model = scenes["wings"]
+
+    def program(size):
+        s = states(model, 0, size)
+        return str(jax.make_jaxpr(lambda s: accelerations(model, s))(s))
+
+    assert program(B).count("cond[") > 10
+    assert program(B - 1).count("cond[") <= 1
+
+
+@pytest.mark.parametrize("name", scene_names())
+def test_every_bundled_scene(scenes, name):
+    model = scenes[name]
+    s = states(model, 1)
+    assert_same(jax.jit(lambda s: accelerations(model, s))(s), one_by_one(model, s), model, s)
+
+
+def test_random_trees_gimbals_inert_prescribed_and_loads():
+    """A deep-and-wide random tree with a massless leaf (an inert hinge), a prescribed hinge and
+    state- and time-dependent loads on a massive body, a massless body and the base; and three
+    orthogonal gimbal hinges through massless frames."""
+    rng = np.random.default_rng(7)
+    parents = deep_and_wide(rng, 24)
+    leaf = max(set(range(1, 25)) - set(parents))
+    model = random_tree(rng, parents, gimbals=(leaf,))
+    assert leaf in model.inert
+
+    def push(t, s):
+        return jnp.array([jnp.sin(t), s.gamma[2], 1.0]), jnp.array([0.1, -s.omega0[0], jnp.cos(2 * t)])
+
+    model = model.with_loads(jaxtree.PerBodyLoads({0: push, 5: push, leaf: push}))
+    model = eqx.tree_at(
+        lambda m: m.prescription,
+        model,
+        jaxtree.SinePrescription((3,), jnp.array([0.4]), jnp.array([1.3]), jnp.array([0.2])),
+        is_leaf=lambda x: x is None,
+    )
+    s = states(model, 2)
+    tau = jnp.linspace(-1.0, 1.0, model.n)
+    batch = jax.jit(lambda s: accelerations(model, s, 0.8, tau))(s)
+    assert_same(batch, one_by_one(model, s, 0.8, tau), model, s)
+    assert np.all(np.asarray(batch.gamma_ddot)[:, leaf - 1] == 0.0)  # inert: no acceleration
+
+    gimbals = gimbal_model(np.random.default_rng(8))
+    s = states(gimbals, 3)
+    assert_same(jax.jit(lambda s: accelerations(gimbals, s))(s), one_by_one(gimbals, s), gimbals, s)
+
+
+def test_dispersed_parameters_and_times(scenes):
+    """Every member its own masses, inertias, hinge geometry, stiffness and time (the model's
+    leaves batched, as in a Monte Carlo campaign)."""
+    model = scenes["fig4_free"]
+    rng = np.random.default_rng(11)
+    where = lambda m: (m.mass, m.inertia, m.hinge_on_parent, m.hinge_on_body, m.stiffness)
+    spread = lambda shape: 1 + 0.1 * rng.uniform(-1, 1, size=shape)
+    mass, inertia, hop, hob, stiffness = (np.asarray(a) for a in where(model))
+    dispersed = tuple(
+        jnp.asarray(a)
+        for a in (
+            mass * spread((B, 1)),
+            inertia * spread((B, 1, 1, 1)),  # one factor per member: the inertias stay symmetric
+            hop * spread((B,) + hop.shape),
+            hob * spread((B,) + hob.shape),
+            stiffness * spread((B,) + stiffness.shape),
+        )
+    )
+    models = eqx.tree_at(where, model, dispersed)
+    axes = eqx.tree_at(where, jax.tree_util.tree_map(lambda _: None, model), (0,) * 5, is_leaf=lambda x: x is None)
+    s = states(model, 4)
+    t = jnp.linspace(0.0, 5.0, B)
+    f = jax.jit(jax.vmap(lambda m, s, t: jaxtree.solve_accelerations(m, s, t), in_axes=(axes, 0, 0)))
+    batch = f(models, s, t)
+    for i in range(0, B, 13):
+        mi = eqx.tree_at(where, model, tuple(a[i] for a in dispersed))
+        si = jax.tree_util.tree_map(lambda x: x[i], s)
+        assert_same(batch, {i: jaxtree.solve_accelerations(mi, si, t[i])}, mi, {i: si})
+
+
+def test_float32(scenes):
+    model = scenes["wings"]
+    s = states(model, 5)
+    want = jax.jit(lambda s: accelerations(model, s))(s)
+    m32 = model.astype(jnp.float32)
+    s32 = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32), s)
+    got = jax.jit(lambda s: accelerations(m32, s))(s32)
+    assert got.gamma_ddot.dtype == jnp.float32
+    for field in ("omega0_dot", "gamma_ddot"):
+        assert rel(getattr(got, field), getattr(want, field)) < FLOAT32
+
+
+def test_derivatives_of_the_vmapped_function(scenes):
+    """jvp, grad and jacfwd of the vmapped accelerations equal the per-member ones."""
+    model = scenes["fig4_free"]
+    s = states(model, 6)
+    s = s._replace(gamma=0.2 * s.gamma)  # away from gimbal lock: a moderate condition number
+    f = lambda g, gd: jaxtree.forward_dynamics(model, s.dcm[0], s.omega0[0], g, gd)[1]
+    tangent = jnp.ones_like(s.gamma)
+    primal, jvp = jax.jit(jax.vmap(lambda g, gd, v: jax.jvp(lambda g: f(g, gd), (g,), (v,))))(
+        s.gamma, s.gamma_dot, tangent
+    )
+    batched_primal = jax.jit(jax.vmap(f))(s.gamma, s.gamma_dot)
+    grads = jax.jit(jax.vmap(jax.grad(lambda g, gd: jnp.sum(f(g, gd) ** 2))))(s.gamma, s.gamma_dot)
+    jac = jax.jit(jax.vmap(jax.jacfwd(f)))(s.gamma, s.gamma_dot)
+    for i in range(0, B, 21):
+        si = jaxtree.State(s.dcm[0], s.omega0[0], s.gamma[i], s.gamma_dot[i])
+        tol = tolerance(model, si)
+        p1, j1 = jax.jvp(lambda g: f(g, s.gamma_dot[i]), (s.gamma[i],), (tangent[i],))
+        assert rel(primal[i], p1) < tol and rel(batched_primal[i], p1) < tol
+        # the derivatives run the same implicit-function rule per member: the same arithmetic
+        assert rel(jvp[i], j1) < ROUNDOFF
+        g1 = jax.grad(lambda g: jnp.sum(f(g, s.gamma_dot[i]) ** 2))(s.gamma[i])
+        assert rel(grads[i], g1) < ROUNDOFF
+        assert rel(jac[i], jax.jacfwd(f)(s.gamma[i], s.gamma_dot[i])) < ROUNDOFF
