@@ -437,22 +437,34 @@ def _solve_plain(model, state, t, tau, gdd_p):
     if jax.default_backend() != "cpu":
         return _solve_one(model, state, t, tau, gdd_p)
     dyn, static = eqx.partition((model, state, t, tau, gdd_p), eqx.is_array)
+    # custom_vmap sees a flat list of arrays: its JVP compares pytree structures in which None
+    # leaves (eqx.partition's placeholders) would not match
+    leaves, tree = jax.tree_util.tree_flatten(dyn)
+    args = lambda leaves: eqx.combine(jax.tree_util.tree_unflatten(tree, leaves), static)
 
     @jax.custom_batching.custom_vmap
-    def solve(dyn):
-        return _solve_one(*eqx.combine(dyn, static))
+    def solve(leaves):
+        return _solve_one(*args(leaves))
 
     @solve.def_vmap
-    def _rule(axis_size, in_batched, dyn):
+    def _rule(axis_size, in_batched, leaves):
         (flags,) = in_batched
+        if not any(flags):  # nothing batched (e.g. only tangents, in a JVP): one solve
+            out = _solve_one(*args(leaves))
+            return out, jax.tree_util.tree_map(lambda _: False, out)
         if axis_size < BATCH_FIRST_MIN:
-            axes = jax.tree_util.tree_map(lambda b: 0 if b else None, flags)
-            out = jax.vmap(lambda d: _solve_one(*eqx.combine(d, static)), in_axes=(axes,))(dyn)
+            axes = ([0 if b else None for b in flags],)
+            out = jax.vmap(lambda xs: _solve_one(*args(xs)), in_axes=axes, axis_size=axis_size)(leaves)
         else:
-            out = _solve_members(axis_size, dyn, flags, static)
+            out = _solve_members(
+                axis_size,
+                jax.tree_util.tree_unflatten(tree, leaves),
+                jax.tree_util.tree_unflatten(tree, flags),
+                static,
+            )
         return out, jax.tree_util.tree_map(lambda _: True, out)
 
-    return solve(dyn)
+    return solve(leaves)
 
 
 def _solve_members(size, dyn, flags, static):

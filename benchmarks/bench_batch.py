@@ -1,0 +1,204 @@
+"""The batch: Eq. (1) vmapped over B members, time per member, against the same batch vmapped
+through the single-member solve and MuJoCo's threaded rollout, in one run.
+
+For each case it prints the time per member of
+
+- ``batch-first``: ``jax.vmap`` of :func:`jaxtree.forward_dynamics` as the engine runs it (from
+  ``BATCH_FIRST_MIN`` members on, the batch-first recursion of
+  ``jaxtree._src.equations.batched``);
+- ``vmap single``: the same call with the batch-first path switched off (``BATCH_FIRST_MIN`` set
+  above B), i.e. the single-member solve (dense or blocked articulated) batched by ``vmap``;
+- ``MuJoCo rollout``: ``mujoco.rollout`` with one thread per core, RK4, time per member and per
+  right side (a step is four), where the scene is representable (massless bodies get a tiny mass);
+
+with compile time apart, XLA's flop count per member (of the batch-first program with every level
+unrolled: a ``lax.scan`` body is counted once) and the GFLOP/s it reaches. Timings: the batch
+evaluated in a jitted ``fori_loop`` of `--loop` calls (arguments shifted by the loop index, so
+nothing is hoisted), minimum of `--repeats`. The flex95 hybrid right side (3 modes per wing) is
+vmapped as it is today (no batch-first form yet).
+
+Goals (issue: the batch pays), per member, float64, this 2-core machine: fig4_free <= 1.0 us at
+B = 1024; flex95 full Eq. (1) <= 5 us at B = 256; flex95 hybrid right side <= 3 us at B = 256;
+a 60-body random tree <= 4 us at B = 256.
+
+Run:  python benchmarks/bench_batch.py [--cases fig4_free flex95 random60 hybrid] [--json PATH]
+"""
+
+import argparse
+import os
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxtree
+from jaxtree._src.equations import batched, dynamics
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+sys.path.insert(0, os.path.join(HERE, "..", "tests"))
+from _common import machine, write_json
+from trees import deep_and_wide, random_tree
+
+CASES = {"fig4_free": 1024, "flex95": 256, "random60": 256, "hybrid": 256}
+
+
+def _args():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
+    p.add_argument("--sizes", nargs="+", type=int, default=None, help="batch sizes (default: each case's goal size)")
+    p.add_argument("--loop", type=int, default=8, help="batched calls per timed loop")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--mujoco-steps", type=int, default=200)
+    p.add_argument("--json", default=os.path.join(HERE, "results", "bench_batch.json"))
+    return p.parse_args()
+
+
+def say(*a):
+    print(*a, flush=True)
+
+
+def model_of(name):
+    if name == "random60":
+        rng = np.random.default_rng(60)
+        return random_tree(rng, deep_and_wide(rng, 59))
+    return jaxtree.load_scene("flex95" if name == "hybrid" else name)
+
+
+def batch_states(model, size, seed=0):
+    rng = np.random.default_rng(seed)
+    w = jnp.asarray(0.2 * rng.normal(size=(size, 3)))
+    g = jnp.asarray(0.3 * rng.normal(size=(size, model.n)))
+    gd = jnp.asarray(0.3 * rng.normal(size=(size, model.n)))
+    return w, g, gd
+
+
+def loop_timing(fn, args, loop, repeats):
+    """(seconds per batched call, compile seconds, flops of one call) of `fn(*args)`."""
+
+    @jax.jit
+    def run(*args):
+        def body(i, acc):
+            shifted = [a + 1e-12 * i for a in args]
+            out = fn(*shifted)
+            return acc + sum(jnp.sum(o) for o in jax.tree_util.tree_leaves(out))
+
+        return jax.lax.fori_loop(0, loop, body, 0.0)
+
+    t0 = time.perf_counter()
+    compiled = run.lower(*args).compile()
+    jax.block_until_ready(compiled(*args))
+    first = time.perf_counter() - t0
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        best = min(best, time.perf_counter() - t0)
+    return best / loop, first
+
+
+def flops(fn, args):
+    """XLA's flop count of one call of `fn(*args)` with every level of the recursion unrolled."""
+    saved = batched.SCAN_MIN
+    batched.SCAN_MIN = 10**9
+    try:
+        cost = jax.jit(fn).lower(*args).compile().cost_analysis()
+    finally:
+        batched.SCAN_MIN = saved
+    cost = cost[0] if isinstance(cost, list) else cost
+    return float(cost.get("flops", np.nan))
+
+
+def eq1(model):
+    dcm = model.initial.dcm
+    return jax.vmap(lambda w, g, gd: jaxtree.forward_dynamics(model, dcm, w, g, gd))
+
+
+def mujoco_rollout(model, size, steps):
+    """Seconds per member and right side of ``mujoco.rollout`` (RK4, one thread per core), or None."""
+    try:
+        import mujoco  # pyright: ignore[reportMissingImports]
+        from mujoco import rollout  # pyright: ignore[reportMissingImports]
+
+        from jaxtree.bench.peers import mjcf
+    except ImportError:
+        return None
+    xml, _ = mjcf(model, timestep=1e-3, integrator="RK4", springs=True)
+    m = mujoco.MjModel.from_xml_string(xml)
+    threads = os.cpu_count() or 1
+    datas = [mujoco.MjData(m) for _ in range(threads)]
+    d = datas[0]
+    mujoco.mj_resetData(m, d)
+    d.qpos[3] = 1.0
+    state = np.zeros(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+    mujoco.mj_getState(m, d, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    initial = np.tile(state, (size, 1))
+    rng = np.random.default_rng(0)
+    initial[:, 1 + m.nq : 1 + m.nq + m.nv] = 0.1 * rng.normal(size=(size, m.nv))
+    rollout.rollout(m, datas, initial, nstep=2)
+    best = np.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        rollout.rollout(m, datas, initial, nstep=steps)
+        best = min(best, time.perf_counter() - t0)
+    return best / (size * steps * 4)
+
+
+def hybrid_case(model, size, args):
+    pulse = lambda t: jaxtree._src.equations.loads.thruster_pulse(t, 1.0, 2.0, rise=0.1)
+    model = model.with_loads(jaxtree.BodyTorque(0, np.array([15.0, 9.0, 0.0]), pulse))
+    small = tuple(k for k in range(1, model.n + 1) if model.names[k].startswith("wing"))
+    hm = jaxtree.hybrid_model(model, small, 3)
+    y = hm.pack(hm.model.initial)
+    ys = jnp.asarray(y)[None, :] + 1e-3 * jnp.asarray(np.random.default_rng(1).normal(size=(size, y.size)))
+    fn = jax.vmap(lambda y: jaxtree.hybrid_rhs(0.0, y, hm))
+    per, first = loop_timing(fn, (ys,), args.loop, args.repeats)
+    return [("hybrid rhs, vmapped", per / size, first, flops(fn, (ys,)) / size)]
+
+
+def case(name, size, args):
+    model = model_of(name)
+    if name == "hybrid":
+        rows = hybrid_case(model, size, args)
+    else:
+        xs = batch_states(model, size)
+        fn = eq1(model)
+        per, first = loop_timing(fn, xs, args.loop, args.repeats)
+        rows = [("batch-first", per / size, first, flops(fn, xs) / size)]
+        saved = dynamics.BATCH_FIRST_MIN
+        dynamics.BATCH_FIRST_MIN = 10**9
+        try:
+            per, first = loop_timing(eq1(model), xs, args.loop, args.repeats)
+            rows.append(("vmap single", per / size, first, flops(eq1(model), xs) / size))
+        finally:
+            dynamics.BATCH_FIRST_MIN = saved
+        mj = mujoco_rollout(model, size, args.mujoco_steps)
+        if mj is not None:
+            rows.append(("MuJoCo rollout RK4", mj, np.nan, np.nan))
+    out = []
+    for label, t, first, fl in rows:
+        gf = fl / t / 1e9 if np.isfinite(fl) else np.nan
+        say(
+            f"{name:10s} B={size:5d} {label:22s} {t * 1e6:9.2f} us/member  compile {first:6.1f} s  "
+            f"{fl / 1e3:8.1f} kflop/member  {gf:5.1f} GFLOP/s"
+        )
+        out.append(dict(case=name, size=size, method=label, us=t * 1e6, compile_s=first, kflop=fl / 1e3, gflops=gf))
+    return out
+
+
+def main():
+    args = _args()
+    say(machine())
+    say(f"jax {jax.__version__}, float64, batch-first from {dynamics.BATCH_FIRST_MIN} members")
+    results = []
+    for name in args.cases:
+        for size in args.sizes or [CASES[name]]:
+            results.extend(case(name, size, args))
+    if args.json:
+        write_json(args.json, dict(machine=machine(), rows=results))
+
+
+if __name__ == "__main__":
+    main()
