@@ -187,3 +187,22 @@ def test_derivatives_of_the_vmapped_function(scenes):
         g1 = jax.grad(lambda g: jnp.sum(f(g, s.gamma_dot[i]) ** 2))(s.gamma[i])
         assert rel(grads[i], g1) < ROUNDOFF
         assert rel(jac[i], jax.jacfwd(f)(s.gamma[i], s.gamma_dot[i])) < ROUNDOFF
+
+
+def test_a_member_in_gimbal_lock_is_nan_and_its_batch_mates_are_not(scenes):
+    """Hinge 3 of fig4_free at 90 deg aligns the rotor's axis with the outer gimbal's: Eq. (1) is
+    singular there. The batch gives that member NaN (as the dense solve does) and the others
+    their accelerations."""
+    model = scenes["fig4_free"]
+    s = model.initial
+    lock = np.arange(B) % 3 == 0
+    gamma = jnp.tile(s.gamma, (B, 1)).at[lock, 2].set(jnp.pi / 2)
+    rates = jnp.tile(s.gamma_dot, (B, 1)) + 0.01 * jnp.arange(B)[:, None] / B
+    f = lambda g, gd: jaxtree.forward_dynamics(model, s.dcm, s.omega0, g, gd)[1]
+    batch = np.asarray(jax.jit(jax.vmap(f))(gamma, rates))
+    single = jax.jit(f)
+    assert np.all(np.isnan(batch[lock])) and np.all(np.isnan(np.asarray(single(gamma[0], rates[0]))))
+    assert np.all(np.isfinite(batch[~lock]))
+    for i in np.flatnonzero(~lock)[::7]:
+        member = jaxtree.State(s.dcm, s.omega0, gamma[i], rates[i])
+        assert rel(batch[i], single(gamma[i], rates[i])) < tolerance(model, member)

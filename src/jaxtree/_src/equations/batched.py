@@ -49,6 +49,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._math import SINGULAR_PIVOT
+
 # ----------------------------------------------------------------------------- component algebra
 # A 3-vector is a tuple of three arrays of one shape (bodies of a level, members); a symmetric
 # 6 x 6 matrix a dict {(i, j): array} over i <= j.
@@ -341,7 +343,13 @@ def _articulate(M21, p, carry, S, tau, free):
     M = dict(zip(_PAIRS, IA))
     U = _sym_apply(M, S)
     D = sum(S[i] * U[i] for i in range(6))
-    Dinv = 1.0 / D if free is None else free / jnp.where(free > 0, D, 1.0)
+    # the pivot D against the scale of I^A along S (its diagonal): at round-off level the hinge
+    # is singular (gimbal lock) and the member's accelerations are NaN, as the dense solve's
+    scale = sum(S[i] * S[i] * M[(i, i)] for i in range(6))
+    tol = SINGULAR_PIVOT * float(np.sqrt(6.0)) * float(jnp.finfo(D.dtype).eps)
+    Dinv = jnp.where(D > tol * scale, 1.0 / D, jnp.nan)
+    if free is not None:
+        Dinv = jnp.where(free > 0, Dinv, 0.0)
     u = tau - sum(S[i] * pA[i] for i in range(6))
     return _stack(IA, pA, U, (Dinv, u))
 
@@ -357,6 +365,33 @@ def _articulated(IA, pA, U, Dinv, u, S, cb, gdd, free, all_locked):
     acc = cb if free is None else tuple(cb[i] + S[i] * gdd * (1.0 - free) for i in range(6))
     pa = _add(tuple(pA[i] + u * Dinv * U[i] for i in range(6)), _sym_apply(dict(zip(_PAIRS, Ia)), acc))
     return _stack(Ia, pa)
+
+
+ARRAY_FORM = False
+_PI = np.array([i for i, _ in _PAIRS])
+_PJ = np.array([j for _, j in _PAIRS])
+_SYM = np.array([[_PAIRS.index((min(i, j), max(i, j))) for j in range(6)] for i in range(6)])
+
+
+def _articulated_arrays(A, S, cb, gdd, free, all_locked):
+    """:func:`_articulated` written over whole arrays with the components as the leading axis
+    (static gathers along it) instead of one expression per component."""
+    A = jnp.concatenate(A, 0) if isinstance(A, tuple) else A
+    IA, pA, U, Dinv, u = A[:21], A[21:27], A[27:33], A[33], A[34]
+    S = jnp.stack(S)
+    acc = jnp.stack(cb)
+    if all_locked:
+        Ia = IA
+        acc = acc + S * gdd
+    else:
+        Ia = IA - U[_PI] * U[_PJ] * Dinv
+        if free is not None:
+            acc = acc + S * (gdd * (1.0 - free))
+    full = Ia[_SYM]  # (6, 6, W, B)
+    pa = pA + jnp.sum(full * acc[None], 1)
+    if not all_locked:
+        pa = pa + U * (u * Dinv)
+    return jnp.concatenate([Ia, pa], 0)
 
 
 def _accelerate(a_prev, cb, S, U, Dinv, u, gdd, free, all_locked):
@@ -390,7 +425,7 @@ def _ldl6(M21):
     return _stack(tuple(L[(i, j)] for j in range(6) for i in range(j + 1, 6)), tuple(d))
 
 
-def _ldl6_solve(Ld, b):
+def _ldl6_solve(Ld, b, diag):
     """Stage: ``M^{-1} b`` from :func:`_ldl6`'s factors."""
     names = [(i, j) for j in range(6) for i in range(j + 1, 6)]
     Lc, d = _split(Ld, (15, 6))
@@ -401,7 +436,9 @@ def _ldl6_solve(Ld, b):
     x = [None] * 6
     for i in reversed(range(6)):
         x[i] = y[i] / d[i] - sum(L[(k, i)] * x[k] for k in range(i + 1, 6))
-    return _stack(tuple(x))
+    tol = SINGULAR_PIVOT * float(np.sqrt(6.0)) * float(jnp.finfo(d[0].dtype).eps)
+    ok = functools.reduce(jnp.logical_and, [d[i] > tol * diag[i] for i in range(6)])
+    return _stack(tuple(jnp.where(ok, xi, jnp.nan) for xi in x))
 
 
 # A run of at least this many consecutive levels that continue chains slot for slot (same width,
@@ -505,7 +542,9 @@ def solve(pl: Plan, x: Inputs):
             free,
         )
         out = stage(
-            lambda A, S, cb, gdd, free: _articulated(*_unpack(A), S, cb, gdd, free, all_locked),
+            (lambda A, S, cb, gdd, free: _articulated_arrays(A, S, cb, gdd, free, all_locked))
+            if ARRAY_FORM
+            else (lambda A, S, cb, gdd, free: _articulated(*_unpack(A), S, cb, gdd, free, all_locked)),
             A,
             S,
             cb,
@@ -572,7 +611,8 @@ def solve(pl: Plan, x: Inputs):
             if carry is None:  # the deepest levels: nothing outboard
                 width = len(levels[d - 1].bodies)
                 shape = (width,) + jnp.shape(x.gamma)[1:]
-                carry = _stack(*[(jnp.zeros(shape, dtype),)] * 27)
+                zeros = jnp.zeros((27,) + shape, dtype)
+                carry = zeros if ARRAY_FORM else _stack(tuple(zeros))
             carry, art[u] = jax.lax.scan(
                 lambda c, inp, d=d: articulate(d, c, inp[0], inp[1]), carry, (saved[u], data(u[1], u[2])), reverse=True
             )
@@ -581,7 +621,8 @@ def solve(pl: Plan, x: Inputs):
     IA0 = M0 if cs is None else tuple(M0[i] + cs[i] for i in range(21))
     pA0 = p0 if cs is None else tuple(p0[i] + cs[21 + i] for i in range(6))
     Ld = stage(_ldl6, IA0)
-    a0 = stage(lambda Ld, b: _ldl6_solve(Ld, b), Ld, tuple(-a for a in pA0))
+    diag0 = tuple(IA0[_PAIRS.index((i, i))] for i in range(6))
+    a0 = stage(_ldl6_solve, Ld, tuple(-a for a in pA0), diag0)
     pivots = _split(Ld, (15, 6))[1]
 
     # --- outward: accelerations
