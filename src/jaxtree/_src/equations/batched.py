@@ -43,7 +43,7 @@ recomputed ~120 times), with them ~50 k.
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -185,18 +185,18 @@ class Inputs(NamedTuple):
     elsewhere), `force`, `torque` (3 of (n+1, B), body frames) or None. B may be 1 for
     constants."""
 
-    mass: object
-    inertia: object
-    axis: object
-    hinge_on_parent: object
-    hinge_on_body: object
-    omega0: object
-    gamma: object
-    gamma_dot: object
-    tau: object
-    gdd: object
-    force: object
-    torque: object
+    mass: Any
+    inertia: Any
+    axis: Any
+    hinge_on_parent: Any
+    hinge_on_body: Any
+    omega0: Any
+    gamma: Any
+    gamma_dot: Any
+    tau: Any
+    gdd: Any
+    force: Any
+    torque: Any
 
 
 def _stages(key):
@@ -346,7 +346,7 @@ def _articulate(M21, p, carry, S, tau, free):
     # the pivot D against the scale of I^A along S (its diagonal): at round-off level the hinge
     # is singular (gimbal lock) and the member's accelerations are NaN, as the dense solve's
     scale = sum(S[i] * S[i] * M[(i, i)] for i in range(6))
-    tol = SINGULAR_PIVOT * float(np.sqrt(6.0)) * float(jnp.finfo(D.dtype).eps)
+    tol = SINGULAR_PIVOT * float(np.sqrt(6.0)) * float(jnp.finfo(jnp.result_type(D)).eps)
     Dinv = jnp.where(D > tol * scale, 1.0 / D, jnp.nan)
     if free is not None:
         Dinv = jnp.where(free > 0, Dinv, 0.0)
@@ -367,33 +367,6 @@ def _articulated(IA, pA, U, Dinv, u, S, cb, gdd, free, all_locked):
     return _stack(Ia, pa)
 
 
-ARRAY_FORM = False
-_PI = np.array([i for i, _ in _PAIRS])
-_PJ = np.array([j for _, j in _PAIRS])
-_SYM = np.array([[_PAIRS.index((min(i, j), max(i, j))) for j in range(6)] for i in range(6)])
-
-
-def _articulated_arrays(A, S, cb, gdd, free, all_locked):
-    """:func:`_articulated` written over whole arrays with the components as the leading axis
-    (static gathers along it) instead of one expression per component."""
-    A = jnp.concatenate(A, 0) if isinstance(A, tuple) else A
-    IA, pA, U, Dinv, u = A[:21], A[21:27], A[27:33], A[33], A[34]
-    S = jnp.stack(S)
-    acc = jnp.stack(cb)
-    if all_locked:
-        Ia = IA
-        acc = acc + S * gdd
-    else:
-        Ia = IA - U[_PI] * U[_PJ] * Dinv
-        if free is not None:
-            acc = acc + S * (gdd * (1.0 - free))
-    full = Ia[_SYM]  # (6, 6, W, B)
-    pa = pA + jnp.sum(full * acc[None], 1)
-    if not all_locked:
-        pa = pa + U * (u * Dinv)
-    return jnp.concatenate([Ia, pa], 0)
-
-
 def _accelerate(a_prev, cb, S, U, Dinv, u, gdd, free, all_locked):
     """Stage, outward: ``a`` (6) and ``gamma_ddot`` (1) of a level's bodies."""
     a = _add(a_prev, cb)
@@ -410,6 +383,13 @@ def _hold(a, IA, pA, S, tau):
     """Stage: the holding torque ``S . (I^A a + p^A) - tau`` of a level's locked hinges."""
     f = _add(_sym_apply(dict(zip(_PAIRS, IA)), a), pA)
     return sum(S[i] * f[i] for i in range(6)) - tau
+
+
+def _hold_from(a, A, Sc, tau):
+    """:func:`_hold` from the stacked results of :func:`_articulate` and the kinematics stage."""
+    IA, pA = _split(A, (21, 6))
+    (S,) = _split(Sc, (6,))
+    return _hold(a, IA, pA, S, tau)
 
 
 def _ldl6(M21):
@@ -433,7 +413,7 @@ def _ldl6_solve(Ld, b, diag):
     y = []
     for i in range(6):
         y.append(b[i] - sum(L[(i, k)] * y[k] for k in range(i)))
-    x = [None] * 6
+    x: list[Any] = [None] * 6
     for i in reversed(range(6)):
         x[i] = y[i] / d[i] - sum(L[(k, i)] * x[k] for k in range(i + 1, 6))
     tol = SINGULAR_PIVOT * float(np.sqrt(6.0)) * float(jnp.finfo(d[0].dtype).eps)
@@ -441,10 +421,12 @@ def _ldl6_solve(Ld, b, diag):
     return _stack(tuple(jnp.where(ok, xi, jnp.nan) for xi in x))
 
 
-# A run of at least this many consecutive levels that continue chains slot for slot (same width,
+# A run of more than this many consecutive levels that continue chains slot for slot (same width,
 # same locked hinges) is traversed by one ``lax.scan`` instead of unrolled: compile time then
-# grows with the number of distinct levels, not with the depth (chain200 unrolled: 172 s).
-SCAN_MIN = 4
+# follows the number of distinct levels, not the depth (chain200 unrolled: 172 s to compile, 5 s
+# scanned). Shorter runs are unrolled: a scan's iteration costs (flex95's wings, ten chained
+# levels: 17.6-18.0 us a member unrolled against 22.6-24.0 scanned at B = 256, compile 16 s / 11 s).
+SCAN_MIN = 16
 
 
 def _units(levels):
@@ -542,9 +524,7 @@ def solve(pl: Plan, x: Inputs):
             free,
         )
         out = stage(
-            (lambda A, S, cb, gdd, free: _articulated_arrays(A, S, cb, gdd, free, all_locked))
-            if ARRAY_FORM
-            else (lambda A, S, cb, gdd, free: _articulated(*_unpack(A), S, cb, gdd, free, all_locked)),
+            lambda A, S, cb, gdd, free: _articulated(*_unpack(A), S, cb, gdd, free, all_locked),
             A,
             S,
             cb,
@@ -569,7 +549,7 @@ def solve(pl: Plan, x: Inputs):
         a_new, (q,) = _split(aq, (6, 1))
         if lv.locked.any():
             hold = stage(
-                lambda a, A, Sc, tau: _hold(a, *_split(A, (21, 6)), _split(Sc, (6,))[0], tau),
+                _hold_from,
                 a_new,
                 A,
                 Sc,
@@ -611,8 +591,7 @@ def solve(pl: Plan, x: Inputs):
             if carry is None:  # the deepest levels: nothing outboard
                 width = len(levels[d - 1].bodies)
                 shape = (width,) + jnp.shape(x.gamma)[1:]
-                zeros = jnp.zeros((27,) + shape, dtype)
-                carry = zeros if ARRAY_FORM else _stack(tuple(zeros))
+                carry = _stack(tuple(jnp.zeros((27,) + shape, dtype)))
             carry, art[u] = jax.lax.scan(
                 lambda c, inp, d=d: articulate(d, c, inp[0], inp[1]), carry, (saved[u], data(u[1], u[2])), reverse=True
             )
