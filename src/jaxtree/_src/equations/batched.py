@@ -458,13 +458,11 @@ def solve(pl: Plan, x: Inputs):
     def data(a, b):
         """The inputs of levels a..b (1-based), with a leading axis of levels when b > a."""
 
-        def rows(arr):  # hinge rows
-            out = arr[starts[a - 1] : starts[b]]
+        def rows(arr, first=0):  # hinge rows; body rows with first = 1 (row 0: b_0)
+            out = arr[first + starts[a - 1] : first + starts[b]]
             return out if a == b else out.reshape((b - a + 1, -1) + out.shape[1:])
 
-        def brows(arr):  # body rows (row 0: b_0)
-            out = arr[1 + starts[a - 1] : 1 + starts[b]]
-            return out if a == b else out.reshape((b - a + 1, -1) + out.shape[1:])
+        brows = functools.partial(rows, first=1)
 
         return dict(
             g=tuple(rows(c) for c in x.axis),
