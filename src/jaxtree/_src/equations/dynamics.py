@@ -429,13 +429,23 @@ def _solve_completed(model, state, t, tau, gdd_p):
 # does not amortize (benchmarks/bench_batch.py: fig4_free 9.4 us a member at B = 16 against 6 us
 # vmapped, 3.2 at B = 128).
 BATCH_FIRST_MIN = 64
+# The same on an accelerator, where each of those kernels is a launch: on an H200 (benchmarks/
+# bench_gpu.py, 2026-11-27) the batch-first program cost ~1.2-2 ms a call whatever the batch up to
+# 8192 members, so the vmapped single solve won at 1024 and 8192 members (fig4_free float64: 559
+# against 1407 ns a member at 1024, 94 against 251 at 8192) and lost at 65 536 (44 against 18;
+# flex95 765 against 146). Batches between 8192 and 65 536 were not measured.
+BATCH_FIRST_MIN_ACCELERATOR = 65536
+
+
+def batch_first_min() -> int:
+    """Members from which a vmapped Eq. (1) runs the batch-first recursion on JAX's default backend."""
+    return BATCH_FIRST_MIN if jax.default_backend() == "cpu" else BATCH_FIRST_MIN_ACCELERATOR
 
 
 def _solve_plain(model, state, t, tau, gdd_p):
-    """Eq. (1) by the model's method; under ``jax.vmap`` on a CPU, by the batch-first recursion
-    of :mod:`jaxtree._src.equations.batched` (the same accelerations to round-off)."""
-    if jax.default_backend() != "cpu":
-        return _solve_one(model, state, t, tau, gdd_p)
+    """Eq. (1) by the model's method; under ``jax.vmap`` of at least :func:`batch_first_min`
+    members, by the batch-first recursion of :mod:`jaxtree._src.equations.batched` (the same
+    accelerations to round-off)."""
     dyn, static = eqx.partition((model, state, t, tau, gdd_p), eqx.is_array)
     # custom_vmap sees a flat list of arrays: its JVP compares pytree structures in which None
     # leaves (eqx.partition's placeholders) would not match
@@ -452,7 +462,7 @@ def _solve_plain(model, state, t, tau, gdd_p):
         if not any(flags):  # nothing batched (e.g. only tangents, in a JVP): one solve
             out = _solve_one(*args(leaves))
             return out, jax.tree_util.tree_map(lambda _: False, out)
-        if axis_size < BATCH_FIRST_MIN:
+        if axis_size < batch_first_min():
             axes = ([0 if b else None for b in flags],)
             out = jax.vmap(lambda xs: _solve_one(*args(xs)), in_axes=axes, axis_size=axis_size)(leaves)
         else:
