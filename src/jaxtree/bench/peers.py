@@ -73,6 +73,18 @@ def base_velocity(model, state=None) -> np.ndarray:
     return np.asarray(mass_center_velocities(model, cfg, omega)[0], float)
 
 
+def base_velocities(model, omega0, gamma, gamma_dot) -> np.ndarray:
+    """:func:`base_velocity` of many states at once (leading axis of the three arrays; one
+    compiled call)."""
+    import jax
+
+    def one(w, g, gd):
+        cfg, omega = configuration_and_rates(model, g, w, gd)
+        return mass_center_velocities(model, cfg, omega)[0]
+
+    return np.asarray(jax.jit(jax.vmap(one))(omega0, gamma, gamma_dot), float)
+
+
 def pinocchio_model(model):
     """``(pin_model, joint ids (n+1), q indices of the hinges, v indices of the hinges, com)``."""
     pin = _pinocchio()
