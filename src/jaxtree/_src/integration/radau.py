@@ -204,6 +204,51 @@ def _mix(m: np.ndarray | Array, z: Array) -> Array:
     return jnp.dot(jnp.asarray(m, dtype=z.dtype), z, precision=jax.lax.Precision.HIGHEST)
 
 
+# jaxlib's CPU LAPACK kernels split a batch worth more than ~2e5 flops into tasks on XLA's
+# intra-op pool and block the calling pool thread until they finish; two such calls running at
+# once (Radau5's real and complex factorizations are independent, and XLA:CPU runs independent
+# operations concurrently) can each hold a pool thread while their tasks wait: a vmapped Radau5
+# run of 64 stiff chains hung so on 2 cores (benchmarks/FINDINGS.md, "Two host devices: the LAPACK
+# deadlock"). Under vmap on a CPU the factorizations therefore run in groups small
+# enough to stay inline (``lax.map`` over groups of members).
+_LAPACK_INLINE_FLOPS = 2e5
+
+
+def _inline_group(a, flops_per_member):
+    return max(1, int(_LAPACK_INLINE_FLOPS / (flops_per_member * (4 if jnp.iscomplexobj(a) else 1))))
+
+
+def _grouped(fn, flops):
+    """`fn` whose ``vmap`` on a CPU runs the members by ``lax.map`` in inline-sized groups."""
+
+    @jax.custom_batching.custom_vmap
+    def call(*args):
+        return fn(*args)
+
+    @call.def_vmap
+    def _rule(axis_size, in_batched, *args):
+        args = [a if b else jnp.broadcast_to(a, (axis_size, *a.shape)) for a, b in zip(args, in_batched)]
+        if jax.default_backend() == "cpu":
+            out = jax.lax.map(lambda xs: fn(*xs), args, batch_size=_inline_group(args[0], flops(args[0])))
+        else:
+            out = jax.vmap(fn)(*args)
+        return out, jax.tree_util.tree_map(lambda _: True, out)
+
+    return call
+
+
+_lu_factor_grouped = _grouped(jsl.lu_factor, lambda a: 2.0 * a.shape[-1] ** 3 / 3.0)
+
+
+def _lu_factor(a):
+    """``jax.scipy.linalg.lu_factor`` of a matrix that carries no derivative (the iteration
+    matrices are ``stop_gradient``-ed: ``custom_vmap`` has no transpose)."""
+    return _lu_factor_grouped(jax.lax.stop_gradient(a))
+
+
+_lu_solve = jsl.lu_solve
+
+
 class Radau5State(eqx.Module):
     """Solver state of :class:`Radau5`, carried from step to step (see the module docstring).
 
@@ -362,9 +407,9 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
         n = jac.shape[0]
         eye = jnp.eye(n, dtype=dtype)
         cdtype = jnp.promote_types(dtype, jnp.complex64)
-        lu_r, piv_r = jsl.lu_factor((GAMMA / h) * eye - jac)
+        lu_r, piv_r = _lu_factor((GAMMA / h) * eye - jac)
         shift = jnp.asarray(ALPHA + 1j * BETA, dtype=cdtype) / h.astype(cdtype)
-        lu_c, piv_c = jsl.lu_factor(shift * eye.astype(cdtype) - jac.astype(cdtype))
+        lu_c, piv_c = _lu_factor(shift * eye.astype(cdtype) - jac.astype(cdtype))
         return jax.lax.stop_gradient((lu_r, piv_r, lu_c, piv_c))
 
     # ---------------------------------------------------------------------------------------
@@ -441,8 +486,8 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
             k, w, z, dynold, thqold, theta, faccon, _ = carry
             fs = jax.vmap(fun)(stage_t, y_flat + z)
             rhs = _mix(T_INV, fs)
-            d_real = jsl.lu_solve((lu_r, piv_r), rhs[0] - gamma_h * w[0])
-            d_cplx = jsl.lu_solve(
+            d_real = _lu_solve((lu_r, piv_r), rhs[0] - gamma_h * w[0])
+            d_cplx = _lu_solve(
                 (lu_c, piv_c), (rhs[1] + 1j * rhs[2]).astype(cdtype) - shift_h * (w[1] + 1j * w[2]).astype(cdtype)
             )
             dw = jnp.stack([d_real, d_cplx.real, d_cplx.imag])
@@ -499,7 +544,7 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
 
         def err_body(carry):
             i, _, x = carry
-            e = fix * jsl.lu_solve((lu_r, piv_r), fun(t0, x) + ez)
+            e = fix * _lu_solve((lu_r, piv_r), fun(t0, x) + ez)
             return i + 1, e, y_flat + e
 
         def err_more(carry):
