@@ -41,7 +41,9 @@ def _args():
     p.add_argument("--subsample", type=int, default=8, help="members whose error is measured")
     p.add_argument("--tols", type=float, nargs="+", default=[1e-6, 3e-7, 1e-7, 3e-8])
     p.add_argument("--dt", type=float, nargs="+", default=[0.02, 0.01], help="fixed steps tried")
-    p.add_argument("--mujoco-dt", type=float, nargs="+", default=[0.005, 0.0025, 0.002, 0.00125, 0.001], help="RK4 steps tried")
+    p.add_argument(
+        "--mujoco-dt", type=float, nargs="+", default=[0.005, 0.0025, 0.002, 0.00125, 0.001], help="RK4 steps tried"
+    )
     p.add_argument("--no-peer", action="store_true")
     p.add_argument("--json")
     return p.parse_args()

@@ -16,7 +16,13 @@ target (median of repeats, compile time apart). Pinocchio's right side is ``pin.
 torque on the free flyer, its Jacobian by forward differences (``jaxtree bench``'s peer,
 ``jaxtree.bench.peers.pinocchio_runner``).
 
-Run:  python benchmarks/bench_stiff.py [--cases stiff flex95] [--json PATH]
+``--batch N`` runs instead the batch issue's point 5: N stiff chains (``stiff_chain(1e6)``, 2 s,
+rtol = atol = 1e-6) with the tip stiffness dispersed by 10 %, vmapped under ``jaxtree.Radau5``,
+against single runs of the same members: the batch's time in single runs (goal <= 16 for 64),
+each member's steps, Jacobians and factorizations, and the largest difference from its single
+run; one member started at a NaN rate must fail alone.
+
+Run:  python benchmarks/bench_stiff.py [--cases stiff flex95] [--batch 64] [--json PATH]
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ def _args():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--cases", nargs="+", default=["stiff", "flex95"])
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--batch", type=int, default=0, help="run the stiff batch of this many members instead")
     p.add_argument("--json")
     return p.parse_args()
 
@@ -125,7 +132,76 @@ def pinocchio_run(model, ts, rtol):
     return w, g, statistics.median(walls), 0.0, f"{rhs} right sides (Jacobians by forward differences included)"
 
 
+def batch(size):
+    """The stiff batch: `size` dispersed stiff chains vmapped under Radau5 against single runs."""
+    import equinox as eqx
+
+    model, span = jaxtree.stiff_chain(1e6), 2.0
+    ts = jnp.linspace(0.0, span, 101)
+
+    def run(k, w0):
+        m = eqx.tree_at(
+            lambda m: (m.stiffness, m.initial), model, (model.stiffness * k, model.initial._replace(omega0=w0))
+        )
+        sol = jaxtree.simulate(m, span, saveat=ts, solver=jaxtree.Radau5(), rtol=1e-6, atol=1e-6, throw=False)
+        st = sol.stats
+        return sol.gamma, sol.failure, st["num_accepted_steps"], st["jacobians"], st["factorizations"]
+
+    rng = np.random.default_rng(0)
+    ks = jnp.asarray(1 + 0.1 * rng.standard_normal(size))
+    w0 = jnp.broadcast_to(model.initial.omega0, (size, 3)).at[size - 1, 0].set(jnp.nan)  # the last member fails
+    single, many = jax.jit(run), jax.jit(jax.vmap(run))
+    t = time.perf_counter()
+    jax.block_until_ready(single(ks[0], w0[0]))
+    first_1 = time.perf_counter() - t
+    singles, walls = [], []
+    for i in range(size):
+        t = time.perf_counter()
+        singles.append(jax.block_until_ready(single(ks[i], w0[i])))
+        walls.append(time.perf_counter() - t)
+    t = time.perf_counter()
+    jax.block_until_ready(many(ks, w0))
+    first_b = time.perf_counter() - t
+    best = np.inf
+    for _ in range(ARGS.repeats):
+        t = time.perf_counter()
+        out = jax.block_until_ready(many(ks, w0))
+        best = min(best, time.perf_counter() - t)
+    g, result, steps, jacs, lus = (np.asarray(x) for x in out)
+    one = statistics.median(walls[:-1])
+    good = slice(0, size - 1)
+    diff = max(float(np.max(np.abs(g[i] - np.asarray(singles[i][0])))) for i in range(size - 1))
+    say(f"# bench_stiff --batch: {machine()}")
+    say(f"stiff_chain(1e6), 2 s, Radau5 rtol = atol = 1e-6, {size} members (stiffness x 1 + N(0, 10 %))")
+    say(f"single run: {one * 1e3:.1f} ms (median of {size - 1}; first call {first_1:.1f} s)")
+    say(
+        f"batch of {size}: {best:.2f} s (first call {first_b:.1f} s) = {best / one:.1f} single runs "
+        f"(goal <= {size / 4:g}); steps {steps[good].min()}-{steps[good].max()}, Jacobians "
+        f"{jacs[good].min()}-{jacs[good].max()}, factorizations {lus[good].min()}-{lus[good].max()} per member"
+    )
+    say(f"largest difference from the member's single run: {diff:.1e} rad")
+    failed = [i for i in range(size) if result[i] != 0]
+    say(
+        f"failed members: {failed} (planted: [{size - 1}]); results of the others {'finite' if np.isfinite(g[good]).all() else 'NOT finite'}"
+    )
+    return dict(
+        size=size,
+        single_s=one,
+        batch_s=best,
+        ratio=best / one,
+        first_single_s=first_1,
+        first_batch_s=first_b,
+        difference=diff,
+        failed=failed,
+    )
+
+
 def main():
+    if ARGS.batch:
+        res = batch(ARGS.batch)
+        if ARGS.json:
+            write_json(ARGS.json, {"machine": machine(), "batch": res})
+        return
     say(f"# bench_stiff: {machine()}")
     results = {"machine": machine(), "cases": {}}
     for name in ARGS.cases:
