@@ -7,7 +7,7 @@ For each tree: the Jacobian of the accelerations with respect to (omega0, gamma,
 (``_solve_plain``, what jacfwd did before the rule), one VJP of the accelerations, and one
 forward call; each in a jitted ``fori_loop`` of N calls (per-call time, compile time apart).
 The peer in the same run: Pinocchio's ``computeABADerivatives`` and ``aba`` on the same tree
-(free-flyer base, revolute hinges; ``jaxtree.bench.peers.pinocchio_model``). Goals of issue 23:
+(free-flyer base, revolute hinges; ``jaxtree.bench.peers.pinocchio_model``). Goals:
 Jacobian <= 3x Pinocchio's derivatives on panels95, chain50 and random 60-body trees; VJP <= 3x
 one forward call.
 

@@ -3,7 +3,7 @@ and Pinocchio's ABA under scipy's DOP853, all in one run.
 
 Scenes (``--scene``):
 
-- ``flex95`` (default): the flexible vehicle of issue 24, panels95 with stiff latched bending
+- ``flex95`` (default): the flexible vehicle of the slew, panels95 with stiff latched bending
   hinges (held-wing modes 0.94-433 rad/s); the slew of the issue: the scene's bus spin, the
   rotor at 10 pi rad/s, wings straight, (15, 9, 0) N m on the bus from 1 s to 3 s (tanh edges of
   ~0.2 s); the 90 wing hinges small. The full Eq. (1) also with jaxtree.Radau5, the peers
@@ -21,7 +21,7 @@ compilation), accepted steps (the peers: right sides) and the errors against a t
 angles ``max |gamma_S - ref| / max |gamma_S,ref|``; for the hybrid models also the build time
 (modes and precomputation, first call and again), the truncation estimate of
 `simulate_hybrid` (a separate call: the timed runs pass ``truncation_error=False``) and the cost
-of one hybrid right side in a jitted loop (issue 24: <= 10 us at 3 modes per wing on flex95,
+of one hybrid right side in a jitted loop (goal: <= 10 us at 3 modes per wing on flex95,
 <= 15 us at 6, <= 2x from 6 to 36 modes in all). The summary gives the cheapest setting of each
 method that reaches the goal accuracy (hub 1e-3, small angles 1e-2) and the time ratios.
 
@@ -242,13 +242,11 @@ def main():
     fulls = [best[m] for m in ("jaxtree full Eq. (1)", "jaxtree full, Radau5") if m in best]
     f = min(fulls, key=lambda r: r["run"]) if fulls else None
     if h and f:
-        print(f"best hybrid / best full Eq. (1): {f['run'] / h['run']:.1f}x faster (issue 24: >= 3x)")
+        print(f"best hybrid / best full Eq. (1): {f['run'] / h['run']:.1f}x faster (goal: >= 3x)")
     peers = [best[p] for p in ("Pinocchio + DOP853", "Pinocchio + Radau") if p in best]
     if h and peers:
         p = min(peers, key=lambda r: r["run"])
-        print(
-            f"best hybrid / better Pinocchio run ({p['method']}): {p['run'] / h['run']:.1f}x faster (issue 24: >= 5x)"
-        )
+        print(f"best hybrid / better Pinocchio run ({p['method']}): {p['run'] / h['run']:.1f}x faster (goal: >= 5x)")
     costs = {r["setting"].split(" modes")[0]: r["rhs_us"] for r in rows if "rhs_us" in r}
     if costs:
         print(
@@ -258,13 +256,13 @@ def main():
         if "1" in costs and "6" in costs:
             print(
                 f"  from 1 to 6 modes per substructure: {costs['6'] / costs['1']:.2f}x "
-                "(issue 24: <= 2x from 6 to 36 in all)"
+                "(goal: <= 2x from 6 to 36 in all)"
             )
     builds = [r["build"][0] for r in rows if "build" in r]
     if builds:
         print(
             f"build of the first hybrid model: {builds[0]:.2f} s on its first call in this process "
-            "(issue 24: <= 5 s compile included, <= 1 s after)"
+            "(goal: <= 5 s compile included, <= 1 s after)"
         )
     if h:
         print(f"build of the chosen hybrid model again: {h['build'][1]:.2f} s")

@@ -8,7 +8,7 @@ jitted call from Python (dispatch included), with the compile time of the loop a
 (``pin.aba`` of a lone free flyer). Then the log-log growth of the in-loop time from 50 to 200
 bodies per method, and the compile time of ``simulate`` on chain200 per method.
 
-Goals (issue 12): in-loop evaluation at chain200 <= 2x ``pin.aba``'s call; growth from 50 to 200
+Goals: in-loop evaluation at chain200 <= 2x ``pin.aba``'s call; growth from 50 to 200
 no steeper than n^1.2; ``simulate`` compiles in <= 10 s at chain200.
 
 Run: ``python benchmarks/bench_methods.py [--quick] [--json PATH]``.

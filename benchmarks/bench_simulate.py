@@ -76,7 +76,7 @@ def _args():
         "--scene",
         default="fig4_free",
         choices=["fig4_free", "panels95", "chain200", "chain50", "wings", "humanoid"],
-        help="scene (default fig4_free; panels95 and chain200 for the large trees of issue 12; humanoid: "
+        help="scene (default fig4_free; panels95 and chain200 for the large trees; humanoid: "
         "Pinocchio's sample humanoid, 28 free hinges on a free flyer, seeded random rates)",
     )
     p.add_argument(
@@ -150,7 +150,7 @@ def error(w, g, ref):
 
 
 # The larger trees: a shorter tolerance ladder, a reference at 1e-12, fewer repeats; their goals
-# (issue 12): time to 1e-6 at most 0.5x (panels95) and 1.5x (chain200) Pinocchio + DOP853.
+# (the large-tree goals): time to 1e-6 at most 0.5x (panels95) and 1.5x (chain200) Pinocchio + DOP853.
 LARGE_TOLS = (1e-5, 3e-6, 1e-6, 3e-7, 1e-7, 1e-8, 1e-9, 3e-10, 1e-10)
 LARGE_QUICK_TOLS = (1e-6, 1e-7, 1e-9)
 GOALS = {"fig4_free": (1.0, 0.5), "panels95": (0.5, None), "chain200": (1.5, None)}

@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
 """Benchmark: stiff hinges and stiff appendages, jaxtree's implicit integrators against Pinocchio +
-scipy's Radau in the same run (a benchmark, not a test; issue 23's goals).
+scipy's Radau in the same run (a benchmark, not a test; its goals).
 
 Cases:
 - ``stiff``: ``jaxtree.stiff_chain(1e6)`` (chain10 with a near-rigid, damped tip hinge) over 2 s;
   error: the largest difference of omega0 and gamma from a tight Kvaerno5 run (rtol 1e-11) at 101
   save times; target 1e-6.
-- ``flex95``: the slew of issue 24 on the bundled ``flex95`` vehicle (rotor at 10 pi rad/s, the
+- ``flex95``: the slew on the bundled ``flex95`` vehicle (rotor at 10 pi rad/s, the
   scene's spin, a bus torque of (15, 9, 0) N m on at 1 s and off at 3 s with 0.2 s tanh edges,
   10 s); errors: the hub rate relative to its peak and the wing angles relative to theirs,
   against a tight Dopri8 run (rtol 1e-11) at 201 save times; targets hub 1e-3, wings 1e-2.

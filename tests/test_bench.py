@@ -239,7 +239,7 @@ def test_a_reference_that_cannot_meet_its_tolerance_runs_looser_and_a_singular_s
 
 
 def test_flex95_slew_case_drives_jaxtree_and_the_pinocchio_peer_with_the_same_bus_torque():
-    """flex95 (issue 24) is a bench case: the slew's torque on the bus, relative errors over the
+    """flex95 is a bench case: the slew's torque on the bus, relative errors over the
     wing hinges, Radau5 among the solvers. The peer's numpy torque equals the model's load at every
     time; over the first 2 s (the pulse's rise and top) Pinocchio + DOP853 with it follows jaxtree's
     run to 1e-7 of the hub rate's and wing angles' peaks (at 1e-10), while the same peer without it

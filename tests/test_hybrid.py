@@ -594,7 +594,7 @@ def test_failures_are_reported_with_time_and_state_and_tolerances_may_be_traced(
     assert np.all(err < 1e3 * np.asarray(tols)) and err[1] < err[0]
 
 
-# ----------------------------------------------------------------------------- substructures (issue 11)
+# ------------------------------------------------------------------------------------ substructures
 def _wings(damping=True):
     model = jaxtree.load_scene("wings")
     if not damping:
@@ -825,7 +825,7 @@ def test_truncation_ranks_damped_modes_by_their_rate_so_an_overdamped_fast_pair_
     assert sol.ok and int(sol.stats["num_accepted_steps"]) < 100, sol.stats
 
 
-# ----------------------------------------------------------------------------- issue 24 point 5
+# --------------------------------------------------------------------- the slew's modal damping
 def test_real_form_modal_damping_gives_the_damped_eigenvalues_of_eq_104():
     """Eq. (121) with the modal damping 2 zeta sigma of Eq. (104), a vehicle at rest: the
     eigenvalues of the hybrid model's linearization (jacfwd of its right side, eigenvalues by
@@ -888,7 +888,7 @@ def test_precomputed_equals_general_on_flex95_with_loads_large_hinges_and_spin()
 
 
 def test_gradient_through_hybrid_model_and_simulate_hybrid_against_central_differences():
-    """Issue 24 point 4: jax.grad of a loss of a 10 s hybrid trajectory (a slew of the damped wings'
+    """jax.grad of a loss of a 10 s hybrid trajectory (a slew of the damped wings'
     spinning hub, two modes per wing: general first-order modes, Eq. 118) w.r.t. a scale of the
     wing stiffness, through hybrid_model (modes recomputed from the traced matrices by JAX's
     eigenvector derivatives, the selection fixed by `like`) and simulate_hybrid, against central
@@ -925,7 +925,7 @@ def test_gradient_through_hybrid_model_and_simulate_hybrid_against_central_diffe
 
 
 def test_simulate_hybrid_takes_radau5_and_reports_its_counters():
-    """jaxtree.Radau5 (issue 23 point 2) in simulate_hybrid: the damped wings' slew (two modes per
+    """jaxtree.Radau5 in simulate_hybrid: the damped wings' slew (two modes per
     wing, first-order form) at 1e-8 against Dopri8 at 1e-12 on the same hybrid model, and
     ``sol.stats`` counts the Radau5 work (Jacobians, factorizations, Newton iterations)."""
     model = _wings().with_loads(

@@ -1,12 +1,12 @@
 """Tests of the hybrid coordinates' truncation (Likins 1972, Sec. III E, Eqs. 105-123): the modes
 chosen to an accuracy (``hybrid_model(..., n_modes="auto", tol=...)``) and the estimate of the
-error of the modes left out (``simulate_hybrid``'s ``truncation_error``), issue 24.
+error of the modes left out (``simulate_hybrid``'s ``truncation_error``).
 
 Expected numbers come from outside the estimate: the "true error" is the hybrid run's difference
 from the full nonlinear Eq. (1) (``jaxtree.simulate``, Dopri8 at rtol = atol = 1e-10) at the
 same save times, in the largest small angle over the run.
 
-The slew (issue 24, also ``benchmarks/bench_stiff.py``): the bundled ``flex95`` vehicle, its rotor
+The slew (also ``benchmarks/bench_stiff.py``): the bundled ``flex95`` vehicle, its rotor
 at 10 pi rad/s and its bus spin, a torque of (15, 9, 0) N m on the bus on at 1 s and off at 3 s
 with 0.2 s tanh edges, 10 s; the 90 wing hinges small (six substructures on the bus). The boom:
 ``chain50`` with its hub made 1000 times heavier (a large root body: with the bundled 100 kg hub
@@ -24,12 +24,12 @@ import jaxtree
 from jaxtree._src._checks import SceneError
 
 TOL = 1e-10  # the runs' tolerances: their integration error is far below the truncation error
-FACTOR = 3  # issue 24's bound: the truncation estimate within a factor 3 of the true error
+FACTOR = 3  # the hybrid goals' bound: the truncation estimate within a factor 3 of the true error
 # the run corrected by adding the estimate keeps under this fraction of the true error (the estimate has the
 # error's sign and shape, not only its size)
 CORRECTED = 0.6
-AUTO_TOL = 1e-2  # n_modes="auto"'s accuracy on flex95, and the slew's goal on the wings' relative error (issue 24)
-HUB_GOAL = 1e-3  # the slew's goal on the hub rate's relative error (issue 24)
+AUTO_TOL = 1e-2  # n_modes="auto"'s accuracy on flex95, and the slew's goal on the wings' relative error
+HUB_GOAL = 1e-3  # the slew's goal on the hub rate's relative error
 # with every mode kept the neglected modes' flexibility is zero (computed exactly 0.0 on wings): the bound
 # allows round-off of its entries, up to 1e-2 with no mode kept
 ZERO = 1e-14

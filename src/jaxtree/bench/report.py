@@ -109,7 +109,7 @@ REFERENCE_STEPS = 2_000_000
 REFERENCE_FALLBACK = (1e-11, 1e-10)  # a reference whose steps collapse at REFERENCE_TOL tries these
 # A peer's model agrees with jaxtree's when its most accurate setting is this close to the reference.
 PEER_AGREEMENT = 1e-6
-# Goals of issue 14 (time of jaxtree's best / the fastest peer's, at 1e-6 and 1e-9).
+# Goals of the work-precision report (time of jaxtree's best / the fastest peer's, at 1e-6 and 1e-9).
 GOALS = {"wings": (1.0, 0.5)}
 
 
@@ -204,7 +204,7 @@ def _panel_hinges(model: Model, prefix: str) -> tuple[int, ...]:
     return tuple(k for k in range(1, model.n + 1) if model.names[k].startswith(prefix))
 
 
-FLEX95_TORQUE = (15.0, 9.0, 0.0)  # N m on the bus in flex95's slew (issue 24)
+FLEX95_TORQUE = (15.0, 9.0, 0.0)  # N m on the bus in flex95's slew
 
 
 def _slew_pulse(t):
@@ -220,7 +220,7 @@ def _slew_torque_np(t) -> np.ndarray:
 
 def flex95_slew() -> Model:
     """flex95 (the scene: rotor at 10 pi rad/s, the bus spinning, wings straight) with the slew
-    torque of issue 24 on the bus: :data:`FLEX95_TORQUE` times :func:`_slew_pulse`."""
+    torque of the slew on the bus: :data:`FLEX95_TORQUE` times :func:`_slew_pulse`."""
 
     return _scene("flex95").with_loads(BodyTorque(0, jnp.asarray(FLEX95_TORQUE), _slew_pulse))
 
