@@ -404,3 +404,23 @@ def test_every_solver_name_builds_a_solver():
     for name in set(SOLVERS.values()) - {"auto"}:
         assert isinstance(solver_named(name), dfx.AbstractSolver), name
     assert isinstance(solver_named("Radau5"), jaxtree.Radau5)
+
+
+def test_what_import_changes_and_its_opt_outs():
+    """`import jaxtree` turns on JAX's x64 mode and sets OPENBLAS_NUM_THREADS=1, each with the
+    opt-out the README documents: JAXTREE_ENABLE_X64=0 leaves x64 off, a user's thread count wins.
+    Fresh interpreters, so this process's settings do not leak in."""
+    probe = "import os, jax, jaxtree; print(jax.config.jax_enable_x64, os.environ['OPENBLAS_NUM_THREADS'])"
+    env = {
+        k: v for k, v in os.environ.items() if k not in ("JAXTREE_ENABLE_X64", "OPENBLAS_NUM_THREADS", "JAX_ENABLE_X64")
+    }
+
+    def run(**extra):
+        out = subprocess.run(
+            [sys.executable, "-c", probe], env={**env, **extra}, capture_output=True, text=True, timeout=120
+        )
+        assert out.returncode == 0, out.stderr
+        return out.stdout.split()
+
+    assert run() == ["True", "1"]
+    assert run(JAXTREE_ENABLE_X64="0", OPENBLAS_NUM_THREADS="3") == ["False", "3"]

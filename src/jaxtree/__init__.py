@@ -1,9 +1,14 @@
 """jaxtree: differentiable dynamics of hinge-connected rigid-body trees in JAX.
 
 An implementation of P. W. Likins, *Large-Deformation Modal Coordinates for
-Nonrigid Vehicle Dynamics*, JPL TR 32-1565 (1972). Importing jaxtree turns on
-JAX's float64 mode (``jax_enable_x64``): float64 is the default everywhere;
-float32 models (``model.astype(jnp.float32)``) work for GPU batches.
+Nonrigid Vehicle Dynamics*, JPL TR 32-1565 (1972).
+
+Importing jaxtree changes two things in the process (README, "What `import jaxtree` changes"):
+
+- JAX's float64 mode (``jax_enable_x64``) is turned on: float64 is the default everywhere;
+  float32 models (``model.astype(jnp.float32)``) work for GPU batches. ``JAXTREE_ENABLE_X64=0``
+  in the environment leaves JAX's setting as it is (with x64 off, models are float32).
+- ``OPENBLAS_NUM_THREADS`` is set to 1 unless the environment sets it (a setting of yours wins).
 """
 
 import os as _os
@@ -15,7 +20,8 @@ _os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import jax as _jax
 
-_jax.config.update("jax_enable_x64", True)
+if _os.environ.get("JAXTREE_ENABLE_X64", "1").strip().lower() not in ("0", "false", "no", "off"):
+    _jax.config.update("jax_enable_x64", True)
 
 from ._src import VERSION as _VERSION
 from ._src._checks import SceneError as SceneError
