@@ -7,6 +7,10 @@ scipy, MuJoCo; :mod:`jaxtree.bench.peer_basilisk`: Basilisk's spinning-body effe
 peers are optional (the ``peers`` extra); a case a peer cannot represent, or a peer that is not
 installed, is skipped with the reason in the report. Nothing in :mod:`jaxtree`'s engine imports
 this package.
+
+What lives where: this package is what users run (``jaxtree bench``, shipped with jaxtree);
+the repository's ``benchmarks/`` holds the developers' scripts, one goal each, with their
+results and findings (not installed).
 """
 
 from .report import CASES as CASES

@@ -807,7 +807,7 @@ def scene_from_dict(data: dict) -> Model:
 
     Besides the bodies and the initial state, the optional keys ``loads``, ``control`` and
     ``orbit`` give the model its external loads, hinge laws and orbit
-    (:mod:`jaxtree.scene_laws`; README, "Loads and laws in a scene").
+    (:mod:`jaxtree.scene_laws`; docs/guide.md, "Loads and laws in a scene").
 
     Raises :class:`SceneError` naming the body and the field of any invalid entry; an unknown
     key (anywhere) gives a :class:`SceneWarning` naming it and is ignored."""
