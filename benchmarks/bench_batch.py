@@ -52,6 +52,13 @@ def _args():
     p.add_argument("--loop", type=int, default=8, help="batched calls per timed loop")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--mujoco-steps", type=int, default=200)
+    p.add_argument(
+        "--stages",
+        nargs="+",
+        default=None,
+        choices=("cond", "barrier", "none"),
+        help="also time the batch-first program with these stage modes (batched.STAGE)",
+    )
     p.add_argument("--json", default=os.path.join(HERE, "results", "bench_batch.json"))
     return p.parse_args()
 
@@ -166,7 +173,17 @@ def case(name, size, args):
         xs = batch_states(model, size)
         fn = eq1(model)
         per, first = loop_timing(fn, xs, args.loop, args.repeats)
-        rows = [("batch-first", per / size, first, flops(fn, xs) / size)]
+        rows = [(f"batch-first ({batched.stage_mode()})", per / size, first, flops(fn, xs) / size)]
+        for mode in args.stages or ():
+            if mode == batched.stage_mode():
+                continue
+            saved_stage = batched.STAGE
+            batched.STAGE = mode
+            try:
+                per, first = loop_timing(eq1(model), xs, args.loop, args.repeats)
+                rows.append((f"batch-first ({mode})", per / size, first, flops(eq1(model), xs) / size))
+            finally:
+                batched.STAGE = saved_stage
         saved = dynamics.BATCH_FIRST_MIN
         dynamics.BATCH_FIRST_MIN = 10**9
         try:

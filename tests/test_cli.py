@@ -183,6 +183,9 @@ def test_user_mistakes_print_one_line_and_exit_nonzero(tmp_path, capsys):
         (["simulate", "wings"], "--t1"),
         (["simulate", "wings", "--t1", "x"], "--t1"),
         (["simulate", "wings", "--t1", "1", "--rtol", "-1"], "--rtol"),
+        # a negative number in exponent form is a value, refused by the option's own check
+        (["simulate", "wings", "--t1", "1", "--rtol", "-1e-6"], "must be a positive number"),
+        (["simulate", "wings", "--t1", "1", "--atol", "-.5E+2"], "--atol"),
         (["simulate", "wings", "--t1", "1", "--attitude", "euler"], "--attitude"),
         (["simulate", "wings", "--t1", "1", "--solver", "rk99"], "--solver"),
         (["simulate", "wings", "--t1", "0"], "--t1 equals --t0"),

@@ -32,6 +32,7 @@ import io
 import math
 import os
 import pathlib
+import re
 import signal
 import sys
 import time
@@ -92,6 +93,13 @@ class _Interrupted(KeyboardInterrupt):
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # argparse takes "-1e-6" for an option (its pattern of negative numbers has no exponent),
+        # so "--rtol -1e-6" failed as "expected one argument": a number in any float syntax is a
+        # value, which the option's own check then accepts or refuses
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$", re.I)
+
     def error(self, message):
         raise UserError(f"{message} (see '{self.prog} --help')", prog=self.prog)
 
