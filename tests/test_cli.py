@@ -427,3 +427,22 @@ def test_what_import_changes_and_its_opt_outs():
 
     assert run() == ["True", "1"]
     assert run(JAXTREE_ENABLE_X64="0", OPENBLAS_NUM_THREADS="3") == ["False", "3"]
+
+
+def test_solver_lists_agree_with_the_code(capsys):
+    """`--solver`'s choices, its help and the guide's list name the same solvers, and both say
+    what "auto" picks for a stiff start (the class autosolver returns)."""
+    import pathlib
+
+    from jaxtree._src.integration import autosolver
+
+    with pytest.raises(SystemExit):
+        cli.main(["simulate", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    guide = (pathlib.Path(__file__).parents[1] / "docs" / "guide.md").read_text()
+    sentence = " ".join(guide[guide.index("`--solver` (") :].split(")")[0].split())
+    stiff = autosolver.Radau5.__name__.lower()
+    for name in sorted(cli.SOLVERS):
+        assert name in sentence, name
+    assert f"or {stiff} when" in help_text and f"or {stiff} where" in sentence
+    assert "kvaerno3/4/5" in help_text and "kencarp4" in help_text and "radau5," in help_text

@@ -307,8 +307,8 @@ def _simulate_parser(sub):
         default="auto",
         type=str.lower,
         choices=sorted(SOLVERS),
-        help="diffrax solver (default auto: dopri8, or kvaerno5 when the linearized equations at the start "
-        "are stiff; kvaerno3/4/5 and kencarp4 are implicit)",
+        help="solver (default auto: dopri8, or radau5 when the linearized equations at the start are "
+        "stiff; radau5, kvaerno3/4/5 and kencarp4 are implicit)",
     )
     s.add_argument(
         "--attitude",
