@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 import types
+import warnings
 
 import numpy as np
 import pytest
@@ -446,3 +447,18 @@ def test_solver_lists_agree_with_the_code(capsys):
         assert name in sentence, name
     assert f"or {stiff} when" in help_text and f"or {stiff} where" in sentence
     assert "kvaerno3/4/5" in help_text and "kencarp4" in help_text and "radau5," in help_text
+
+
+def test_a_warning_is_one_line_without_a_source_location(tmp_path, capsys):
+    """An unknown key in a scene (a SceneWarning naming it) reaches the terminal as one line,
+    ``jaxtree check: warning: ...``, not Python's three lines naming the launcher script."""
+    data = json.loads(jaxtree.scene_path("wings").read_text())
+    data["bodies"][1]["colour"] = "red"
+    path = tmp_path / "typo.json"
+    path.write_text(json.dumps(data))
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")  # the suite turns warnings into errors; a user's shell does not
+        assert cli.main(["check", str(path)]) == 0
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and err[0].startswith("jaxtree check: warning: ") and "colour" in err[0], err
+    assert ".py:" not in err[0]

@@ -36,6 +36,7 @@ import re
 import signal
 import sys
 import time
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -447,9 +448,32 @@ def _bench_parser(sub):
 
 
 # ----------------------------------------------------------------------------- main
+@contextlib.contextmanager
+def _one_line_warnings(command: str):
+    """Warnings printed as one line, ``<command>: warning: <message>``, without Python's source
+    location (which named the ``jaxtree`` launcher script, not the user's mistake)."""
+    saved = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = " ".join(str(message).split())
+        print(f"{command}: warning: {text}", file=file or sys.stderr, flush=True)
+
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = saved
+
+
 def main(argv=None) -> int:
     """The ``jaxtree`` command: a subcommand, else the sample problem (:func:`sample`)."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    name = f"jaxtree {argv[0]}" if argv and argv[0] in SUBCOMMANDS else "jaxtree"
+    with _one_line_warnings(name):
+        return _main(argv)
+
+
+def _main(argv) -> int:
     if not argv or (argv[0].startswith("-") and argv[0] not in ("-h", "--help", "--version")):
         argv = ["sample"] + argv
     if argv[0] == "sample":
