@@ -449,16 +449,27 @@ def test_solver_lists_agree_with_the_code(capsys):
     assert "kvaerno3/4/5" in help_text and "kencarp4" in help_text and "radau5," in help_text
 
 
-def test_a_warning_is_one_line_without_a_source_location(tmp_path, capsys):
-    """An unknown key in a scene (a SceneWarning naming it) reaches the terminal as one line,
-    ``jaxtree check: warning: ...``, not Python's three lines naming the launcher script."""
-    data = json.loads(jaxtree.scene_path("wings").read_text())
-    data["bodies"][1]["colour"] = "red"
-    path = tmp_path / "typo.json"
-    path.write_text(json.dumps(data))
+def test_a_warning_is_one_line_without_a_source_location(capsys):
+    """A warning reaches the terminal as one line, ``jaxtree check: warning: ...``, not Python's
+    three lines naming the launcher script; Python's own display comes back afterwards."""
+    before = warnings.showwarning
     with warnings.catch_warnings():
         warnings.simplefilter("default")  # the suite turns warnings into errors; a user's shell does not
-        assert cli.main(["check", str(path)]) == 0
+        with cli._one_line_warnings("jaxtree check"):
+            warnings.warn("a value was\n  clipped", UserWarning, stacklevel=1)
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
-    assert len(err) == 1 and err[0].startswith("jaxtree check: warning: ") and "colour" in err[0], err
-    assert ".py:" not in err[0]
+    assert err == ["jaxtree check: warning: a value was clipped"], err
+    assert warnings.showwarning is before
+
+
+def test_an_unknown_scene_key_is_an_error_of_one_line(tmp_path, capsys):
+    """A misspelt top-level key ('intial') is refused, naming the key and the nearest known one,
+    before anything runs (it used to warn and simulate the vehicle at rest, exit 0)."""
+    data = json.loads(jaxtree.scene_path("wings").read_text())
+    data["intial"] = data.pop("initial")
+    path = tmp_path / "typo.json"
+    path.write_text(json.dumps(data))
+    assert cli.main(["simulate", str(path), "--t1", "1", "--out", str(tmp_path / "r.nc")]) == cli.EXIT_USAGE
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and "unknown key 'intial'" in err[0] and "did you mean 'initial'" in err[0], err
+    assert not (tmp_path / "r.nc").exists()

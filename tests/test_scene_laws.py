@@ -487,15 +487,18 @@ def test_errors_name_the_key_and_the_body(change, message):
         jaxtree.scene_from_dict(_with(change))
 
 
-def test_unknown_keys_in_the_new_entries_are_warned_and_ignored():
+def test_unknown_keys_in_the_new_entries_are_refused_with_the_nearest_known_key():
     data = _with(lambda d: d["control"][0].update(kpp=1.0))
-    data["loads"][0]["profile"]["ris"] = 1.0
-    with pytest.warns(jaxtree.SceneWarning) as record:
-        model = jaxtree.scene_from_dict(data)
-    text = " ".join(str(w.message) for w in record)
-    assert "control[0] (hinge_pd): unknown key 'kpp'" in text
-    assert "unknown key 'ris' ignored (did you mean 'rise'?)" in text
+    with pytest.raises(jaxtree.SceneError, match=r"control\[0\] \(hinge_pd\): unknown key 'kpp'"):
+        jaxtree.scene_from_dict(data)
+    data = _with(lambda d: d["loads"][0]["profile"].update(ris=1.0))
+    with pytest.raises(jaxtree.SceneError, match=r"unknown key 'ris' \(did you mean 'rise'\?"):
+        jaxtree.scene_from_dict(data)
+    # a key of the user's own: read past, and not written back
+    data = _with(lambda d: d["control"][0].update({"x-note": "tuned 2026-11"}))
+    model = jaxtree.scene_from_dict(data)
     assert model.law is not None
+    assert "x-note" not in json.dumps(jaxtree.scene_to_dict(model))
 
 
 def test_models_without_a_json_form_say_so():

@@ -20,9 +20,6 @@ one public function's arguments stand beside that function (``linearize_args`` i
 from __future__ import annotations
 
 import difflib
-import os
-import sys
-import warnings
 from typing import NamedTuple
 
 import jax
@@ -46,8 +43,8 @@ class SceneKeyError(SceneError, KeyError):
 
 
 class SceneWarning(UserWarning):
-    """A scene or builder input was accepted with a change the user should know of (an unknown
-    key, ignored)."""
+    """A scene or builder input was accepted with a change the user should know of. (Unknown
+    keys were such warnings; they are errors now, see :func:`unknown_keys`.)"""
 
 
 def is_traced(tree) -> bool:
@@ -129,27 +126,21 @@ def as_int(value, what: str, minimum=None) -> int:
     return value
 
 
+# A key that begins with this is an extension of the user's (a note, a tool's own data): read past
+# silently and not written back. Any other unknown key is an error: a misspelt "initial" would
+# otherwise simulate the vehicle at rest.
+EXTENSION_PREFIX = "x-"
+
+
 def unknown_keys(given, known, where: str) -> None:
-    """Warn (:class:`SceneWarning`) for each key of `given` not in `known`, naming it and the
-    nearest known key; the key is ignored."""
+    """Refuse (:class:`SceneError`) the first key of `given` that is neither in `known` nor an
+    extension key (:data:`EXTENSION_PREFIX`), naming it, its place and the nearest known key."""
     for key in given:
-        if key in known:
+        if key in known or str(key).startswith(EXTENSION_PREFIX):
             continue
         close = difflib.get_close_matches(str(key), [str(k) for k in known], n=1)
-        hint = f" (did you mean {close[0]!r}?)" if close else f" (known: {sorted(map(str, known))})"
-        warnings.warn(f"{where}: unknown key {key!r} ignored{hint}", SceneWarning, stacklevel=_caller_level())
-
-
-_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # the jaxtree package
-
-
-def _caller_level() -> int:
-    """The `stacklevel` of the first frame outside jaxtree (the user's call), for warnings."""
-    level, frame = 1, sys._getframe(1)
-    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(_PACKAGE + os.sep):
-        level += 1
-        frame = frame.f_back
-    return level
+        hint = f"did you mean {close[0]!r}?" if close else f"known: {sorted(map(str, known))}"
+        raise SceneError(f"{where}: unknown key {key!r} ({hint}; a key of your own begins with {EXTENSION_PREFIX!r})")
 
 
 def rotation(C, what: str, tol: float = 1e-9) -> np.ndarray:

@@ -809,8 +809,9 @@ def scene_from_dict(data: dict) -> Model:
     ``orbit`` give the model its external loads, hinge laws and orbit
     (:mod:`jaxtree.scene_laws`; docs/guide.md, "Loads and laws in a scene").
 
-    Raises :class:`SceneError` naming the body and the field of any invalid entry; an unknown
-    key (anywhere) gives a :class:`SceneWarning` naming it and is ignored."""
+    Raises :class:`SceneError` naming the body and the field of any invalid entry, and for an
+    unknown key anywhere (naming it, its place and the nearest known key); keys of the user's own
+    begin with ``"x-"`` and are read past (not written back by :func:`scene_to_dict`)."""
     if not isinstance(data, dict):
         raise SceneTypeError(f"scene: expected a JSON object, got {short(data)}")
     if data.get("format") != FORMAT:
