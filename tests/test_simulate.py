@@ -682,6 +682,10 @@ def test_command_line_runs_the_sample_problem(tmp_path, monkeypatch, capsys):
     # diffrax's progress meter only on a terminal (here stderr is captured: none, no redraws in a log)
     assert "100.00%" not in captured.err + out and "\r" not in captured.err
     assert "angular momentum" in out and "accepted" in out and "wall time" in out
+    # the summary with units and the error estimate of a run at 10x the tolerances
+    assert " J, max change " in out and " N m s, max change " in out and "] rad/s (in {b0})" in out
+    estimate = [ln for ln in out.splitlines() if "integration error estimate" in ln]
+    assert len(estimate) == 1 and " rad, rates " in estimate[0], out
     data = np.load(tmp_path / "fig4_histories.npz")
     assert data["quaternion/gamma"].shape == (11, 10)
     assert maxdiff(data["quaternion/gamma"][:, 0], np.sin(0.5 * np.linspace(0.0, 1.0, 11))) < ULPS
@@ -693,3 +697,15 @@ def test_command_line_runs_the_sample_problem(tmp_path, monkeypatch, capsys):
     back = jaxtree.load_result(tmp_path / "fig4_quaternion.nc")
     np.testing.assert_array_equal(np.asarray(back.gamma), data["quaternion/gamma"])
     assert "fig4_quaternion.nc" in out
+
+
+def test_drift_is_absolute_and_relative_only_away_from_zero():
+    """The summary's drift: absolute always; relative only where the initial value is not near
+    zero (a run from rest would read as a change of millions of percent)."""
+    from jaxtree._src.io.output import _change
+
+    assert _change([10.0, 10.1, 9.95], 10.0, "J") == "max change 1.000e-01 J (1.000e-02 of the initial value)"
+    assert _change([0.0, 2e-3, 1e-3], 0.0, "J") == "max change 2.000e-03 J"
+    assert _change([1e-12, 5.0], 1e-12, "J") == "max change 5.000e+00 J"  # from (numerically) rest
+    H = np.array([[0.0, 3.0, 4.0], [0.0, 3.0, 4.1]])
+    assert _change(H, H[0], "N m s") == "max change 1.000e-01 N m s (2.000e-02 of the initial value)"

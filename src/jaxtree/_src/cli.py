@@ -1063,7 +1063,19 @@ def sample(argv=None) -> int:
             jax.effects_barrier()
             wall = time.perf_counter() - t0
         runs[att] = sol
-        lines.append(output.summary(att, sol, wall=wall, first=first))
+        # the integration error: the same run at 10x the tolerances (the tolerances are not
+        # compiled in, so this reuses the program), over all saved times
+        with contextlib.redirect_stdout(io.StringIO()):
+            loose = simulate(model, args.duration, **{**kw, "rtol": 10 * args.rtol, "atol": 10 * args.atol})
+        estimate = {
+            "gamma": float(np.max(np.abs(np.asarray(loose.gamma) - np.asarray(sol.gamma)))),
+            "rates": max(
+                float(np.max(np.abs(np.asarray(loose.gamma_dot) - np.asarray(sol.gamma_dot)))),
+                float(np.max(np.abs(np.asarray(loose.omega0) - np.asarray(sol.omega0)))),
+            ),
+            "dcm": float(np.max(np.abs(np.asarray(loose.dcm) - np.asarray(sol.dcm)))),
+        }
+        lines.append(output.summary(att, sol, wall=wall, first=first, estimate=estimate))
     print()
     print("\n".join(lines))
     if len(runs) > 1:

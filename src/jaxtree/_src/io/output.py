@@ -97,23 +97,54 @@ def save_plot(path, runs: dict[str, Solution], title: str = "") -> bool:
     return True
 
 
-def summary(name: str, sol: Solution, wall: float | None = None, first: float | None = None) -> str:
-    """A few lines: final state, energy and momentum drift, steps and times."""
+def _change(values, initial, unit: str) -> str:
+    """``max change <abs> <unit>`` and, where the initial value is not near zero (a run from
+    rest starts near zero: a relative figure would be huge and mean nothing), ``(<rel> of it)``."""
+    values = np.asarray(values, float)
+    change = (
+        float(np.nanmax(np.abs(values - initial)))
+        if values.ndim == 1
+        else float(np.nanmax(np.linalg.norm(values - initial, axis=-1)))
+    )
+    size = float(np.linalg.norm(initial))
+    peak = float(np.nanmax(np.abs(values))) if values.ndim == 1 else float(np.nanmax(np.linalg.norm(values, axis=-1)))
+    text = f"max change {change:.3e} {unit}"
+    if size > 1e-6 * peak and size > 0:
+        text += f" ({change / size:.3e} of the initial value)"
+    return text
+
+
+def summary(
+    name: str,
+    sol: Solution,
+    wall: float | None = None,
+    first: float | None = None,
+    estimate: dict | None = None,
+) -> str:
+    """A few lines: final state (with units), energy and momentum drift (absolute, and relative
+    where the initial value is not near zero), steps, the integration error estimate (`estimate`:
+    ``{"gamma", "rates", "dcm"}``, differences from a run at 10x the tolerances) and times."""
     st = {k: int(np.asarray(v)) for k, v in sol.stats.items() if isinstance(v, (jax.Array, np.ndarray, int))}
     f = sol.final
     fmt = functools.partial(np.array2string, precision=6, suppress_small=True, max_line_width=150)
     lines = [
         f"[{name}] t_final = {float(sol.t_final):.6g} s, result: {'ok' if sol.ok else 'FAILED'}",
-        f"  gamma     = {fmt(np.asarray(f.gamma))}",
-        f"  gamma_dot = {fmt(np.asarray(f.gamma_dot))}",
-        f"  omega0    = {fmt(np.asarray(f.omega0))}",
+        f"  gamma     = {fmt(np.asarray(f.gamma))} rad",
+        f"  gamma_dot = {fmt(np.asarray(f.gamma_dot))} rad/s",
+        f"  omega0    = {fmt(np.asarray(f.omega0))} rad/s (in {{b0}})",
         f"  C         = {fmt(np.asarray(f.dcm).ravel())} (row-major)",
-        f"  energy: E0 = {float(sol.energy[0]):.9g}, max |E - E0| / |E0| = {float(sol.energy_drift()):.3e}"
+        f"  energy: E0 = {float(sol.energy[0]):.9g} J, {_change(sol.energy, float(sol.energy[0]), 'J')}"
         + (" (prescribed hinges do work)" if sol.problem.model.prescribed else ""),
-        f"  angular momentum: max |H - H0| / |H0| = {float(sol.momentum_drift()):.3e}",
+        f"  angular momentum: |H0| = {float(np.linalg.norm(np.asarray(sol.angular_momentum[0]))):.9g} N m s, "
+        f"{_change(sol.angular_momentum, np.asarray(sol.angular_momentum[0], float), 'N m s')}",
         f"  steps: {st['num_accepted_steps']} accepted, {st['num_rejected_steps']} rejected, "
         f"{st['rhs_evaluations']} right-hand sides",
     ]
+    if estimate is not None:
+        lines.append(
+            f"  integration error estimate (difference from a run at 10x the tolerances): angles "
+            f"{estimate['gamma']:.2e} rad, rates {estimate['rates']:.2e} rad/s, C {estimate['dcm']:.2e}"
+        )
     if first is not None or wall is not None:
         parts = []
         if first is not None:
