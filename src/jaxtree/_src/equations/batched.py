@@ -33,8 +33,8 @@ levels are one ``lax.scan``, so compile time follows the number of distinct leve
 Symmetric 6 x 6 inertias are kept as their 21 entries, vectors as tuples of component arrays.
 
 **What XLA:CPU needs** (measured, ``benchmarks/FINDINGS.md``): XLA fuses an elementwise producer
-into every consumer and recomputes it there, and drops ``optimization_barrier`` before fusion,
-so the recursion is cut into *stages* whose results are buffers (:func:`_stages`); a
+into every consumer and recomputes it there, so the recursion is cut into *stages* whose results
+are buffers (:func:`_stages`: an ``optimization_barrier`` on each stage's results); a
 concatenation of more than 8 operands is not fused, so a stage returns chunks of at most 8
 components (:func:`_stack`). Without the stages flex95 cost 1.1 Mflop a member (the rotations
 recomputed ~120 times), with them ~50 k.
@@ -203,12 +203,13 @@ def _stages(key):
     """``stage(fn, *args)``: ``fn(*args)`` (a pytree of arrays) computed as one unit whose results
     are buffers.
 
-    XLA:CPU fuses an elementwise producer into each of its consumers and recomputes it there, and
-    removes ``optimization_barrier`` before fusion: written as one expression, a level's rotations
-    were recomputed by each of the dozens of entries that read them (flex95: 1.1 Mflop a member
-    instead of ~60 k). A conditional's operands and results are buffers, so each stage runs as
-    the branch of one whose two branches XLA cannot merge: `key` is a scalar of the inputs; for
-    a NaN key the values are `fn`'s, for any other ``0 * key`` (exactly zero) is added to them.
+    XLA:CPU fuses an elementwise producer into each of its consumers and recomputes it there:
+    written as one expression, a level's rotations were recomputed by each of the dozens of
+    entries that read them (flex95: 1.1 Mflop a member instead of ~100 k). By :func:`stage_mode`:
+    "barrier" puts an ``optimization_barrier`` on a stage's results; "cond" runs a stage as the
+    branch of a conditional (whose operands and results are buffers) whose two branches XLA
+    cannot merge: `key` is a scalar of the inputs; for a NaN key the values are `fn`'s, for any
+    other ``0 * key`` (exactly zero) is added to them; "none" leaves fusion to the compiler.
     A stage returns few stacked arrays (components leading): one loop each, not one per
     component."""
 
@@ -227,9 +228,13 @@ def _stages(key):
     return stage
 
 
-# How :func:`_stages` cuts the recursion: "cond" (each stage the branch of a conditional: XLA:CPU),
+# How :func:`_stages` cuts the recursion: "cond" (each stage the branch of a conditional),
 # "barrier" (``optimization_barrier`` on a stage's results), "none" (one expression; the compiler
-# fuses as it likes), or "auto": "cond" on a CPU, "none" elsewhere. On a GPU a conditional reads its
+# fuses as it likes), or "auto": "barrier" on a CPU, "none" elsewhere. On this 2-core CPU
+# (benchmarks/bench_batch.py --stages, 2026-11-27) "barrier" kept the stages apart as well as "cond"
+# (flex95 101.6 against 113.2 kflop a member) and ran faster (fig4_free 1.73 against 2.68 us a member
+# at 1024, flex95 16.96 against 22.78 at 256) with shorter compiles (7.4 against 12.3 s, 16.7 against
+# 22.7 s). On a GPU a conditional reads its
 # predicate on the host, one synchronization a stage, and XLA:GPU's fusion does not recompute the
 # rotations as XLA:CPU's does: on an H200 at 65 536 members (benchmarks/bench_gpu.py, float64) "none"
 # ran fig4_free in 17.8 ns a member, "barrier" 37.1, "cond" 36.5; flex95 145.6 and 275.3 ("barrier").
@@ -240,7 +245,7 @@ def stage_mode() -> str:
     """The stage mode in force (:data:`STAGE`, with "auto" resolved by JAX's default backend)."""
     if STAGE != "auto":
         return STAGE
-    return "cond" if jax.default_backend() == "cpu" else "none"
+    return "barrier" if jax.default_backend() == "cpu" else "none"
 
 
 # XLA:CPU fuses a concatenation of at most 8 operands into one loop; a stage's stacked results
