@@ -183,11 +183,97 @@ def test_derivatives_of_the_vmapped_function(scenes):
         tol = tolerance(model, si)
         p1, j1 = jax.jvp(lambda g: f(g, s.gamma_dot[i]), (s.gamma[i],), (tangent[i],))
         assert rel(primal[i], p1) < tol and rel(batched_primal[i], p1) < tol
-        # the derivatives run the same implicit-function rule per member: the same arithmetic
+        # a tree this small keeps the implicit-function rule in a batch: the same arithmetic
         assert rel(jvp[i], j1) < ROUNDOFF
         g1 = jax.grad(lambda g: jnp.sum(f(g, s.gamma_dot[i]) ** 2))(s.gamma[i])
         assert rel(grads[i], g1) < ROUNDOFF
         assert rel(jac[i], jax.jacfwd(f)(s.gamma[i], s.gamma_dot[i])) < ROUNDOFF
+
+
+def _prescribed_tree_with_loads():
+    """A random tree of 10 bodies with a prescribed hinge, loads that depend on time and state,
+    and hinge springs: every kind of input the rule differentiates."""
+    rng = np.random.default_rng(21)
+    model = random_tree(rng, deep_and_wide(rng, 10))
+
+    def push(t, s):
+        return jnp.array([jnp.sin(t), s.gamma[2], 1.0]), jnp.array([0.1, -s.omega0[0], jnp.cos(2 * t)])
+
+    model = model.with_loads(jaxtree.PerBodyLoads({0: push, 4: push}))
+    return eqx.tree_at(
+        lambda m: m.prescription,
+        model,
+        jaxtree.SinePrescription((3,), jnp.array([0.4]), jnp.array([1.3]), jnp.array([0.2])),
+        is_leaf=lambda x: x is None,
+    )
+
+
+@pytest.fixture
+def batch_first_derivatives(monkeypatch):
+    """Derivatives through the batch-first form for any tree (the engine keeps it for trees of
+    BATCH_FIRST_DERIVATIVES_MIN bodies and more, whose programs compile for long), and a count
+    of the batch-first programs differentiated."""
+    monkeypatch.setattr(dynamics, "BATCH_FIRST_DERIVATIVES_MIN", 1)
+    calls = []
+    members = dynamics._members
+    monkeypatch.setattr(dynamics, "_members", lambda *a: calls.append(1) or members(*a))
+    return calls
+
+
+def test_derivative_rule_in_the_batch_first_form(batch_first_derivatives):
+    """Tangents along a mass, the whole state, the hinge torques and the time, of every output
+    (holding torque included), by jacfwd and grad of the vmapped function: the batch-first
+    recursion's derivatives equal each member's implicit-function rule."""
+    model = _prescribed_tree_with_loads()
+    s = states(model, 9)
+    s = s._replace(gamma=0.3 * s.gamma)
+    tau = jnp.linspace(-1.0, 1.0, model.n)
+
+    def f(mass, omega0, gamma, gamma_dot, tau, t):
+        m = eqx.tree_at(lambda m: m.mass, model, model.mass.at[2].set(mass))
+        acc = jaxtree.solve_accelerations(m, jaxtree.State(s.dcm[0], omega0, gamma, gamma_dot), t, tau)
+        return jnp.concatenate([acc.omega0_dot, acc.gamma_ddot, acc.hold_torque])
+
+    rng = np.random.default_rng(3)
+    mass = jnp.asarray(model.mass[2] * (1 + 0.1 * rng.uniform(-1, 1, B)))
+    taus = jnp.tile(tau, (B, 1))
+    times = jnp.linspace(0.0, 2.0, B)
+    args = (mass, s.omega0, s.gamma, s.gamma_dot, taus, times)
+    every = tuple(range(len(args)))
+    jacfwd = jax.jacfwd(f, argnums=every)
+    grad = jax.grad(lambda *a: jnp.sum(f(*a) ** 2), argnums=every)
+    jac = jax.jit(jax.vmap(jacfwd))(*args)
+    assert batch_first_derivatives  # the tangents of the batch-first program
+    grads = jax.jit(jax.vmap(grad))(*args)
+    jacfwd, grad = jax.jit(jacfwd), jax.jit(grad)
+    for i in range(0, B, 21):
+        ai = tuple(a[i] for a in args)
+        tol = tolerance(model, jaxtree.State(s.dcm[0], s.omega0[i], s.gamma[i], s.gamma_dot[i]))
+        for got, want in zip(jac + grads, jacfwd(*ai) + grad(*ai)):
+            assert rel(got[i], want) < tol
+
+
+def test_second_derivatives_through_the_rule(scenes, batch_first_derivatives):
+    """The rule differentiated again: forward over forward under vmap equals each member's, and
+    a member's forward-over-reverse Hessian (through the transposed solve) equals its
+    forward-over-forward one and central differences of its gradient."""
+    model = scenes["fig4_free"]
+    s = states(model, 10)
+    s = s._replace(gamma=0.2 * s.gamma)
+    f = lambda g, gd: jnp.sum(jaxtree.forward_dynamics(model, s.dcm[0], s.omega0[0], g, gd)[1] ** 2)
+    hessians = jax.jit(jax.vmap(jax.jacfwd(jax.jacfwd(f))))(s.gamma, s.gamma_dot)
+    forward = jax.jit(jax.jacfwd(jax.jacfwd(f)))
+    reverse = jax.jit(jax.jacfwd(jax.grad(f)))
+    grad = jax.jit(jax.grad(f))
+    for i in range(0, B, 31):
+        g, gd = s.gamma[i], s.gamma_dot[i]
+        tol = tolerance(model, jaxtree.State(s.dcm[0], s.omega0[0], g, gd))
+        H = forward(g, gd)
+        assert rel(hessians[i], H) < tol
+        assert rel(reverse(g, gd), H) < tol
+        h = 1e-6
+        fd = jnp.stack([(grad(g.at[k].add(h), gd) - grad(g.at[k].add(-h), gd)) / (2 * h) for k in range(model.n)], 1)
+        assert rel(fd, H) < 1e-6
 
 
 def test_a_member_in_gimbal_lock_is_nan_and_its_batch_mates_are_not(scenes):

@@ -34,7 +34,8 @@ accumulated over the same outboard sets.
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol, overload
+import functools
+from typing import Any, NamedTuple, Protocol, overload
 
 import equinox as eqx
 import jax
@@ -423,6 +424,16 @@ def _solve_completed(model, state, t, tau, gdd_p):
     return _solve_plain(model, state, t, tau, gdd_p)
 
 
+@eqx.filter_custom_jvp
+def _solve_factored(model, state, t, tau, gdd_p):
+    """``(accelerations, factor)``: :func:`_solve_completed` as its derivative rule computes it,
+    from the factor of the matrix that the rule's tangents reuse (:func:`_factored_one`); under
+    a batch-first ``jax.vmap`` the batch-first accelerations and a placeholder factor (the
+    tangents are then the recursion's, which makes no factor). Differentiated by the same rule
+    (the factor a constant), so second derivatives never differentiate a ``custom_vmap``."""
+    return _solve_plain(model, state, t, tau, gdd_p, one=_factored_one)
+
+
 # Batches of at least this many members run the batch-first recursion (:mod:`.batched`) when Eq. (1)
 # is vmapped on a CPU; smaller ones vmap the single-member solve. The batch-first program pays a
 # fixed cost per call (~550 kernels on fig4_free, ~1300 on flex95: 57 and 190 us) that a small batch
@@ -442,10 +453,11 @@ def batch_first_min() -> int:
     return BATCH_FIRST_MIN if jax.default_backend() == "cpu" else BATCH_FIRST_MIN_ACCELERATOR
 
 
-def _solve_plain(model, state, t, tau, gdd_p):
+def _solve_plain(model, state, t, tau, gdd_p, one=None):
     """Eq. (1) by the model's method; under ``jax.vmap`` of at least :func:`batch_first_min`
     members, by the batch-first recursion of :mod:`jaxtree._src.equations.batched` (the same
     accelerations to round-off)."""
+    one = _solve_one if one is None else one
     dyn, static = eqx.partition((model, state, t, tau, gdd_p), eqx.is_array)
     # custom_vmap sees a flat list of arrays: its JVP compares pytree structures in which None
     # leaves (eqx.partition's placeholders) would not match
@@ -454,17 +466,17 @@ def _solve_plain(model, state, t, tau, gdd_p):
 
     @jax.custom_batching.custom_vmap
     def solve(leaves):
-        return _solve_one(*args(leaves))
+        return one(*args(leaves))
 
     @solve.def_vmap
     def _rule(axis_size, in_batched, leaves):
         (flags,) = in_batched
         if not any(flags):  # nothing batched (e.g. only tangents, in a JVP): one solve
-            out = _solve_one(*args(leaves))
+            out = one(*args(leaves))
             return out, jax.tree_util.tree_map(lambda _: False, out)
         if axis_size < batch_first_min():
             axes = ([0 if b else None for b in flags],)
-            out = jax.vmap(lambda xs: _solve_one(*args(xs)), in_axes=axes, axis_size=axis_size)(leaves)
+            out = jax.vmap(lambda xs: one(*args(xs)), in_axes=axes, axis_size=axis_size)(leaves)
         else:
             out = _solve_members(
                 axis_size,
@@ -472,6 +484,10 @@ def _solve_plain(model, state, t, tau, gdd_p):
                 jax.tree_util.tree_unflatten(tree, flags),
                 static,
             )
+            if one is _factored_one:  # the factor's placeholder, the same for all members
+                size = len(_unknown_rows_and_prescribed(static[0])[0])
+                placeholder = jnp.zeros((size, size), out.omega0_dot.dtype)
+                return (out, placeholder), (jax.tree_util.tree_map(lambda _: True, out), False)
         return out, jax.tree_util.tree_map(lambda _: True, out)
 
     return solve(leaves)
@@ -628,7 +644,6 @@ def _differentiated(primals, tangents):
     return [leaves[i] for i in idx], [tleaves[i] for i in idx], rebuild
 
 
-@_solve_completed.def_jvp
 def _solve_completed_jvp(primals, tangents):
     """Derivatives of the solution of Eq. (1) by the implicit-function theorem.
 
@@ -643,42 +658,304 @@ def _solve_completed_jvp(primals, tangents):
     applied to every tangent at once (``jax.jacfwd``: one solve with many right sides): with the
     dense method's Cholesky factor, or for the articulated method (which calls no LAPACK routine)
     as an inverse by Gauss-Jordan elimination in a loop (:func:`jaxtree._src.equations._math.spd_inverse`),
-    computed once from the primal configuration and applied to all tangents by one product. The
-    rule's primal solves with the same factor (the dense matrix is assembled anyway), so the
-    articulated recursion is not traced into derivatives. Reverse mode transposes this: one
-    solve with the same factor and one VJP of F. The rule is written in JAX, so it can be
+    computed once from the primal configuration and applied to all tangents by one product
+    (:func:`_tangent_one`).
+
+    Under ``jax.vmap`` of at least :func:`batch_first_min` members the tangents are those of the
+    batch-first recursion of :mod:`.batched` instead, differentiated forward (and its transpose
+    for reverse mode): the members' tangents in the layout of the batch, the same derivatives to
+    round-off. Which of the two runs is decided where JAX batches (``custom_vmap``); the map
+    ``p' -> x'`` is handed to JAX as a linear solve (:func:`_tangent_map`) so that reverse mode
+    transposes it through a rule of its own. The rule is written in JAX, so it can be
     differentiated again (the linearization's second derivatives)."""
-    model, state, t, tau, gdd_p = primals
-    rows_u, rows_p = _unknown_rows_and_prescribed(model)
+    acc, _, acc_dot = _rule(primals, tangents)
+    return acc, acc_dot
+
+
+def _solve_factored_jvp(primals, tangents):
+    """:func:`_solve_completed_jvp` for :func:`_solve_factored` (the factor's tangent zero: only the
+    rule's own solves read it)."""
+    acc, factor, acc_dot = _rule(primals, tangents)
+    return (acc, factor), (acc_dot, jnp.zeros_like(factor))
+
+
+def _rule(primals, tangents):
+    """``(accelerations, factor, their tangents)``: by :func:`_tangent_map` for a tree of at least
+    :data:`BATCH_FIRST_DERIVATIVES_MIN` bodies, else by the single-member rule in plain JAX (which
+    ``jax.vmap`` batches as it is)."""
+    wrapped = primals[0].n >= BATCH_FIRST_DERIVATIVES_MIN
+    acc, factor = _solve_factored(*primals) if wrapped else _factored_one(*primals)
+    leaves, tree = jax.tree_util.tree_flatten(primals)
+    tleaves = tree.flatten_up_to(tangents)
+    diff = tuple(i for i, tl in enumerate(tleaves) if tl is not None)
+    if not diff:
+        return acc, factor, jax.tree_util.tree_map(jnp.zeros_like, acc)
+    spec, arr = _spec(leaves, tree, diff)
+    dots = [jnp.asarray(tleaves[i], jnp.result_type(leaves[i])) for i in diff]
+    if not wrapped:
+        return acc, factor, _tangent_one(spec, arr, (acc, factor), dots)
+    return acc, factor, _tangent_map(spec, arr, (acc, factor), dots)
+
+
+# Trees of at least this many bodies differentiate Eq. (1) through :func:`_tangent_map`, whose
+# tangents run the batch-first recursion under a vmap of batch_first_min() members; smaller ones
+# keep the single-member rule in plain JAX. On this 2-core CPU (64 members, tangents of all hinge
+# angles, 2026-11-27) the batch-first tangents ran fig4_free (4 bodies) 1.4x and chain10 2x faster
+# but compiled in 23-38 s against 3 s; chain50 ran 1.75x faster (jacfwd 1.49 against 2.60 ms a member)
+# and flex95 9x (6 tangents at 256 members: 125 against 1176 us a member).
+BATCH_FIRST_DERIVATIVES_MIN = 16
+
+
+def _spec(leaves, tree, diff):
+    """The :class:`_Spec` of flattened inputs with tangents on the leaves `diff`, and their arrays."""
+    arrays = tuple(i for i, x in enumerate(leaves) if eqx.is_array(x))
+    if not set(diff) <= set(arrays):
+        raise TypeError("Eq. (1): a tangent on an input that is not an array")
+    where = tuple(arrays.index(i) for i in diff)
+    spec = _Spec(tree, tuple(None if eqx.is_array(x) else x for x in leaves), arrays, where)
+    return spec, [leaves[i] for i in arrays]
+
+
+_solve_completed.def_jvp(_solve_completed_jvp)
+_solve_factored.def_jvp(_solve_factored_jvp)
+
+
+def _tangent_map(spec, arr, res, dots):
+    """The tangents of the accelerations along `dots` (those of ``leaves[i]``, i in `diff`).
+
+    The map ``G: p' -> acc'`` is linear; it is passed to JAX as the solve of the linear system
+    ``M (p', y) = (p', y - G p')``, whose inverse ``(p', y + G p')`` (:func:`_tangent_of`) and
+    transposed inverse ``(c_p + G^T c_y, c_y)`` (:func:`_cotangent_of`) are evaluated by the
+    single-member rule or, under a batch, by the batch-first recursion: ``custom_vmap``
+    chooses, and ``custom_linear_solve`` carries the choice through transposition, which JAX
+    would otherwise have to do for ``custom_vmap`` itself (it cannot)."""
+    # one tangent of one member, traced once for the solve, its transpose, the matrix and the
+    # batches below (each would otherwise trace the rule again)
+    per = jax.jit(functools.partial(_tangent_one, spec))
+
+    @jax.jit  # traced once for the matrix and its transpose
+    def own_factor(arr):
+        model, state, t, tau, _ = spec.primals(arr)
+        return _factor(model, state, t, tau)[2]
+
+    def matvec(x):  # read only when the solve is differentiated: its own factor, differentiable
+        p, y = x
+        return p, jax.tree_util.tree_map(jnp.subtract, y, _tangents(spec, per, arr, (res[0], own_factor(arr)), p))
+
+    def solve(_, b):
+        p, y = b
+        return p, jax.tree_util.tree_map(jnp.add, y, _tangent_of(spec, per, arr, res, p))
+
+    def transpose_solve(_, c):
+        cp, cy = c
+        return [u + v for u, v in zip(cp, _cotangent_of(spec, per, arr, res, cy))], cy
+
+    # the second part of the right side is zero, but linear in the tangents: JAX transposes a
+    # linear solve only when all of its right side is
+    nothing = 0.0 * jnp.sum(dots[0])
+    zeros = jax.tree_util.tree_map(lambda a: jnp.zeros_like(a) + nothing.astype(a.dtype), res[0])
+    return jax.lax.custom_linear_solve(matvec, (dots, zeros), solve, transpose_solve)[1]
+
+
+class _Spec(NamedTuple):
+    """Where the arrays of a flattened ``(model, state, t, tau, gdd_p)`` are: `tree` its structure,
+    `fixed` its leaves that are not arrays (None at the arrays), `arrays` the positions of the
+    array leaves, `where` the positions among those of the differentiated ones."""
+
+    tree: Any
+    fixed: tuple
+    arrays: tuple
+    where: tuple
+
+    def primals(self, arr):
+        leaves = list(self.fixed)
+        for i, a in zip(self.arrays, arr):
+            leaves[i] = a
+        return jax.tree_util.tree_unflatten(self.tree, leaves)
+
+    def tangents(self, dots):
+        leaves = [None] * len(self.fixed)
+        for j, d in zip(self.where, dots):
+            leaves[self.arrays[j]] = d
+        return jax.tree_util.tree_unflatten(self.tree, leaves)
+
+
+def _factor(model, state, t, tau):
+    """``(A, solve_u)``: the matrix of Eq. (1) and the solve with its block of the unknowns, by the
+    dense method's Cholesky factor or, for the articulated method (which calls no LAPACK
+    routine), an inverse by Gauss-Jordan elimination in a loop
+    (:func:`jaxtree._src.equations._math.spd_inverse`) applied by one product; and whether the
+    block is regular."""
+    rows_u, _ = _unknown_rows_and_prescribed(model)
     A, rhs = rotational_equations(model, state, t, tau)
     Auu = A[np.ix_(rows_u, rows_u)]
     if articulated.resolve_method(model) == "articulated":
-        # the inverse of A_uu by Gauss-Jordan in a loop (no LAPACK: the articulated method's
-        # promise, see _math), shared by the primal and all tangents: one product applies it
-        # to them all. The primal is the same solution as the recursion's to round-off, and the
-        # recursion itself is not compiled a second time into every derivative.
         Ainv, pivots = spd_inverse(Auu)
-        solve_u = lambda r: Ainv @ r
-        ok = _regular_pivots(pivots, Auu)
-    else:
-        L = jax.lax.linalg.cholesky(Auu, symmetrize_input=False)
-        solve_u = lambda r: _cho_apply(L, r)
-        ok = _regular(L, Auu)
-    acc = _from_matrix(model, A, rhs, gdd_p, lambda _, b: jnp.where(ok, solve_u(b), jnp.nan))
+        return A, rhs, Ainv, _regular_pivots(pivots, Auu)
+    L = jax.lax.linalg.cholesky(Auu, symmetrize_input=False)
+    return A, rhs, L, _regular(L, Auu)
+
+
+def _solver(model, factor):
+    """``A_uu^{-1} r`` by :func:`_factor`'s factor (r: a vector)."""
+    if articulated.resolve_method(model) == "articulated":
+        return lambda r: factor @ r
+    return lambda r: _cho_apply(factor, r)
+
+
+def _factored_one(model, state, t, tau, gdd_p):
+    """Eq. (1) for one member by :func:`_factor` (NaN where its block is singular), and the factor."""
+    A, rhs, factor, ok = _factor(model, state, t, tau)
+    solve_u = _solver(model, factor)
+    return _from_matrix(model, A, rhs, gdd_p, lambda _, b: jnp.where(ok, solve_u(b), jnp.nan)), factor
+
+
+def _tangents(spec, per, arr, res, dots):
+    """``G p'`` for one member by `per` (:func:`_tangent_one`); `dots` may carry leading axes of
+    tangents beyond the shapes of their primals (the same on every one): the factor is made
+    once (it does not depend on them) and applied to all."""
+    extra = jnp.ndim(dots[0]) - jnp.ndim(arr[spec.where[0]])
+    one = lambda d: per(arr, res, d)
+    for _ in range(extra):
+        one = jax.vmap(one)
+    return one(dots)
+
+
+def _tangent_one(spec, arr, res, dots):
+    """``G p'`` for one member and one tangent by the implicit-function rule. `res`: the
+    accelerations and :func:`_factor`'s factor (None: make it here)."""
+    acc, factor = res
+    primals = spec.primals(arr)
+    model, state, t, tau, gdd_p = primals
+    rows_u, rows_p = _unknown_rows_and_prescribed(model)
+    if factor is None:
+        A, _, factor, _ = _factor(model, state, t, tau)
+    elif len(rows_p):
+        A, _ = rotational_equations(model, state, t, tau)
+    solve_u = _solver(model, factor)
     x_u = jnp.concatenate([acc.omega0_dot, acc.gamma_ddot[rows_u[3:] - 3]])
     A_pu = A[np.ix_(rows_p, rows_u)] if len(rows_p) else None
-    values, dots, rebuild = _differentiated(primals, tangents)
-    if values:
-        F_dot = _unbalanced_jvp(primals, tangents, x_u, values, dots, rebuild)
-    else:
-        F_dot = jnp.zeros((model.n + 3,), x_u.dtype)
-    x_dot = solve_u(F_dot[rows_u])
-    gdd_p_dot = None if gdd_p is None else (jnp.zeros_like(gdd_p) if tangents[4] is None else tangents[4])
-    w_dot_dot, gdd_dot = _full_accelerations(model, x_dot, gdd_p_dot)
-    hold_dot = -F_dot[rows_p]
-    if A_pu is not None:
-        hold_dot = hold_dot + A_pu @ x_dot
-    return acc, Accelerations(w_dot_dot, gdd_dot, hold_dot)
+    values = [arr[j] for j in spec.where]
+    rebuild = lambda v: spec.primals([dict(zip(spec.where, v)).get(j, a) for j, a in enumerate(arr)])
+
+    def one(d):
+        tangents = spec.tangents(d)
+        F_dot = _unbalanced_jvp(primals, tangents, x_u, values, d, rebuild)
+        x_dot = solve_u(F_dot[rows_u])
+        gdd_p_dot = None if gdd_p is None else (jnp.zeros_like(gdd_p) if tangents[4] is None else tangents[4])
+        w_dot_dot, gdd_dot = _full_accelerations(model, x_dot, gdd_p_dot)
+        hold_dot = -F_dot[rows_p]
+        if A_pu is not None:
+            hold_dot = hold_dot + A_pu @ x_dot
+        return Accelerations(w_dot_dot, gdd_dot, hold_dot)
+
+    return one(dots)
+
+
+def _members(spec, size, arr, arr_f):
+    """``(values, f)``: the differentiated leaves, each with the members on axis 0, and the
+    batch-first accelerations of :func:`_solve_members` as a function of them."""
+    values = [arr[j] if arr_f[j] else jnp.broadcast_to(arr[j], (size,) + jnp.shape(arr[j])) for j in spec.where]
+    flags = list(arr_f)
+    for j in spec.where:
+        flags[j] = True
+
+    def f(v):
+        full = list(arr)
+        for j, x in zip(spec.where, v):
+            full[j] = x
+        dyn, static = eqx.partition(spec.primals(full), eqx.is_array)
+        return _solve_members(size, dyn, jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(dyn), flags), static)
+
+    return values, f
+
+
+def _tangent_of(spec, per, arr, res, dots):
+    """``G p'`` (:func:`_tangent_one`), by the batch-first recursion differentiated forward under
+    ``jax.vmap`` of at least :func:`batch_first_min` members."""
+
+    @jax.custom_batching.custom_vmap
+    def g(arr, res, dots):
+        return _tangents(spec, per, arr, res, dots)
+
+    @g.def_vmap
+    def _rule(size, in_batched, arr, res, dots):
+        arr_f, res_f, dot_f = in_batched
+        if not (any(arr_f) or any(jax.tree_util.tree_leaves(res_f))):
+            # tangents alone batched (jax.jacfwd): one more leading axis of tangents on all
+            dots = [d if b else jnp.broadcast_to(d, (size,) + jnp.shape(d)) for d, b in zip(dots, dot_f)]
+            out = _tangent_of(spec, per, arr, res, dots)
+        elif size >= batch_first_min():
+            j = spec.where[0]
+            extra = jnp.ndim(dots[0]) - int(dot_f[0]) - (jnp.ndim(arr[j]) - int(arr_f[j]))
+            values, f = _members(spec, size, arr, arr_f)
+            d = [_tangent_axes(x, b, size, extra) for x, b in zip(dots, dot_f)]
+            one = lambda d: jax.jvp(f, (values,), (d,))[1]
+            for _ in range(extra):
+                one = jax.vmap(one)
+            out = jax.tree_util.tree_map(lambda x: jnp.moveaxis(x, extra, 0), one(d))
+        else:
+            axes = _axes(in_batched)
+            out = jax.vmap(lambda a, r, d: _tangents(spec, per, a, r, d), in_axes=axes, axis_size=size)(arr, res, dots)
+        return out, jax.tree_util.tree_map(lambda _: True, out)
+
+    return g(arr, res, dots)
+
+
+def _cotangent_one(spec, per, arr, res, c):
+    """``G^T c`` for one member: the transpose of :func:`_tangent_one` (`c` may carry leading
+    axes beyond the accelerations' shapes)."""
+    values = [arr[j] for j in spec.where]
+    extra = jnp.ndim(c.omega0_dot) - 1
+    transposed = jax.linear_transpose(lambda d: per(arr, res, d), values)
+    one = lambda c: list(transposed(c)[0])
+    for _ in range(extra):
+        one = jax.vmap(one)
+    return one(c)
+
+
+def _cotangent_of(spec, per, arr, res, c):
+    """``G^T c`` (:func:`_cotangent_one`), by the batch-first recursion differentiated backward
+    under ``jax.vmap`` of at least :func:`batch_first_min` members."""
+
+    @jax.custom_batching.custom_vmap
+    def g(arr, res, c):
+        return _cotangent_one(spec, per, arr, res, c)
+
+    @g.def_vmap
+    def _rule(size, in_batched, arr, res, c):
+        arr_f, res_f, c_f = in_batched
+        if not (any(arr_f) or any(jax.tree_util.tree_leaves(res_f))):
+            c = jax.tree_util.tree_map(lambda x, b: x if b else jnp.broadcast_to(x, (size,) + jnp.shape(x)), c, c_f)
+            out = _cotangent_of(spec, per, arr, res, c)
+        elif size >= batch_first_min():
+            extra = jnp.ndim(c.omega0_dot) - int(c_f.omega0_dot) - 1
+            values, f = _members(spec, size, arr, arr_f)
+            _, pullback = jax.vjp(f, values)
+            cc = jax.tree_util.tree_map(lambda x, b: _tangent_axes(x, b, size, extra), c, c_f)
+            one = lambda c: list(pullback(c)[0])
+            for _ in range(extra):
+                one = jax.vmap(one)
+            out = [jnp.moveaxis(x, extra, 0) for x in one(cc)]
+        else:
+            out = jax.vmap(
+                lambda a, b, c: _cotangent_one(spec, per, a, b, c), in_axes=_axes(in_batched), axis_size=size
+            )(arr, res, c)  # a batch this small made its factors member by member (_solve_plain)
+        return out, [True] * len(out)
+
+    return g(arr, res, c)
+
+
+def _tangent_axes(x, batched, size, extra):
+    """`x` (members on axis 0 when `batched`, then `extra` leading tangent axes) as (tangent
+    axes..., members, ...)."""
+    if not batched:
+        x = jnp.broadcast_to(x, (size,) + jnp.shape(x))
+    return jnp.moveaxis(x, 0, extra)
+
+
+def _axes(in_batched):
+    return jax.tree_util.tree_map(lambda b: 0 if b else None, in_batched)
 
 
 def _unbalanced_jvp(primals, tangents, x_u, values, dots, rebuild):
