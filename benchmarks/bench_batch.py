@@ -21,7 +21,10 @@ Goals (issue: the batch pays), per member, float64, this 2-core machine: fig4_fr
 B = 1024; flex95 full Eq. (1) <= 5 us at B = 256; flex95 hybrid right side <= 3 us at B = 256;
 a 60-body random tree <= 4 us at B = 256.
 
-Run:  python benchmarks/bench_batch.py [--cases fig4_free flex95 random60 hybrid] [--json PATH]
+With ``--tangents K`` it times instead the JVP of Eq. (1) along K directions of the state per
+member: the batch-first tangents against the single-member implicit-function rule under ``vmap``.
+
+Run:  python benchmarks/bench_batch.py [--cases fig4_free flex95 random60 hybrid] [--tangents K] [--json PATH]
 """
 
 import argparse
@@ -58,6 +61,12 @@ def _args():
         default=None,
         choices=("cond", "barrier", "none"),
         help="also time the batch-first program with these stage modes (batched.STAGE)",
+    )
+    p.add_argument(
+        "--tangents",
+        type=int,
+        default=0,
+        help="time instead the JVP with this many tangents on the state (the derivative rule in a batch)",
     )
     p.add_argument("--json", default=os.path.join(HERE, "results", "bench_batch.json"))
     return p.parse_args()
@@ -165,9 +174,33 @@ def hybrid_case(model, size, args):
     return [("hybrid rhs, vmapped", per / size, first, flops(fn, (ys,)) / size)]
 
 
+def tangents_case(model, size, args):
+    """The JVP of Eq. (1) along `args.tangents` random directions of the state, vmapped over the
+    batch: batch-first tangents (``BATCH_FIRST_DERIVATIVES_MIN`` at 1) against the single-member
+    implicit-function rule batched by ``vmap`` (the path of trees under that many bodies)."""
+    xs = batch_states(model, size)
+    rng = np.random.default_rng(2)
+    dirs = tuple(jnp.asarray(rng.normal(size=(size, args.tangents) + x.shape[1:])) for x in xs)
+    dcm = model.initial.dcm
+    f = lambda w, g, gd: jaxtree.forward_dynamics(model, dcm, w, g, gd)
+    fn = jax.vmap(lambda w, g, gd, *d: jax.vmap(lambda *t: jax.jvp(f, (w, g, gd), t)[1])(*d))
+    rows = []
+    saved = dynamics.BATCH_FIRST_DERIVATIVES_MIN
+    for label, bodies in (("tangents, batch-first", 1), ("tangents, rule vmapped", 10**9)):
+        dynamics.BATCH_FIRST_DERIVATIVES_MIN = bodies
+        try:
+            per, first = loop_timing(fn, xs + dirs, args.loop, args.repeats)
+            rows.append((f"{args.tangents} {label}", per / size, first, flops(fn, xs + dirs) / size))
+        finally:
+            dynamics.BATCH_FIRST_DERIVATIVES_MIN = saved
+    return rows
+
+
 def case(name, size, args):
     model = model_of(name)
-    if name == "hybrid":
+    if args.tangents and name != "hybrid":
+        rows = tangents_case(model, size, args)
+    elif name == "hybrid":
         rows = hybrid_case(model, size, args)
     else:
         xs = batch_states(model, size)

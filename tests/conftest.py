@@ -8,6 +8,10 @@ import os
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
+# The tests compile from scratch and leave no files behind: the persistent compilation cache
+# that `import jaxtree` turns on is off here (tests/test_cli.py checks it in fresh interpreters).
+os.environ.setdefault("JAXTREE_CACHE_DIR", "0")
+
 import jax
 import pytest
 

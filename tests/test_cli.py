@@ -8,6 +8,7 @@ import contextlib
 import io
 import json
 import os
+import pathlib
 import signal
 import subprocess
 import sys
@@ -428,6 +429,38 @@ def test_what_import_changes_and_its_opt_outs():
 
     assert run() == ["True", "1"]
     assert run(JAXTREE_ENABLE_X64="0", OPENBLAS_NUM_THREADS="3") == ["False", "3"]
+
+
+def test_persistent_compilation_cache(tmp_path):
+    """`import jaxtree` turns on JAX's persistent compilation cache: a second process finds there
+    what a first compiled. JAXTREE_CACHE_DIR moves it or (0) turns it off; a directory set for
+    JAX itself wins. Fresh interpreters; JAX's own threshold of compile time lowered to 0 so that
+    a small program is written."""
+    probe = (
+        "import jax, jaxtree; hits = []; "
+        "jax.monitoring.register_event_listener(lambda e, **k: hits.append(e) if 'cache_hits' in e else None); "
+        "jax.jit(lambda x: jax.numpy.sin(x) * 2.0 + x)(1.0).block_until_ready(); "
+        "print(jax.config.jax_compilation_cache_dir, len(hits))"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("JAXTREE_CACHE", "JAX_COMPILATION_CACHE"))}
+    env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
+
+    def run(**extra):
+        out = subprocess.run(
+            [sys.executable, "-c", probe], env={**env, **extra}, capture_output=True, text=True, timeout=120
+        )
+        assert out.returncode == 0, out.stderr
+        return out.stdout.split()
+
+    where = str(tmp_path / "cache")
+    assert run(JAXTREE_CACHE_DIR=where) == [where, "0"]  # compiled and written
+    assert any(pathlib.Path(where).iterdir())
+    assert run(JAXTREE_CACHE_DIR=where) == [where, "1"]  # read back
+    assert run(JAXTREE_CACHE_DIR="0") == ["None", "0"]
+    mine = str(tmp_path / "mine")
+    assert run(JAXTREE_CACHE_DIR=where, JAX_COMPILATION_CACHE_DIR=mine)[0] == mine
+    base = str(tmp_path / "xdg")
+    assert run(XDG_CACHE_HOME=base)[0] == os.path.join(base, "jaxtree", "xla")
 
 
 def test_solver_lists_agree_with_the_code(capsys):

@@ -9,6 +9,10 @@ Importing jaxtree changes two things in the process (README, "What `import jaxtr
   float32 models (``model.astype(jnp.float32)``) work for GPU batches. ``JAXTREE_ENABLE_X64=0``
   in the environment leaves JAX's setting as it is (with x64 off, models are float32).
 - ``OPENBLAS_NUM_THREADS`` is set to 1 unless the environment sets it (a setting of yours wins).
+- JAX's persistent compilation cache is turned on (:func:`jaxtree._src.cache.enable`), in
+  ``$XDG_CACHE_HOME/jaxtree/xla`` (``~/.cache/jaxtree/xla``): a second process skips XLA's
+  compilation of the programs a first one compiled. ``JAXTREE_CACHE_DIR`` moves it,
+  ``JAXTREE_CACHE_DIR=0`` turns it off; a cache directory set for JAX itself is left alone.
 """
 
 import os as _os
@@ -22,6 +26,10 @@ import jax as _jax
 
 if _os.environ.get("JAXTREE_ENABLE_X64", "1").strip().lower() not in ("0", "false", "no", "off"):
     _jax.config.update("jax_enable_x64", True)
+
+from ._src import cache as _cache
+
+_cache.enable()
 
 from ._src import VERSION as _VERSION
 from ._src._checks import SceneError as SceneError

@@ -1,0 +1,53 @@
+"""JAX's persistent compilation cache, on by default for jaxtree's processes.
+
+XLA's compilation of jaxtree's programs (Eq. (1) under an integrator, its Jacobians, Radau5's
+stages) takes seconds to tens of seconds, and every process paid it again. JAX can keep compiled
+programs on disk, keyed by the program, the compile options, the backend and the versions of jax
+and jaxlib, so an entry of another version or of other XLA flags is never used. This module turns
+that cache on at ``import jaxtree``:
+
+- where: ``JAXTREE_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/jaxtree/xla`` (``~/.cache/...``);
+- off: ``JAXTREE_CACHE_DIR=0`` (or ``off``, ``false``, ``no``);
+- a cache directory set for JAX itself (``JAX_COMPILATION_CACHE_DIR`` or
+  ``jax.config.update("jax_compilation_cache_dir", ...)`` before the import) is left as it is;
+- bounded: least recently used entries are evicted beyond :data:`MAX_BYTES`, and with eviction on
+  JAX takes a file lock for every read and write, so processes may share the directory;
+- only programs whose compilation took at least :data:`MIN_COMPILE_SECONDS` are written (unless
+  ``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`` says otherwise).
+
+Only XLA's compilation is cached: tracing a function (running its Python) happens in every process.
+"""
+
+from __future__ import annotations
+
+import os
+
+import jax
+
+OFF = ("0", "off", "false", "no", "none")
+MAX_BYTES = 2 * 1024**3
+MIN_COMPILE_SECONDS = 0.5
+
+
+def directory() -> str | None:
+    """The cache directory jaxtree would use, or None when ``JAXTREE_CACHE_DIR`` turns it off."""
+    value = os.environ.get("JAXTREE_CACHE_DIR", "").strip()
+    if value.lower() in OFF:
+        return None
+    if value:
+        return os.path.abspath(os.path.expanduser(value))
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "jaxtree", "xla")
+
+
+def enable() -> str | None:
+    """Turn the cache on (see the module's text); returns its directory, or None when off or when
+    JAX already has a cache directory of the user's."""
+    path = directory()
+    if path is None or os.environ.get("JAX_COMPILATION_CACHE_DIR") or jax.config.jax_compilation_cache_dir:
+        return None
+    jax.config.update("jax_compilation_cache_dir", path)
+    jax.config.update("jax_compilation_cache_max_size", MAX_BYTES)
+    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:  # else the user's
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
+    return path
