@@ -183,11 +183,12 @@ def tangents_case(model, size, args):
     dirs = tuple(jnp.asarray(rng.normal(size=(size, args.tangents) + x.shape[1:])) for x in xs)
     dcm = model.initial.dcm
     f = lambda w, g, gd: jaxtree.forward_dynamics(model, dcm, w, g, gd)
-    fn = jax.vmap(lambda w, g, gd, *d: jax.vmap(lambda *t: jax.jvp(f, (w, g, gd), t)[1])(*d))
     rows = []
     saved = dynamics.BATCH_FIRST_DERIVATIVES_MIN
     for label, bodies in (("tangents, batch-first", 1), ("tangents, rule vmapped", 10**9)):
         dynamics.BATCH_FIRST_DERIVATIVES_MIN = bodies
+        # a new function each time: jax.jit's cache of traces would hand back the other path
+        fn = jax.vmap(lambda w, g, gd, *d: jax.vmap(lambda *t: jax.jvp(f, (w, g, gd), t)[1])(*d))
         try:
             per, first = loop_timing(fn, xs + dirs, args.loop, args.repeats)
             rows.append((f"{args.tangents} {label}", per / size, first, flops(fn, xs + dirs) / size))
