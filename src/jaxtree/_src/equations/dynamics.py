@@ -735,8 +735,13 @@ def _tangent_map(spec, arr, res, dots):
 
     @jax.jit  # traced once for the matrix and its transpose
     def own_factor(arr):
+        # an inverse by Gauss-Jordan, whatever the method: no LAPACK call, which a batch of
+        # second derivatives would otherwise run batched beside others (the LAPACK deadlock of
+        # benchmarks/FINDINGS.md), and differentiable as it is
         model, state, t, tau, _ = spec.primals(arr)
-        return _factor(model, state, t, tau)[2]
+        rows_u, _ = _unknown_rows_and_prescribed(model)
+        A, _ = rotational_equations(model, state, t, tau)
+        return _Inverse(spd_inverse(A[np.ix_(rows_u, rows_u)])[0])
 
     def matvec(x):  # read only when the solve is differentiated: its own factor, differentiable
         p, y = x
@@ -796,8 +801,16 @@ def _factor(model, state, t, tau):
     return A, rhs, L, _regular(L, Auu)
 
 
+class _Inverse(NamedTuple):
+    """``A_uu^{-1}`` as a factor (:func:`_solver` applies it by a product)."""
+
+    inverse: jax.Array
+
+
 def _solver(model, factor):
-    """``A_uu^{-1} r`` by :func:`_factor`'s factor (r: a vector)."""
+    """``A_uu^{-1} r`` by :func:`_factor`'s factor or an :class:`_Inverse` (r: a vector)."""
+    if isinstance(factor, _Inverse):
+        return lambda r: factor.inverse @ r
     if articulated.resolve_method(model) == "articulated":
         return lambda r: factor @ r
     return lambda r: _cho_apply(factor, r)
