@@ -206,13 +206,22 @@ ONE_BATCH_HINGES = 64
 
 @build_jit
 def _terms(topo, d: _Bodies, gamma_bar, one_batch: bool):
-    # One compilation per substructure shape: identical wings share it. The velocity products are
-    # exactly quadratic in (v, y'): their second derivatives come from b's values at sums of unit
-    # vectors (_hessian_of_quadratic), not from nested jacfwd (whose compilation took 8 of a flex95
-    # build's 24 s). Rows (y', v): the 21 of V with y' = 0, then (e_k, e_a) for all k, a, then
-    # (e_k, 0) and (0, e_a); only A and the first 21 rows need the derivative in the angles.
-    nu = gamma_bar.shape[0]
-    dtype = gamma_bar.dtype
+    # One compilation per substructure shape: identical wings share it.
+    gauss = lambda y, yd, v: _gauss(topo, d, gamma_bar + y, yd, v)
+    return taylor_terms(gauss, gamma_bar.shape[0], gamma_bar.dtype, one_batch, jnp.sum(d.mass.astype(gamma_bar.dtype)))
+
+
+def taylor_terms(gauss, nu: int, dtype, one_batch: bool, mass) -> Terms:
+    """:class:`Terms` of the Gauss function ``gauss(y, y', v) -> (A, b)`` of `nu` small
+    coordinates (a substructure's hinges, or an appendage's modal coordinates, :mod:`jaxtree.
+    _src.appendage`), traced inside the caller's compilation.
+
+    The velocity products are exactly quadratic in (v, y'): their second derivatives come from b's
+    values at sums of unit vectors (_hessian_of_quadratic), not from nested jacfwd (whose
+    compilation took 8 of a flex95 build's 24 s). Rows (y', v): the 21 of V with y' = 0, then
+    (e_k, e_a) for all k, a, then (e_k, 0) and (0, e_a); only A and the first 21 rows need the
+    derivative in y. With `one_batch` False the rows that need no derivative are evaluated apart
+    (memory that would grow as nu^4)."""
     zn = jnp.zeros(nu, dtype)
     _, _, V = _polarization(6)  # (21, 6): v = e_a, then e_a + e_b
     eye_n, eye_6 = np.eye(nu), np.eye(6)
@@ -225,20 +234,20 @@ def _terms(topo, d: _Bodies, gamma_bar, one_batch: bool):
         yd_rows, v_rows = jnp.zeros((21, nu), dtype), jnp.asarray(V, dtype)
 
     def at(y):  # A(y), the Hessian of b in the base's velocity (6+nu, 6, 6), [the mixed rows]
-        # A depends on the angles only: one unbatched copy (out_axes None), one _gauss in the program
-        A, b = jax.vmap(lambda yd, v: _gauss(topo, d, gamma_bar + y, yd, v), out_axes=(None, 0))(yd_rows, v_rows)
+        # A depends on y only: one unbatched copy (out_axes None), one gauss in the program
+        A, b = jax.vmap(lambda yd, v: gauss(y, yd, v), out_axes=(None, 0))(yd_rows, v_rows)
         out = (A, _hessian_of_quadratic(b[:21].T, 6), b[21:])
         return out, out
 
     (A1, G1, _), (A0, G0, mixed) = jax.jacfwd(at, has_aux=True)(zn)
     if not one_batch:
         rows = (jnp.asarray(yd_mixed, dtype), jnp.asarray(v_mixed, dtype))
-        mixed = jax.vmap(lambda yd, v: _gauss(topo, d, gamma_bar, yd, v)[1])(*rows)
+        mixed = jax.vmap(lambda yd, v: gauss(zn, yd, v)[1])(*rows)
     # the mixed second derivative in (y', v) at y = 0: b(e_k, e_a) - b(e_k, 0) - b(0, e_a)
     both = mixed[: 6 * nu].reshape(nu, 6, -1)
     only_yd, only_v = mixed[6 * nu : 7 * nu], mixed[7 * nu :]
     G2 = jnp.transpose(both - only_yd[:, None] - only_v[None], (2, 1, 0))  # (6+nu, 6, nu)
-    return Terms(A0, A1, G0, G1, G2, jnp.sum(d.mass.astype(dtype)))
+    return Terms(A0, A1, G0, G1, G2, mass)
 
 
 def terms(model, sub: Substructure, gamma_nominal) -> Terms:

@@ -1,0 +1,373 @@
+"""A finite-element appendage on a body of the tree: its held-interface modes, its modal
+invariants and its share of Eq. (30) in the frame of the body it is fixed to.
+
+**Held-interface modes.** The appendage's interface nodes are rigidly fixed to a body ``b`` of the
+tree. With ``b`` held, the free degrees of freedom ``f`` obey ``M_ff u'' + K_ff u = 0``; its modes
+(mass-normalized, ``Phi^T M Phi = 1``, frequencies ``omega_j``) are Craig and Bampton's
+fixed-interface normal modes. The interface's constraint modes are the appendage's six rigid
+motions with ``b`` (every interface node rigidly joined to the body), so the appendage's motion is
+``b``'s rigid motion plus ``Phi q``: the small set of Eq. (30) is the modal coordinates ``q``, and
+the held-interface modes are Likins' held-base modes (Sec. III E) of the appendage.
+
+**Its share of Eq. (30).** In ``b``'s frame, about its mass center O, a node at ``x = X + Phi_t q``
+moves with the base's spatial velocity ``v = (w, v_O)`` and the deformation rates. Its
+translational acceleration is ``a_O + w' x X + w x v_O + w x (w x x) + 2 w x x' + x''`` and its
+rotation's ``w' + w x theta' + theta''``, so the accelerations of the degrees of freedom are
+``B(q) [a_b; q''] + c(q, q', v)`` with ``B = [[-[x x], 1, Phi_t], [1, 0, Phi_r]]`` (rows by node). Gauss's
+function ``1/2 acc^T M acc`` is the quadratic ``1/2 w^T A(q) w + w^T b`` of
+:mod:`jaxtree._src.hybrid.substructure`, ``A = B^T M B``, ``b = B^T M c``; its Taylor
+coefficients ``A0, A1, G0, G1, G2`` (:class:`~jaxtree._src.hybrid.substructure.Terms`) fill the
+slots a rigid-chain substructure fills, with the modal stiffness ``omega_j^2`` and damping
+``2 zeta_j omega_j`` in place of the hinge springs.
+
+**Geometric stiffness.** Linear kinematics (nodes move along straight lines) leave out the
+shortening of a bent structure, which a chain of rigid panels has. Under the inertial preload of
+the base's motion, ``f = -M acc_rigid`` (``acc_rigid`` the nodes' acceleration at ``q = 0``, linear
+in ``a_b`` and quadratic in ``v``), the structure's elements carry axial forces, and their
+geometric stiffness ``K_G`` adds ``Phi^T K_G Phi q`` to the modal rows: Eq. (30) keeps terms of
+first order in ``q``, and these are of that order. Without it a beam spun above its first
+frequency diverges (the premature linearization of Kane, Ryan and Banerjee, 1987); with it a
+cantilever's frequencies on a spinning hub follow Southwell's ``omega^2 = omega_1^2 + K Omega^2``.
+The preload's static response uses the held structure (``K_ff``): the quasi-static stress state
+of the appendage under the base's motion. It enters the coefficients ``A1`` (the base's
+acceleration) and ``G1`` (its velocity) of the modal rows.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._checks import SceneError, is_traced
+from ..equations._math import build_jit
+from ..hybrid.substructure import Terms, taylor_terms
+from .fe import FEModel, _element_dofs, _rotate, axial_forces, geometric_element
+
+
+class Appendage(eqx.Module):
+    """A finite-element appendage reduced to its held-interface modes (module docstring), fixed to
+    body `body` of a tree.
+
+    Arrays in the body's frame; the rigid invariants about the interface point:
+
+    - `point` (3,): the interface point, from the body's mass center; `frame` (3, 3): the
+      appendage's frame in the body's (columns: its axes);
+    - `frequencies` (k,): the retained held-interface modes' circular frequencies, ascending;
+      `damping` (k,): their damping ratios;
+    - `shapes` (N, k): the mode shapes (mass-normalized) over all the structure's degrees of
+      freedom (zero at the interface), in the body's frame;
+    - `nodes` (n_nodes, 3): the nodes' positions from the interface point, body's frame;
+    - `mass`, `first_moment` (3,), `inertia` (3, 3): the rigid appendage about the interface point;
+    - `participation` (k, 6): ``L_j = phi_j^T M T`` over the six rigid motions (rotations, then
+      translations) about the interface point; `effective_mass` (property): ``L_j^2``, whose sum over
+      all modes approaches the rigid mass;
+    - `terms`: its share of Eq. (30) (:class:`Terms`, about the body's mass center), geometric
+      stiffness included when `geometric` is True;
+    - `outputs` (static): node indices whose motion results report; `all_frequencies`: every
+      held-interface mode's frequency (retained or not), for the truncation estimate.
+    """
+
+    point: jax.Array
+    frame: jax.Array
+    frequencies: jax.Array
+    damping: jax.Array
+    shapes: jax.Array
+    nodes: jax.Array
+    mass: jax.Array
+    first_moment: jax.Array
+    inertia: jax.Array
+    participation: jax.Array
+    terms: Terms
+    all_frequencies: jax.Array
+    body: object = eqx.field(static=True)
+    interface: tuple = eqx.field(static=True)
+    outputs: tuple = eqx.field(static=True)
+    dofs: int = eqx.field(static=True)
+    geometric: bool = eqx.field(static=True)
+
+    @property
+    def n_modes(self) -> int:
+        return int(self.frequencies.shape[0])
+
+    @property
+    def effective_mass(self):
+        """(k, 6): each mode's modal effective mass along the six rigid motions about the interface
+        point (rotations: kg m^2; translations: kg)."""
+        return self.participation**2
+
+    @property
+    def stiffness(self):
+        """(k,): the modal stiffness ``omega_j^2`` (unit modal masses)."""
+        return self.frequencies**2
+
+    @property
+    def modal_damping(self):
+        """(k,): ``2 zeta_j omega_j``."""
+        return 2.0 * self.damping * self.frequencies
+
+    def displacement(self, q, node: int):
+        """The six (or three) displacements of `node` for modal coordinates `q`, body's frame."""
+        d = self.dofs
+        return self.shapes[d * node : d * node + d] @ q
+
+
+def _dof_index(n_nodes: int, dofs: int, nodes) -> np.ndarray:
+    return (np.asarray(nodes, np.int64)[:, None] * dofs + np.arange(dofs)[None, :]).ravel()
+
+
+def _rigid_modes(X, dofs: int, dtype):
+    """(N, 6): the degrees of freedom of the six rigid motions (small rotation, translation) about
+    the origin of the node positions `X` (n, 3)."""
+    n = X.shape[0]
+    eye = jnp.eye(3, dtype=dtype)
+    skew_minus = -_skew(X)  # translation of a node under a rotation e: e x X = -[X x] e
+    t_rows = jnp.concatenate([skew_minus, jnp.broadcast_to(eye, (n, 3, 3))], -1)  # (n, 3, 6)
+    if dofs == 3:
+        return t_rows.reshape(3 * n, 6)
+    r_rows = jnp.concatenate([jnp.broadcast_to(eye, (n, 3, 3)), jnp.zeros((n, 3, 3), dtype)], -1)
+    return jnp.concatenate([t_rows, r_rows], 1).reshape(6 * n, 6)
+
+
+def _skew(x):
+    z = jnp.zeros_like(x[..., 0])
+    return jnp.stack(
+        [
+            jnp.stack([z, -x[..., 2], x[..., 1]], -1),
+            jnp.stack([x[..., 2], z, -x[..., 0]], -1),
+            jnp.stack([-x[..., 1], x[..., 0], z], -1),
+        ],
+        -2,
+    )
+
+
+def held_interface_modes(fe: FEModel, interface):
+    """``(omega2 (n_free,), Phi (N, n_free))``: every fixed-interface normal mode of `fe` with the
+    degrees of freedom of the `interface` nodes held, mass-normalized, ascending; ``Phi`` is zero
+    on the interface. By Cholesky reduction of ``K_ff phi = omega^2 M_ff phi`` to a symmetric
+    eigenproblem, differentiable (JAX's eigenvector derivatives need distinct frequencies)."""
+    N = fe.mass.shape[0]
+    held = _dof_index(fe.n_nodes, fe.dofs, interface)
+    free = np.setdiff1d(np.arange(N), held)
+    Mff = fe.mass[np.ix_(free, free)]
+    Kff = fe.stiffness[np.ix_(free, free)]
+    Lc = jnp.linalg.cholesky(Mff)
+    tri = jax.scipy.linalg.solve_triangular
+    C = tri(Lc, tri(Lc, Kff, lower=True).T, lower=True)
+    C = 0.5 * (C + C.T)
+    w2, V = jnp.linalg.eigh(C)
+    phi = tri(Lc.T, V, lower=False)
+    Phi = jnp.zeros((N, free.size), phi.dtype).at[free].set(phi)
+    return w2, Phi
+
+
+def _static_share(fe: FEModel, w2, Phi, R, extent: float):
+    """The quasi-static rule of ``n_modes="auto"``, for each number of retained modes (n_free + 1,):
+    under each of the base's six unit accelerations (the columns of the rigid motions `R`, N x 6;
+    rotations scaled by the appendage's `extent`, so that each is a unit acceleration at its far
+    end), the largest translation of the neglected modes' static response, over the largest
+    translation of the whole response to any of them. One scale for all six keeps an axial load,
+    whose response is tiny beside the bending's, from asking for every axial mode."""
+    dofs = fe.dofs
+    n = fe.n_nodes
+    t = (np.arange(n)[:, None] * dofs + np.arange(3)[None, :]).ravel()
+    scale = np.concatenate([np.full(3, extent), np.ones(3)])
+    f = -(np.asarray(fe.mass) @ np.asarray(R)) * scale[None, :]  # (N, 6)
+    Phi, w2 = np.asarray(Phi), np.asarray(w2)
+    contrib = (Phi.T @ f) / w2[:, None]  # (n_free, 6): modal static amplitudes
+    whole = Phi[t] @ contrib  # the full static response (a complete basis), translations
+    top = float(np.max(np.abs(whole)))
+    if top == 0.0:
+        return np.zeros(w2.size + 1)
+    share = np.zeros(w2.size + 1)
+    rest = whole.copy()
+    share[0] = 1.0
+    for k in range(w2.size):
+        rest -= np.outer(Phi[t, k], contrib[k])
+        share[k + 1] = float(np.max(np.abs(rest))) / top
+    return share
+
+
+def _gauss(X, Phi, M, W, P, KgA, dofs: int, geometric: bool):
+    """Gauss's function of the appendage (module docstring): ``gauss(q, q', v) -> (A, b)``."""
+    n = X.shape[0]
+    k = Phi.shape[1]
+    dtype = Phi.dtype
+    t = _dof_index(n, dofs, range(n)).reshape(n, dofs)[:, :3].ravel()
+    r = _dof_index(n, dofs, range(n)).reshape(n, dofs)[:, 3:].ravel() if dofs == 6 else None
+    Pt = Phi[t].reshape(n, 3, k)
+    Pr = Phi[r].reshape(n, 3, k) if r is not None else None
+    N = Phi.shape[0]
+
+    def gauss(q, qd, v):
+        w, vo = v[:3], v[3:]
+        x = X + Pt @ q
+        B = jnp.zeros((N, 6 + k), dtype)
+        eye = jnp.broadcast_to(jnp.eye(3, dtype=dtype), (n, 3, 3))
+        Bt = jnp.concatenate([-_skew(x), eye, Pt], -1)  # (n, 3, 6+k)
+        B = B.at[t].set(Bt.reshape(3 * n, 6 + k))
+        xd = Pt @ qd
+        ct = jnp.cross(w, vo)[None] + jnp.cross(w[None], jnp.cross(w[None], x)) + 2.0 * jnp.cross(w[None], xd)
+        c = jnp.zeros((N,), dtype).at[t].set(ct.ravel())
+        if Pr is not None:
+            Br = jnp.concatenate([eye, jnp.zeros((n, 3, 3), dtype), Pr], -1)
+            B = B.at[r].set(Br.reshape(3 * n, 6 + k))
+            c = c.at[r].set(jnp.cross(w[None], Pr @ qd).ravel())
+        A = B.T @ M @ B
+        b = B.T @ (M @ c)
+        if geometric:
+            # the preload of the base's motion at q = 0: acc_rigid = B0[:, :6] a_b + c0(v); its
+            # geometric stiffness on the modal rows, A (a_b part) and b (velocity part)
+            A = A.at[6:, :6].add(jnp.einsum("aij,j->ia", KgA, q))
+            x0 = X
+            c0t = jnp.cross(w, vo)[None] + jnp.cross(w[None], jnp.cross(w[None], x0))
+            c0 = jnp.zeros((N,), dtype).at[t].set(c0t.ravel())
+            Nf = W @ c0  # axial forces of the velocity preload
+            b = b.at[6:].add(jnp.einsum("e,eij,j->i", Nf, P, q))
+        return A, b
+
+    return gauss
+
+
+@build_jit
+def _appendage_terms(X, Phi, M, W, P, R0, dofs: int, geometric: bool, mass):
+    k = Phi.shape[1]
+    KgA = jnp.einsum("ea,eij->aij", W @ R0, P)  # (6, k, k): the preload of each unit base acceleration
+    gauss = _gauss(X, Phi, M, W, P, KgA, dofs, geometric)
+    return taylor_terms(gauss, k, Phi.dtype, True, mass)
+
+
+def _preload_maps(fe: FEModel, interface, Phi):
+    """``W (ne, N)``: the elements' axial forces per unit acceleration of each degree of freedom
+    (the static response of the held structure to ``f = -M acc``), and ``P (ne, k, k)``: each
+    element's geometric stiffness under a unit axial force, projected on the modes."""
+    el = fe.elements
+    assert el is not None, "checked by appendage()"
+    N = fe.mass.shape[0]
+    held = _dof_index(fe.n_nodes, fe.dofs, interface)
+    free = np.setdiff1d(np.arange(N), held)
+    Kff = fe.stiffness[np.ix_(free, free)]
+    comp = jnp.zeros((N, N), fe.mass.dtype).at[np.ix_(free, free)].set(jnp.linalg.inv(Kff))
+    U = -(comp @ fe.mass)  # (N, N): static displacement per unit acceleration of each dof
+    W = jax.vmap(lambda u: axial_forces(el, u), in_axes=1, out_axes=1)(U)  # (ne, N)
+    ones = jnp.ones_like(el.length)
+    Gl = jax.vmap(geometric_element)(el.length, ones)
+    T = jax.vmap(_rotate)(el.frame)
+    Gg = jnp.einsum("eba,ebc,ecd->ead", T, Gl, T)  # (ne, 12, 12) in the structure's frame
+    dofs = _element_dofs(el.nodes)
+    Pe = Phi[dofs]  # (ne, 12, k)
+    P = jnp.einsum("eak,eab,ebl->ekl", Pe, Gg, Pe)
+    return W, P
+
+
+def appendage(
+    fe: FEModel,
+    body,
+    *,
+    interface=(0,),
+    point=(0.0, 0.0, 0.0),
+    frame=None,
+    n_modes="auto",
+    tol: float = 1e-2,
+    damping=0.0,
+    outputs=(),
+    geometric: bool = True,
+) -> Appendage:
+    """A finite-element appendage fixed to `body` (a body's name or index of the tree it will join).
+
+    - `fe`: the structure (:class:`FEModel`, e.g. from :func:`jaxtree.beam` or a file);
+    - `interface`: the node or nodes rigidly fixed to the body (their degrees of freedom are held
+      for the modes); the first is the interface point, placed at `point` (from the body's mass
+      center, body's frame) with the structure's axes along the columns of `frame` (default: the
+      body's own);
+    - `n_modes`: the held-interface modes retained, lowest first: a number, or ``"auto"``: the
+      fewest whose neglected part of the quasi-static response to the base's six unit
+      accelerations (rotations times the appendage's extent) is at most `tol` of the largest
+      response (translations, the largest over the structure and the six);
+    - `damping`: modal damping ratios (scalar or one per retained mode);
+    - `outputs`: node indices whose motion the results report (tip, corners);
+    - `geometric`: add the geometric stiffness of the base's inertial preload (module
+      docstring; needs the structure's elements). On by default: without it a spinning appendage
+      is wrong above its first frequency.
+
+    Differentiable in `fe`'s arrays, `point` and `frame` (the number of modes fixed).
+    """
+    if not isinstance(fe, FEModel):
+        raise SceneError(f"appendage: fe must be a jaxtree.FEModel, got {type(fe).__name__}")
+    iface = tuple(int(i) for i in np.atleast_1d(np.asarray(interface)))
+    for i in iface:
+        if not 0 <= i < fe.n_nodes:
+            raise SceneError(f"appendage: interface node {i} is not a node of the structure (0..{fe.n_nodes - 1})")
+    outs = tuple(int(i) for i in outputs)
+    for i in outs:
+        if not 0 <= i < fe.n_nodes:
+            raise SceneError(f"appendage: output node {i} is not a node of the structure (0..{fe.n_nodes - 1})")
+    if geometric and fe.elements is None:
+        raise SceneError(
+            "appendage: geometric=True needs the structure's elements (FEModel.elements), for the geometric "
+            "stiffness of the spin's preload; pass geometric=False only for an appendage that does not spin"
+        )
+    dtype = fe.mass.dtype
+    frame = jnp.eye(3, dtype=dtype) if frame is None else jnp.asarray(frame, dtype)
+    point = jnp.asarray(point, dtype)
+    w2, Phi_all = held_interface_modes(fe, iface)
+    n_free = int(w2.shape[0])
+    X_s = fe.nodes - fe.nodes[iface[0]]  # from the interface point, structure's frame
+    R_s = _rigid_modes(X_s, fe.dofs, dtype)
+    if isinstance(n_modes, str):
+        if n_modes != "auto":
+            raise SceneError(f"appendage: n_modes must be a number or 'auto', got {n_modes!r}")
+        if is_traced((fe, w2)):
+            raise SceneError("appendage: n_modes='auto' needs concrete matrices; give a number under jax transforms")
+        extent = float(np.max(np.linalg.norm(np.asarray(X_s), axis=1))) or 1.0
+        share = _static_share(fe, w2, Phi_all, R_s, extent)
+        k = int(np.argmax(share <= tol)) if (share <= tol).any() else n_free
+        k = max(k, 1)
+    else:
+        k = int(n_modes)
+        if not 1 <= k <= n_free:
+            raise SceneError(f"appendage: n_modes must be 1..{n_free} (the free degrees of freedom), got {n_modes!r}")
+    Phi_s = Phi_all[:, :k]
+    omega = jnp.sqrt(jnp.maximum(w2, 0.0))
+    zeta = jnp.broadcast_to(jnp.asarray(damping, dtype), (k,))
+    # to the body's frame: every node's translation (and rotation) block turns by `frame`
+    nb = fe.n_nodes * fe.dofs // 3
+    Cbig = jnp.kron(jnp.eye(nb, dtype=dtype), frame)
+    Phi = Cbig @ Phi_s
+    M = Cbig @ fe.mass @ Cbig.T
+    X = X_s @ frame.T  # from the interface point
+    R = Cbig @ R_s @ jnp.kron(jnp.eye(2, dtype=dtype), frame.T)  # rigid motions in body-frame axes
+    Mr = R.T @ M @ R
+    mass = Mr[3, 3]
+    first = jnp.stack([Mr[2, 4], Mr[0, 5], Mr[1, 3]])  # m c from the coupling block -[m c x]
+    inertia = Mr[:3, :3]
+    L = Phi.T @ M @ R
+    if geometric:
+        W, P = _preload_maps(fe, iface, Phi_s)
+        W = W @ Cbig.T  # per unit acceleration in the body's axes
+    else:
+        W = jnp.zeros((0, M.shape[0]), dtype)
+        P = jnp.zeros((0, k, k), dtype)
+    Xo = X + point[None, :]  # from the body's mass center
+    Ro = _rigid_modes(Xo, fe.dofs, dtype)
+    terms = _appendage_terms(Xo, Phi, M, W, P, Ro, fe.dofs, bool(geometric), mass)
+    return Appendage(
+        point=point,
+        frame=frame,
+        frequencies=omega[:k],
+        damping=zeta,
+        shapes=Phi,
+        nodes=X,
+        mass=mass,
+        first_moment=first,
+        inertia=inertia,
+        participation=L,
+        terms=terms,
+        all_frequencies=omega,
+        body=body,
+        interface=iface,
+        outputs=outs,
+        dofs=fe.dofs,
+        geometric=bool(geometric),
+    )

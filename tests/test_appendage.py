@@ -1,0 +1,214 @@
+"""Tests of the finite-element appendages (jaxtree._src.appendage): the beam generator, the
+held-interface modes, the modal invariants, the appendage's share of Eq. (30) and its geometric
+stiffness.
+
+Every expected number comes from outside the appendage code:
+
+- the Euler-Bernoulli cantilever's frequencies (beta_n L = 1.8751, 4.6941, 7.8548, roots of
+  ``cos x cosh x = -1``, found here by scipy) and the fixed-free bar's axial ones;
+- the cantilever's modal effective masses and Southwell's coefficients of a beam spinning about
+  its clamped end, by quadrature of the analytic mode shape (the Rayleigh quotient of the
+  centrifugal tension ``rho A Omega^2 (L^2 - x^2) / 2``: the exact slope of ``omega^2`` in
+  ``Omega^2`` at zero spin);
+- a uniform beam's mass, first moment and inertia (integrals of rho A);
+- a chain of point masses on hinges (the rigid-body Gauss function of
+  :mod:`jaxtree._src.hybrid.substructure`, itself checked against Eq. 1): the rigid part of an
+  appendage's Gauss function must equal it;
+- central differences for derivatives.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.integrate import quad
+from scipy.optimize import brentq
+
+import jaxtree
+from jaxtree._src.appendage import appendage, beam, held_interface_modes
+from jaxtree._src.appendage.model import _appendage_terms
+from jaxtree._src.hybrid import substructure as sub
+from jaxtree._src.hybrid.substructure import held_base
+
+# Kane, Ryan and Banerjee's beam (notes/fe_appendages.md): 10 m, EI = 14 000 N m^2, rho A = 1.2 kg/m
+LENGTH, E, RHO, AREA = 10.0, 7e10, 3000.0, 4e-4
+EI = 14000.0
+IY = EI / E
+RHO_A = RHO * AREA
+
+
+def _beta_l(n: int) -> float:
+    """The n-th root (1-based) of cos x cosh x = -1: the cantilever's beta L."""
+    f = lambda x: np.cos(x) * np.cosh(x) + 1.0
+    guess = (n - 0.5) * np.pi
+    return brentq(f, guess - 1.0, guess + 1.0, xtol=1e-14)
+
+
+def _mode(bl: float):
+    """The cantilever's analytic mode shape phi(x) on [0, 1] (x / L) and its slope."""
+    s = (np.cosh(bl) + np.cos(bl)) / (np.sinh(bl) + np.sin(bl))
+    phi = lambda x: np.cosh(bl * x) - np.cos(bl * x) - s * (np.sinh(bl * x) - np.sin(bl * x))
+    dphi = lambda x: bl * (np.sinh(bl * x) + np.sin(bl * x) - s * (np.cosh(bl * x) - np.cos(bl * x)))
+    return phi, dphi
+
+
+@pytest.fixture(scope="module")
+def kane_beam():
+    """The beam in 40 elements, its sections unequal (Iz = 2 Iy) so that the two bending planes'
+    frequencies are distinct."""
+    return beam(LENGTH, 40, E=E, rho=RHO, area=AREA, Iy=IY, Iz=2 * IY)
+
+
+def test_cantilever_frequencies_match_the_analytic_ones(kane_beam):
+    w2, Phi = held_interface_modes(kane_beam, (0,))
+    w = np.sqrt(np.asarray(w2))
+    bending = []
+    for EIp in (EI, 2 * EI):
+        bending.append([_beta_l(n) ** 2 * np.sqrt(EIp / RHO_A) / LENGTH**2 for n in (1, 2, 3)])
+    axial = np.pi / 2 * np.sqrt(E / RHO) / LENGTH
+    for expected in [*np.ravel(bending), axial]:
+        nearest = w[np.argmin(np.abs(w - expected))]
+        assert abs(nearest - expected) <= 1e-4 * expected, (nearest, expected)
+    # the modes are mass-normalized and zero at the clamp
+    M = np.asarray(kane_beam.mass)
+    P = np.asarray(Phi)
+    np.testing.assert_allclose(P.T @ M @ P, np.eye(P.shape[1]), atol=1e-9)
+    assert np.all(P[:6] == 0.0)
+
+
+def test_rigid_invariants_and_effective_masses(kane_beam):
+    ap = appendage(kane_beam, "hub", n_modes=12, geometric=False)
+    m = RHO_A * LENGTH
+    np.testing.assert_allclose(float(ap.mass), m, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(ap.first_moment), [m * LENGTH / 2, 0, 0], rtol=1e-12, atol=1e-9)
+    bend = m * LENGTH**2 / 3  # integral of rho A x^2 (no rotary inertia in the Euler-Bernoulli element)
+    np.testing.assert_allclose(np.asarray(ap.inertia)[1:, 1:], np.diag([bend, bend]), rtol=1e-12, atol=1e-9)
+    # the first three bending modes in the x-y plane (translation y, index 4 of the six motions)
+    eff = np.asarray(ap.effective_mass)[:, 4] / m
+    plane = eff[eff > 1e-12][:3]
+    for n, got in zip((1, 2, 3), plane):
+        phi, _ = _mode(_beta_l(n))
+        integral = quad(phi, 0, 1, epsabs=1e-13)[0]
+        norm = quad(lambda x: phi(x) ** 2, 0, 1, epsabs=1e-13)[0]
+        assert abs(got - integral**2 / norm) <= 1e-4 * got, (n, got, integral**2 / norm)
+
+
+def test_auto_modes_follow_the_quasi_static_rule(kane_beam):
+    loose = appendage(kane_beam, "hub", n_modes="auto", tol=1e-1, geometric=False)
+    tight = appendage(kane_beam, "hub", n_modes="auto", tol=1e-3, geometric=False)
+    assert 1 <= loose.n_modes < tight.n_modes
+    np.testing.assert_allclose(np.asarray(tight.frequencies)[: loose.n_modes], np.asarray(loose.frequencies))
+
+
+def _southwell(n: int = 1) -> float:
+    """d omega^2 / d Omega^2 at zero spin of the n-th cantilever mode bending out of the plane of
+    rotation: the Rayleigh quotient of the centrifugal tension (beam on the axis)."""
+    phi, dphi = _mode(_beta_l(n))
+    num = quad(lambda x: 0.5 * (1 - x * x) * dphi(x) ** 2, 0, 1, epsabs=1e-13)[0]
+    den = quad(lambda x: phi(x) ** 2, 0, 1, epsabs=1e-13)[0]
+    return num / den
+
+
+def _spin_frequencies(ap, Om):
+    """The held-base system of the appendage on a hub spinning at `Om` about z (held_base of the
+    hybrid model, which hybrid_model takes the modes from): its frequencies and largest growth rate."""
+    v = np.array([0.0, 0.0, Om, 0.0, 0.0, 0.0])
+    I, J, K = held_base(ap.terms, v, np.zeros(6), np.asarray(ap.stiffness), np.zeros(ap.n_modes), xp=np)
+    k = I.shape[0]
+    A = np.block([[np.zeros((k, k)), np.eye(k)], [-np.linalg.solve(I, K), -np.linalg.solve(I, J)]])
+    lam = np.linalg.eigvals(A)
+    return np.sort(np.abs(lam.imag[lam.imag > 1e-9])), float(np.max(lam.real))
+
+
+@pytest.fixture(scope="module")
+def spin_beam():
+    return beam(LENGTH, 40, E=E, rho=RHO, area=AREA, Iy=IY)
+
+
+def test_geometric_stiffness_gives_southwells_coefficients(spin_beam):
+    """Spun about z at its clamp, the beam (along x) stiffens out of the plane by Southwell's K1
+    and in the plane by K1 - 1 (the centrifugal softening of the rotating frame); without the
+    geometric stiffness the in-plane mode softens by Omega^2 and, above the first frequency, the
+    held-base system is unstable."""
+    K1 = _southwell(1)
+    assert 1.19 < K1 < 1.20  # the textbook 1.193
+    ap = appendage(spin_beam, "hub", n_modes=12)
+    w1 = float(ap.frequencies[0])
+    Om = 0.05
+    w, growth = _spin_frequencies(ap, Om)
+    slopes = (w[:2] ** 2 - w1**2) / Om**2
+    np.testing.assert_allclose(slopes, [K1 - 1.0, K1], rtol=2e-3)
+    assert growth < 1e-9
+    w, growth = _spin_frequencies(ap, 6.0)
+    assert growth < 1e-9 and w[0] > w1  # above the first frequency, stable and stiffer
+    plain = appendage(spin_beam, "hub", n_modes=12, geometric=False)
+    w, _ = _spin_frequencies(plain, Om)
+    np.testing.assert_allclose((w[:2] ** 2 - w1**2) / Om**2, [-1.0, 0.0], atol=2e-3)
+    _, growth = _spin_frequencies(plain, 6.0)
+    assert growth > 1.0  # the premature linearization diverges
+
+
+def test_rigid_gauss_function_equals_the_hinged_point_masses():
+    """Two point masses on a chain of two hinges against the same masses as a three-dof-per-node
+    structure whose two 'modes' are the hinges' small rotations: the Gauss functions agree in every
+    coefficient that does not involve the hinges' second-order kinematics (which a linear structure
+    lacks and its geometric stiffness replaces): A0, G0, G2, and the base rows of A1 and G1."""
+    rng = np.random.default_rng(3)
+    hop = [rng.normal(size=3), rng.normal(size=3)]
+    hob = [rng.normal(size=3), rng.normal(size=3)]
+    axes = [v / np.linalg.norm(v) for v in rng.normal(size=(2, 3))]
+    masses = [1.7, 2.9]
+    bodies = [jaxtree.Body("base", 50.0, np.diag([3.0, 4.0, 5.0]))]
+    for k in range(2):
+        bodies.append(
+            jaxtree.Body(f"m{k + 1}", masses[k], np.zeros((3, 3)), k, axes[k], hop[k], hob[k], jaxtree.Free())
+        )
+    model = jaxtree.build_model(bodies)
+    grp = sub.substructures(model, (1, 2))[0]
+    want = sub.terms(model, grp, np.zeros(2))
+    # the same masses as nodes (from the base's mass center) and the hinges as modes
+    h1 = hop[0]
+    x1 = h1 - hob[0]
+    h2 = x1 + hop[1]
+    x2 = h2 - hob[1]
+    X = np.stack([x1, x2])
+    Phi = np.zeros((6, 2))
+    Phi[0:3, 0] = np.cross(axes[0], x1 - h1)
+    Phi[3:6, 0] = np.cross(axes[0], x2 - h1)
+    Phi[3:6, 1] = np.cross(axes[1], x2 - h2)
+    M = np.diag(np.repeat(masses, 3))
+    R0 = np.concatenate([np.stack([-np.cross(np.eye(3), x).T for x in X])[:, :, :], np.tile(np.eye(3), (2, 1, 1))], -1)
+    got = _appendage_terms(
+        jnp.asarray(X),
+        jnp.asarray(Phi),
+        jnp.asarray(M),
+        jnp.zeros((0, 6)),
+        jnp.zeros((0, 2, 2)),
+        jnp.asarray(R0.reshape(6, 6)),
+        3,
+        False,
+        jnp.asarray(sum(masses)),
+    )
+    scale = max(float(np.max(np.abs(np.asarray(want.A0)))), 1.0)
+    for name, sl in (("A0", ...), ("G0", ...), ("G2", ...), ("A1", np.s_[:6, :6]), ("G1", np.s_[:6])):
+        a, b = np.asarray(getattr(got, name))[sl], np.asarray(getattr(want, name))[sl]
+        np.testing.assert_allclose(a, b, atol=1e-12 * scale, err_msg=name)
+
+
+def test_frequency_derivative_in_the_section_and_material():
+    """d omega_1 / d(E, rho, Iy) through the generator and the eigensolver. The first mode bends
+    in the x-z plane alone, so its frequency is ``c sqrt(E Iy / (rho A))`` at any mesh: d omega / d E
+    = omega / (2 E), d omega / d Iy = omega / (2 Iy), d omega / d rho = -omega / (2 rho), exactly
+    (the second bending plane and the torsion, which Iy also moves, must not leak in)."""
+
+    def first(E_, rho_, Iy_):
+        fe = beam(LENGTH, 12, E=E_, rho=rho_, area=AREA, Iy=Iy_, Iz=2 * Iy_)
+        w2, _ = held_interface_modes(fe, (0,))
+        return jnp.sqrt(w2[0])
+
+    args = (jnp.asarray(E), jnp.asarray(RHO), jnp.asarray(IY))
+    w = float(first(*args))
+    dE, drho, dI = jax.grad(first, argnums=(0, 1, 2))(*args)
+    np.testing.assert_allclose(float(dE), w / (2 * E), rtol=1e-8)
+    np.testing.assert_allclose(float(drho), -w / (2 * RHO), rtol=1e-8)
+    np.testing.assert_allclose(float(dI), w / (2 * IY), rtol=1e-8)
