@@ -212,3 +212,57 @@ def test_frequency_derivative_in_the_section_and_material():
     np.testing.assert_allclose(float(dE), w / (2 * E), rtol=1e-8)
     np.testing.assert_allclose(float(drho), -w / (2 * RHO), rtol=1e-8)
     np.testing.assert_allclose(float(dI), w / (2 * IY), rtol=1e-8)
+
+
+def test_invariants_survive_a_file_and_matrices_a_round_trip(kane_beam, tmp_path):
+    """The appendage computed from the matrices equals the one written as precomputed invariants
+    and read back, bit for bit; the structure written dense, as triangular coordinate entries and
+    as MatrixMarket files gives the same held-interface modes."""
+    import scipy.io
+    import scipy.sparse
+
+    from jaxtree._src.appendage import load_appendage, load_fe, read_matrix_market, save_appendage, save_fe
+
+    ap = appendage(kane_beam, "hub", n_modes=4, outputs=(40,), damping=0.01)
+    save_appendage(tmp_path / "wing.npz", ap)
+    back = load_appendage(tmp_path / "wing.npz")
+    for a, b in zip(jax.tree_util.tree_leaves(ap), jax.tree_util.tree_leaves(back)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert (back.body, back.interface, back.outputs, back.dofs) == ("hub", (0,), (40,), 6)
+
+    save_fe(tmp_path / "beam.npz", kane_beam)
+    dense = load_fe(tmp_path / "beam.npz")
+    M, K = np.asarray(kane_beam.mass), np.asarray(kane_beam.stiffness)
+    r, c = np.nonzero(np.triu(K))
+    rm, cm = np.nonzero(np.triu(M))
+    np.savez(
+        tmp_path / "coo.npz", format="jaxtree-fe/1", nodes=np.asarray(kane_beam.nodes), dofs=6, triangle="upper",
+        size=K.shape[0], stiffness_rows=r, stiffness_cols=c, stiffness_values=K[r, c],
+        mass_rows=rm, mass_cols=cm, mass_values=M[rm, cm],
+    )  # fmt: skip
+    coo = load_fe(tmp_path / "coo.npz")
+    scipy.io.mmwrite(str(tmp_path / "m.mtx"), scipy.sparse.coo_matrix(M), symmetry="symmetric")
+    scipy.io.mmwrite(str(tmp_path / "k.mtx"), scipy.sparse.coo_matrix(K), symmetry="symmetric")
+    mtx = read_matrix_market(tmp_path / "m.mtx", tmp_path / "k.mtx", np.asarray(kane_beam.nodes))
+    want = np.asarray(held_interface_modes(kane_beam, (0,))[0])[:6]
+    for fe in (dense, coo, mtx):
+        np.testing.assert_allclose(np.asarray(held_interface_modes(fe, (0,))[0])[:6], want, rtol=1e-12)
+
+
+def test_bad_files_and_arguments_are_named(kane_beam, tmp_path):
+    from jaxtree._src.appendage import load_fe
+
+    M, K = np.asarray(kane_beam.mass), np.asarray(kane_beam.stiffness).copy()
+    K[0, 7] += 1.0  # not symmetric
+    np.savez(tmp_path / "bad.npz", format="jaxtree-fe/1", nodes=np.asarray(kane_beam.nodes), mass=M, stiffness=K)
+    with pytest.raises(jaxtree.SceneError, match="stiffness is not symmetric"):
+        load_fe(tmp_path / "bad.npz")
+    np.savez(tmp_path / "other.npz", format="something", nodes=np.zeros((2, 3)))
+    with pytest.raises(jaxtree.SceneError, match="format 'something'"):
+        load_fe(tmp_path / "other.npz")
+    with pytest.raises(jaxtree.SceneError, match="interface node 99"):
+        appendage(kane_beam, "hub", interface=(99,))
+    with pytest.raises(jaxtree.SceneError, match="beam: area must be a positive number"):
+        beam(1.0, 4, E=1.0, rho=1.0, area=-1.0, Iy=1.0)
+    with pytest.raises(jaxtree.SceneError, match="FEModel.mass: shape"):
+        jaxtree._src.appendage.FEModel(jnp.zeros((5, 5)), jnp.zeros((12, 12)), jnp.zeros((2, 3)))

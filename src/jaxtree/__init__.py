@@ -35,6 +35,16 @@ from ._src import VERSION as _VERSION
 from ._src._checks import SceneError as SceneError
 from ._src._checks import SceneTypeError as SceneTypeError
 from ._src._checks import SceneWarning as SceneWarning
+from ._src.appendage import Appendage as Appendage
+from ._src.appendage import FEModel as FEModel
+from ._src.appendage import appendage as appendage
+from ._src.appendage import beam as beam
+from ._src.appendage import held_interface_modes as held_interface_modes
+from ._src.appendage import load_appendage as load_appendage
+from ._src.appendage import load_fe as load_fe
+from ._src.appendage import read_matrix_market as read_matrix_market
+from ._src.appendage import save_appendage as save_appendage
+from ._src.appendage import save_fe as save_fe
 from ._src.campaigns.campaign import FAILURES as FAILURES
 from ._src.campaigns.campaign import (
     monte_carlo as monte_carlo,
@@ -504,6 +514,17 @@ __all__ = [
     "hybrid_equations",
     "Substructure",
     "substructures",
+    # finite-element appendages: held-interface modes, modal invariants, geometric stiffness
+    "FEModel",
+    "beam",
+    "held_interface_modes",
+    "Appendage",
+    "appendage",
+    "load_fe",
+    "save_fe",
+    "read_matrix_market",
+    "load_appendage",
+    "save_appendage",
     # campaigns, diagnostics, result files, plots and the 3D viewer
     "monte_carlo",
     "FAILURES",

@@ -13,6 +13,11 @@ from .fe import Elements as Elements
 from .fe import FEModel as FEModel
 from .fe import beam as beam
 from .fe import geometric_stiffness as geometric_stiffness
+from .files import load_appendage as load_appendage
+from .files import load_fe as load_fe
+from .files import read_matrix_market as read_matrix_market
+from .files import save_appendage as save_appendage
+from .files import save_fe as save_fe
 from .model import Appendage as Appendage
 from .model import appendage as appendage
 from .model import held_interface_modes as held_interface_modes

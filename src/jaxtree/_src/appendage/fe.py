@@ -136,12 +136,12 @@ def geometric_element(L, N):
     return G
 
 
-def _rotate(frame):
+def element_rotation(frame):
     """The 12x12 block diagonal of the element's frame (global -> local components)."""
     return jnp.kron(jnp.eye(4, dtype=frame.dtype), frame)
 
 
-def _element_dofs(nodes) -> np.ndarray:
+def element_dofs(nodes) -> np.ndarray:
     """(ne, 12) global degree-of-freedom indices of two-node six-dof elements."""
     a = np.asarray(nodes, np.int64)
     base = 6 * a  # (ne, 2)
@@ -200,10 +200,10 @@ def beam(
     s = jnp.arange(n + 1, dtype=dtype) * L
     nodes = origin[None, :] + s[:, None] * frame[0][None, :]
     Kl, Ml = _element_matrices(L, E * area, G * J, E * Iy, E * Iz, rho * area, rho * (Iy + Iz))
-    T = _rotate(frame)
+    T = element_rotation(frame)
     Kg, Mg = T.T @ Kl @ T, T.T @ Ml @ T
     pairs = tuple((i, i + 1) for i in range(n))
-    dofs = _element_dofs(pairs)
+    dofs = element_dofs(pairs)
     N = 6 * (n + 1)
     rows = np.repeat(dofs, 12, axis=1).ravel()
     cols = np.tile(dofs, (1, 12)).ravel()
@@ -220,7 +220,7 @@ def beam(
 
 def axial_forces(elements: Elements, u):
     """Each element's axial force (tension positive) in the static displacement `u` (N,)."""
-    dofs = _element_dofs(elements.nodes)
+    dofs = element_dofs(elements.nodes)
     ue = u[dofs]  # (ne, 12)
     stretch = jnp.einsum("ea,ea->e", elements.frame[:, 0], ue[:, 6:9] - ue[:, 0:3])
     return elements.axial * stretch
@@ -234,9 +234,9 @@ def geometric_stiffness(fe: FEModel, u):
     el = fe.elements
     Nf = axial_forces(el, u)
     Gl = jax.vmap(geometric_element)(el.length, Nf)  # (ne, 12, 12)
-    T = jax.vmap(_rotate)(el.frame)
+    T = jax.vmap(element_rotation)(el.frame)
     Gg = jnp.einsum("eba,ebc,ecd->ead", T, Gl, T)
-    dofs = _element_dofs(el.nodes)
+    dofs = element_dofs(el.nodes)
     rows = np.repeat(dofs, 12, axis=1).ravel()
     cols = np.tile(dofs, (1, 12)).ravel()
     N = fe.mass.shape[0]

@@ -43,7 +43,7 @@ import numpy as np
 from .._checks import SceneError, is_traced
 from ..equations._math import build_jit
 from ..hybrid.substructure import Terms, taylor_terms
-from .fe import FEModel, _element_dofs, _rotate, axial_forces, geometric_element
+from .fe import FEModel, axial_forces, element_dofs, element_rotation, geometric_element
 
 
 class Appendage(eqx.Module):
@@ -253,9 +253,9 @@ def _preload_maps(fe: FEModel, interface, Phi):
     W = jax.vmap(lambda u: axial_forces(el, u), in_axes=1, out_axes=1)(U)  # (ne, N)
     ones = jnp.ones_like(el.length)
     Gl = jax.vmap(geometric_element)(el.length, ones)
-    T = jax.vmap(_rotate)(el.frame)
+    T = jax.vmap(element_rotation)(el.frame)
     Gg = jnp.einsum("eba,ebc,ecd->ead", T, Gl, T)  # (ne, 12, 12) in the structure's frame
-    dofs = _element_dofs(el.nodes)
+    dofs = element_dofs(el.nodes)
     Pe = Phi[dofs]  # (ne, 12, k)
     P = jnp.einsum("eak,eab,ebl->ekl", Pe, Gg, Pe)
     return W, P

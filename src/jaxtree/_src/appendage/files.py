@@ -1,0 +1,210 @@
+"""Finite-element appendages in files: a structure's matrices and nodes, or an appendage's
+precomputed modal invariants, as ``.npz`` (numpy's zip of arrays), and the matrices that
+finite-element tools export in MatrixMarket form (Abaqus, ANSYS; read by scipy).
+
+**Schema** ``jaxtree-fe/1`` (:func:`save_fe`, :func:`load_fe`), keys:
+
+- ``format``: the string ``"jaxtree-fe/1"``;
+- ``mass``, ``stiffness``: (N, N) dense, or sparse as ``mass_rows``, ``mass_cols``,
+  ``mass_values`` (and ``stiffness_...``) plus ``size`` = N: coordinate entries, duplicates summed
+  (the form of an element-by-element assembly); a file may give only the upper or lower triangle
+  with ``triangle`` = ``"upper"`` / ``"lower"``, mirrored on reading;
+- ``nodes``: (n_nodes, 3) positions in the structure's frame; ``dofs``: 6 (translations, then
+  small rotations, node by node) or 3;
+- optional, for the geometric stiffness of two-node beam elements: ``element_nodes`` (ne, 2),
+  ``element_frame`` (ne, 3, 3; rows the local x, y, z axes), ``element_length`` (ne,),
+  ``element_axial`` (ne,: EA / L).
+
+**Schema** ``jaxtree-appendage/1`` (:func:`save_appendage`, :func:`load_appendage`): the arrays of an
+:class:`~jaxtree._src.appendage.model.Appendage` (its modes, rigid invariants, participations
+and the Taylor terms ``A0, A1, G0, G1, G2`` of its share of Eq. 30) under their own names, with
+``interface``, ``outputs``, ``dofs``, ``geometric`` and ``body`` (a string, or an integer index).
+A file written from one build and read back gives the same appendage to the last bit.
+"""
+
+from __future__ import annotations
+
+import pathlib
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._checks import SceneError
+from ..hybrid.substructure import Terms
+from ..io.files import atomic_write
+from .fe import Elements, FEModel
+from .model import Appendage
+
+FE_FORMAT = "jaxtree-fe/1"
+APPENDAGE_FORMAT = "jaxtree-appendage/1"
+_TERMS = ("A0", "A1", "G0", "G1", "G2")
+_ARRAYS = (
+    "point",
+    "frame",
+    "frequencies",
+    "damping",
+    "shapes",
+    "nodes",
+    "mass",
+    "first_moment",
+    "inertia",
+    "participation",
+    "all_frequencies",
+)
+
+
+def _write(path, arrays: dict) -> None:
+    with atomic_write(path) as fh:
+        np.savez_compressed(fh, **arrays)
+
+
+def _open(path, fmt: str) -> dict:
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise SceneError(f"{path}: no such file")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            out = {k: data[k] for k in data.files}
+    except (OSError, ValueError) as exc:
+        raise SceneError(f"{path}: not a readable .npz file ({exc})") from None
+    got = str(out.get("format", ""))
+    if got != fmt:
+        raise SceneError(f"{path}: format {got!r}, expected {fmt!r}")
+    return out
+
+
+def save_fe(path, fe: FEModel) -> None:
+    """Write `fe` to `path` (``jaxtree-fe/1``, dense matrices), atomically."""
+    arrays = {
+        "format": np.asarray(FE_FORMAT),
+        "mass": np.asarray(fe.mass),
+        "stiffness": np.asarray(fe.stiffness),
+        "nodes": np.asarray(fe.nodes),
+        "dofs": np.asarray(fe.dofs),
+    }
+    if fe.elements is not None:
+        el = fe.elements
+        arrays.update(
+            element_nodes=np.asarray(el.nodes, np.int64),
+            element_frame=np.asarray(el.frame),
+            element_length=np.asarray(el.length),
+            element_axial=np.asarray(el.axial),
+        )
+    _write(path, arrays)
+
+
+def _matrix(data: dict, name: str, N: int, path) -> np.ndarray:
+    if name in data:
+        A = np.asarray(data[name], float)
+        if A.shape != (N, N):
+            raise SceneError(f"{path}: {name} has shape {A.shape}, expected ({N}, {N})")
+    else:
+        keys = [f"{name}_{k}" for k in ("rows", "cols", "values")]
+        if not all(k in data for k in keys):
+            raise SceneError(f"{path}: no {name} (dense) nor {', '.join(keys)} (coordinate entries)")
+        r, c, v = (np.asarray(data[k]) for k in keys)
+        if not (r.shape == c.shape == v.shape) or r.ndim != 1:
+            raise SceneError(f"{path}: {', '.join(keys)} must be equal-length vectors")
+        if r.size and (min(r.min(), c.min()) < 0 or max(r.max(), c.max()) >= N):
+            raise SceneError(f"{path}: {name} has an entry outside 0..{N - 1}")
+        A = np.zeros((N, N))
+        np.add.at(A, (r.astype(np.int64), c.astype(np.int64)), v.astype(float))
+    tri = str(data.get("triangle", ""))
+    if tri in ("upper", "lower"):
+        A = A + A.T - np.diag(np.diag(A))
+    elif tri:
+        raise SceneError(f"{path}: triangle must be 'upper' or 'lower', got {tri!r}")
+    if not np.all(np.isfinite(A)):
+        raise SceneError(f"{path}: {name} has non-finite entries")
+    asym = np.max(np.abs(A - A.T)) if A.size else 0.0
+    if asym > 1e-9 * max(np.max(np.abs(A)), 1e-300):
+        raise SceneError(f"{path}: {name} is not symmetric (largest difference {asym:.3g})")
+    return A
+
+
+def load_fe(path) -> FEModel:
+    """Read a ``jaxtree-fe/1`` file (module docstring) into an :class:`FEModel`."""
+    data = _open(path, FE_FORMAT)
+    if "nodes" not in data:
+        raise SceneError(f"{path}: no nodes")
+    nodes = np.asarray(data["nodes"], float)
+    if nodes.ndim != 2 or nodes.shape[1] != 3:
+        raise SceneError(f"{path}: nodes must be (n_nodes, 3), got {nodes.shape}")
+    dofs = int(data.get("dofs", 6))
+    if dofs not in (3, 6):
+        raise SceneError(f"{path}: dofs must be 3 or 6, got {dofs}")
+    N = dofs * nodes.shape[0]
+    M = _matrix(data, "mass", N, path)
+    K = _matrix(data, "stiffness", N, path)
+    elements = None
+    if "element_nodes" in data:
+        en = np.asarray(data["element_nodes"], np.int64)
+        ne = en.shape[0]
+        if en.shape != (ne, 2) or en.min(initial=0) < 0 or en.max(initial=0) >= nodes.shape[0]:
+            raise SceneError(f"{path}: element_nodes must be (ne, 2) node indices")
+        parts = {k: np.asarray(data[f"element_{k}"], float) for k in ("frame", "length", "axial")}
+        if parts["frame"].shape != (ne, 3, 3) or parts["length"].shape != (ne,) or parts["axial"].shape != (ne,):
+            raise SceneError(f"{path}: element_frame (ne, 3, 3), element_length and element_axial (ne,) are needed")
+        elements = Elements(
+            frame=jnp.asarray(parts["frame"]),
+            length=jnp.asarray(parts["length"]),
+            axial=jnp.asarray(parts["axial"]),
+            nodes=tuple((int(a), int(b)) for a, b in en),
+        )
+    return FEModel(jnp.asarray(M), jnp.asarray(K), jnp.asarray(nodes), elements, dofs)
+
+
+def read_matrix_market(mass_path, stiffness_path, nodes, dofs: int = 6) -> FEModel:
+    """An :class:`FEModel` from a mass and a stiffness matrix in MatrixMarket files (``.mtx``, as
+    Abaqus' and ANSYS' matrix exports are converted to; read by ``scipy.io.mmread``, symmetric
+    storage mirrored) and the node table `nodes` (n_nodes, 3; degrees of freedom node by node).
+    Without element data the geometric stiffness is not available (``appendage(...,
+    geometric=False)``)."""
+    import scipy.io
+
+    nodes = np.asarray(nodes, float)
+    N = dofs * nodes.shape[0]
+    mats = []
+    for name, p in (("mass", mass_path), ("stiffness", stiffness_path)):
+        try:
+            A = scipy.io.mmread(str(p))
+        except (OSError, ValueError) as exc:
+            raise SceneError(f"{p}: not a readable MatrixMarket file ({exc})") from None
+        A = np.asarray(A.toarray() if hasattr(A, "toarray") else A, float)
+        mats.append(_matrix({name: A}, name, N, p))
+    return FEModel(jnp.asarray(mats[0]), jnp.asarray(mats[1]), jnp.asarray(nodes), None, dofs)
+
+
+def save_appendage(path, ap: Appendage) -> None:
+    """Write `ap`'s modes and invariants (``jaxtree-appendage/1``), atomically."""
+    arrays = {k: np.asarray(getattr(ap, k)) for k in _ARRAYS}
+    arrays.update({k: np.asarray(getattr(ap.terms, k)) for k in _TERMS})
+    arrays.update(
+        format=np.asarray(APPENDAGE_FORMAT),
+        interface=np.asarray(ap.interface, np.int64),
+        outputs=np.asarray(ap.outputs, np.int64),
+        dofs=np.asarray(ap.dofs),
+        geometric=np.asarray(ap.geometric),
+        body=np.asarray(ap.body),
+    )
+    _write(path, arrays)
+
+
+def load_appendage(path) -> Appendage:
+    """Read an appendage written by :func:`save_appendage`."""
+    data = _open(path, APPENDAGE_FORMAT)
+    missing = [k for k in (*_ARRAYS, *_TERMS, "interface", "outputs", "dofs", "body") if k not in data]
+    if missing:
+        raise SceneError(f"{path}: missing {', '.join(missing)}")
+    body = data["body"]
+    body = int(body) if np.issubdtype(body.dtype, np.integer) else str(body)
+    terms = Terms(*(jnp.asarray(data[k]) for k in _TERMS), mass=jnp.asarray(data["mass"]))
+    return Appendage(
+        **{k: jnp.asarray(data[k]) for k in _ARRAYS},
+        terms=terms,
+        body=body,
+        interface=tuple(int(i) for i in data["interface"]),
+        outputs=tuple(int(i) for i in data["outputs"]),
+        dofs=int(data["dofs"]),
+        geometric=bool(data.get("geometric", True)),
+    )
