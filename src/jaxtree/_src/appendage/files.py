@@ -170,7 +170,8 @@ def read_matrix_market(mass_path, stiffness_path, nodes, dofs: int = 6) -> FEMod
             A = scipy.io.mmread(str(p))
         except (OSError, ValueError) as exc:
             raise SceneError(f"{p}: not a readable MatrixMarket file ({exc})") from None
-        A = np.asarray(A.toarray() if hasattr(A, "toarray") else A, float)
+        dense = getattr(A, "toarray", None)
+        A = np.asarray(dense() if dense is not None else A, float)
         mats.append(_matrix({name: A}, name, N, p))
     return FEModel(jnp.asarray(mats[0]), jnp.asarray(mats[1]), jnp.asarray(nodes), None, dofs)
 
