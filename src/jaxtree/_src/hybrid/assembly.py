@@ -125,9 +125,12 @@ def _assemble(blocks, nu, form, order=None):
     return out, [(g, j) for _, g, j in order], mmaps, umaps
 
 
-def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u, m):
-    """The precomputed substructure terms (:class:`Precomputed`), projected on the modes."""
-    xp = jnp if is_traced((model, tms, parts)) else np
+def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u, m, apps=()):
+    """The precomputed substructure terms (:class:`Precomputed`), projected on the modes: the
+    substructures of the small hinges, then the finite-element appendages `apps` (their rows of
+    the small coordinates after the hinges', their modal stiffness and damping in place of the
+    hinge springs)."""
+    xp = jnp if is_traced((model, tms, parts, apps)) else np
     ms, us = max(len(x) for x in mmaps), max(len(x) for x in umaps)
     keys = ("aa0", "aa1", "wa0", "wa1", "aw0", "g0a", "g1a", "g2a", "g0w", "g1w", "g2w", "w0", "w1")
     acc = {k: [] for k in keys}
@@ -136,15 +139,22 @@ def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u,
     sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
     stiff = xp.asarray(model.stiffness) * sprung
     damp = xp.asarray(model.damping) * sprung
-    for grp, tm, mc, uc in zip(groups, tms, mmaps, umaps):
-        idx = np.asarray([small.index(k) for k in grp.hinges], np.int64)
+    entries = []  # (rows of the small coordinates, stiffness, damping, preload angles)
+    for grp in groups:
+        h = np.asarray(grp.hinges, np.int64) - 1
+        entries.append(([small.index(k) for k in grp.hinges], stiff[h], damp[h], xp.asarray(gamma_nominal)[h]))
+    o = len(small)
+    for ap in apps:
+        k = ap.n_modes
+        entries.append((list(range(o, o + k)), xp.asarray(ap.stiffness), xp.asarray(ap.modal_damping), xp.zeros(k)))
+        o += k
+    for (rows, k_s, d_s, gbar), tm, mc, uc in zip(entries, tms, mmaps, umaps):
+        idx = np.asarray(rows, np.int64)
         P = parts["positions"][np.ix_(idx, mc)]
         Q = parts["rates"][np.ix_(idx, mc)]
         Acc = parts["accel"][np.ix_(idx, uc)]
         Rw = parts["rows"][np.ix_(idx, uc)]
         A0, A1, G0, G1, G2 = (xp.asarray(x) for x in (tm.A0, tm.A1, tm.G0, tm.G1, tm.G2))
-        h = np.asarray(grp.hinges, np.int64) - 1
-        gbar = xp.asarray(gamma_nominal)[h]
         pad_m = lambda x: xp.concatenate([x, xp.zeros(x.shape[:-1] + (ms - x.shape[-1],))], -1)
 
         def pad_u(x, axis=0):
@@ -163,8 +173,8 @@ def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u,
         acc["g0w"].append(pad_u(xp.einsum("ju,jbc->ubc", Rw, G0[6:])))
         acc["g1w"].append(pad_u(pad_m(xp.einsum("ju,jbck,km->ubcm", Rw, G1[6:], P))))
         acc["g2w"].append(pad_u(pad_m(xp.einsum("ju,jbk,km->ubm", Rw, G2[6:], Q))))
-        acc["w0"].append(pad_u(Rw.T @ (stiff[h] * gbar)))  # -tau_S at y = 0 (a spring preload)
-        acc["w1"].append(pad_u(pad_m(Rw.T @ (stiff[h][:, None] * P + damp[h][:, None] * Q))))
+        acc["w0"].append(pad_u(Rw.T @ (k_s * gbar)))  # -tau_S at y = 0 (a spring preload)
+        acc["w1"].append(pad_u(pad_m(Rw.T @ (k_s[:, None] * P + d_s[:, None] * Q))))
         ww0 = put(xp, ww0, np.ix_(uc, uc), Rw.T @ A0[6:, 6:] @ Acc, add=True)
     dtype = jnp.result_type(model.mass)
     pad_idx = lambda x, n, width: tuple(tuple(int(i) for i in c) + (n,) * (width - len(c)) for c in x)
@@ -173,8 +183,30 @@ def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u,
         ww0=jnp.asarray(ww0, dtype),
         mcols=pad_idx(mmaps, m, ms),
         ucols=pad_idx(umaps, u, us),
-        bases=tuple(g.base for g in groups),
+        bases=tuple(g.base for g in groups) + tuple(_body(model, ap) for ap in apps),
+        added_mass=jnp.asarray(sum(xp.asarray(ap.mass) for ap in apps), dtype) if apps else None,
     )
+
+
+def _body(model, ap) -> int:
+    """The index of the body an appendage is fixed to (checked by :func:`_appendage_args`)."""
+    return model.names.index(ap.body) if isinstance(ap.body, str) else int(ap.body)
+
+
+def _appendage_args(model, appendages) -> tuple:
+    """`appendages` of :func:`hybrid_model` as a tuple, each fixed to a body of `model`."""
+    # (duck-typed: the appendage package builds on this one, not the other way round)
+    apps = tuple(appendages or ())
+    for i, ap in enumerate(apps):
+        if not all(hasattr(ap, a) for a in ("terms", "frequencies", "modal_damping", "body", "mass")):
+            raise SceneTypeError(f"hybrid_model: appendages[{i}] must be a jaxtree.Appendage, got {type(ap).__name__}")
+        b = ap.body
+        if isinstance(b, str):
+            if b not in model.names:
+                raise SceneError(f"hybrid_model: appendages[{i}] is fixed to {b!r}, which is not a body: {model.names}")
+        elif not (isinstance(b, (int, np.integer)) and 0 <= int(b) <= model.n):
+            raise SceneError(f"hybrid_model: appendages[{i}] is fixed to body {short(b)}, not in 0..{model.n}")
+    return apps
 
 
 def _nominal_motion(model, omega0, gamma, dcm):
@@ -202,8 +234,10 @@ def _hybrid_model_args(
     rtol=1e-9,
     basis=None,
     tol=1e-2,
+    extra: int = 0,
 ):
-    """Arguments of :func:`jaxtree.hybrid_model`, checked before the linearization is traced."""
+    """Arguments of :func:`jaxtree.hybrid_model`, checked before the linearization is traced
+    (`extra`: the appendages' modal coordinates, small coordinates beside the hinges)."""
     name = "hybrid_model"
     linearize_args(name, model, small, omega0=omega0, gamma=gamma, dcm=dcm)
     if getattr(model, "law", None) is not None or getattr(model, "controller", None) is not None:
@@ -235,7 +269,9 @@ def _hybrid_model_args(
             raise SceneError(f"{name}: cutoff must be >= 0 (a frequency in rad/s), got {c}")
     if damping is not None:
         z = as_float(damping, f"{name}: damping")
-        nu = len((small,) if isinstance(small, (str, int, np.integer)) else list(small))
+        nu = extra + (
+            0 if small is None else len((small,) if isinstance(small, (str, int, np.integer)) else list(small))
+        )
         # at most one mode per small hinge is retained (the exact number is known after the modes)
         if z.ndim > 1 or (z.ndim == 1 and z.shape[0] != 1 and z.shape[0] > nu):
             raise SceneError(
@@ -269,6 +305,7 @@ def hybrid_model(
     basis: str | None = None,
     tol: float = 1e-2,
     like: HybridModel | None = None,
+    appendages=(),
 ) -> HybridModel:
     """The hybrid-coordinate equations of `model` with the hinges of `small` (the set A) in
     truncated large-deformation modal coordinates (Eqs. 105-123).
@@ -317,14 +354,25 @@ def hybrid_model(
       underdamped and distinct within its substructure (checked on `like`); rigid modes of the
       reference are not supported in a traced build.
 
+    - `appendages`: finite-element appendages (:func:`jaxtree.appendage`), each fixed to a body
+      of `model` (which stays a large body): their held-interface modal coordinates join the small
+      set after the small hinges, each appendage a substructure of its own (its held-base modes
+      at the nominal motion, with the geometric stiffness of the spin's preload; `n_modes`, `cutoff`
+      and ``"auto"`` apply to it as to a substructure). `small` may then be empty (``()``). Needs
+      the substructure basis and the precomputed terms. The truncation estimate covers the small
+      hinges' substructures; `energy` and `angular_momentum` of :func:`simulate_hybrid` are the
+      tree's, without the appendages.
+
     Rigid (zero-frequency) modes have no first-order eigenvectors (Sec. III E, all-small case):
     the first-order form leaves them out.
 
     **Returns:** :class:`HybridModel`.
     """
+    apps = _appendage_args(model, appendages)
+    no_hinges = apps and (small is None or (isinstance(small, (list, tuple)) and len(small) == 0))
     _hybrid_model_args(
         model,
-        small,
+        None if no_hinges else small,
         n_modes,
         cutoff=cutoff,
         omega0=omega0,
@@ -337,11 +385,12 @@ def hybrid_model(
         rtol=rtol,
         basis=basis,
         tol=tol,
+        extra=sum(ap.n_modes for ap in apps),
     )
-    S = resolve_hinges(model, small)
-    groups = _sub.substructures(model, S)
+    S = () if no_hinges else resolve_hinges(model, small)
+    groups = _sub.substructures(model, S) if S else ()
     if like is not None:
-        _check_like(like, S, groups)
+        _check_like(like, S, groups, apps)
         basis, precompute, form = like.basis, like.precomputed, like.form
     elif is_traced((model, omega0, gamma, dcm)):
         raise ValueError(
@@ -349,17 +398,24 @@ def hybrid_model(
             "like=<hybrid_model of the same vehicle built from concrete values> to fix the retained modes"
         )
     basis, precompute = _basis_and_precompute(model, S, groups, basis, precompute)
+    if apps and (basis != "substructure" or not precompute):
+        raise SceneError(
+            "hybrid_model: finite-element appendages need basis='substructure' and the precomputed terms "
+            "(every substructure terminal, no external load on a small body)"
+        )
     if form not in (None, "real", "first_order"):
         raise ValueError(f"hybrid_model: form must be 'real' or 'first_order', got {form!r}")
     w_nom, g_nom, _ = _nominal_motion(model, omega0, gamma, dcm)
     tms = [_sub.terms(model, g, g_nom) for g in groups] if (precompute or basis == "substructure") else None
+    if tms is not None:
+        tms = tms + [ap.terms for ap in apps]
     if basis == "set":
         lin = linearize(model, S, omega0=omega0, gamma=gamma, dcm=dcm)
         xp = jnp if is_traced(lin) else np
         systems = [(tuple(range(len(S))), xp.asarray(lin.I), xp.asarray(lin.J), xp.asarray(lin.K), lin.coordinates)]
     else:
         assert tms is not None, "computed for the substructure basis"
-        systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom)
+        systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom, apps)
     mds = _system_modes(systems, like, rtol)
     kinds = [md.kind for md in mds]
     form = _form(form, kinds)
@@ -395,6 +451,7 @@ def hybrid_model(
         systems,
         mds,
         order,
+        apps,
     )
 
 
@@ -426,10 +483,12 @@ def _form(form: str | None, kinds: list) -> str:
     return form
 
 
-def _check_like(like, S, groups) -> None:
-    """`like` of :func:`hybrid_model` describes the same set A and substructures."""
+def _check_like(like, S, groups, apps=()) -> None:
+    """`like` of :func:`hybrid_model` describes the same set A, substructures and appendages."""
     if not isinstance(like, HybridModel):
         raise TypeError(f"hybrid_model: like must be a HybridModel, got {type(like).__name__}")
+    if [a.n_modes for a in like.appendages] != [a.n_modes for a in apps]:
+        raise ValueError("hybrid_model: like was built with other appendages (their number or modes differ)")
     if tuple(like.small) != tuple(S) or tuple(like.groups) != tuple(groups):
         raise ValueError(
             f"hybrid_model: like was built for the small hinges {like.small}, not {tuple(S)} (or other substructures)"
@@ -475,15 +534,17 @@ def _nominal_frames(model: Model, g_nom, w_nom, bases: tuple, small: tuple):
     u0 = cross(-cfg.rho[0], w_nom)  # b_0's mass center in the spin about the system's
     vb = jnp.concatenate([mv(E, w_nom), mv(E, u0 + cross(w_nom, r))], -1)
     S = np.asarray(small, np.int64) + 2
-    return vb, mass_matrix(model, g_nom)[np.ix_(S, S)]
+    return vb, mass_matrix(model, g_nom)[np.ix_(S, S)], cfg.R[b]
 
 
-def _substructure_systems(model: Model, S, groups, tms, g_nom, w_nom) -> list:
+def _substructure_systems(model: Model, S, groups, tms, g_nom, w_nom, apps=()) -> list:
     """Eq. (42) of each substructure on its held base in the nominal spin about the system mass
-    center: ``(rows in A, I, J, K, coordinate names)`` per substructure."""
-    vb, _ = _nominal_frames(model, g_nom, w_nom, tuple(g.base for g in groups), tuple(S))
+    center: ``(rows in A, I, J, K, coordinate names)`` per substructure, then per finite-element
+    appendage (its rows after the small hinges', its modal stiffness and damping)."""
+    bases = tuple(g.base for g in groups) + tuple(_body(model, ap) for ap in apps)
+    vb, _, _ = _nominal_frames(model, g_nom, w_nom, bases, tuple(S))
     # numpy for a concrete model; jnp where a parameter is traced (a differentiable build)
-    xp = jnp if is_traced((model, tms, vb)) else np
+    xp = jnp if is_traced((model, tms, vb, apps)) else np
     vb = xp.asarray(vb)
     sprung = np.zeros(model.n)
     sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
@@ -495,6 +556,15 @@ def _substructure_systems(model: Model, S, groups, tms, g_nom, w_nom) -> list:
         I, J, K = _sub.held_base(tm, vg, xp.zeros(6), stiffness[h], damping[h], xp=xp)
         rows = tuple(S.index(k) for k in grp.hinges)
         systems.append((rows, I, J, K, tuple(model.names[k] for k in grp.hinges)))
+    o = len(S)
+    for i, (ap, vg) in enumerate(zip(apps, vb[len(groups) :])):
+        k = ap.n_modes
+        I, J, K = _sub.held_base(
+            ap.terms, vg, xp.zeros(6), xp.asarray(ap.stiffness), xp.asarray(ap.modal_damping), xp=xp
+        )
+        name = f"{model.names[_body(model, ap)]}.appendage{i}"
+        systems.append((tuple(range(o, o + k)), I, J, K, tuple(f"{name}.q{j + 1}" for j in range(k))))
+        o += k
     return systems
 
 
@@ -516,13 +586,14 @@ def _assemble_model(
     systems,
     mds,
     order=None,
+    apps=(),
 ):
     """The :class:`HybridModel` of the retained modes: their modal matrices assembled over the set
     A in ascending frequency (or in `order`, ``(_, block, local index)``, that of a reference
     build), the modal damping `zeta` (in that order), the precomputed terms."""
-    nu = len(S)
+    nu = len(S) + sum(ap.n_modes for ap in apps)
     dtype = jnp.result_type(model.mass)
-    xp = jnp if is_traced(blocks) else np
+    xp = jnp if is_traced((blocks, apps)) else np
     # modal damping follows the global (frequency) order of the modes: split it by group afterwards
     if order is None:
         order = sorted(((float(sig[j]), g, j) for g, (_, sig, *_r) in enumerate(blocks) for j in range(len(sig))))
@@ -539,9 +610,17 @@ def _assemble_model(
     owners = {(group_of[g], int(blocks[g][2][j])): q for q, (g, j) in enumerate(mode_order)}
     f = lambda x: jnp.asarray(x, dtype)
     u = parts["accel"].shape[1]
-    pre = _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, umaps, basis) if precompute else None
-    one_base = len({g.base for g in groups}) == 1
-    _, inertia = _nominal_frames(model, g_nom, w_nom, tuple(g.base for g in groups), tuple(S))
+    pre = (
+        _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, umaps, basis, apps)
+        if precompute
+        else None
+    )
+    bases = tuple(g.base for g in groups) + tuple(_body(model, ap) for ap in apps)
+    one_base = len(set(bases)) == 1
+    _, inertia, R_bases = _nominal_frames(model, g_nom, w_nom, bases, tuple(S))
+    if apps:
+        inertia = _with_appendages(model, S, groups, tms, apps, xp.asarray(inertia), xp.asarray(R_bases), xp)
+    n_hinge_systems = len(groups)
     hm = HybridModel(
         model=model,
         gamma_nominal=g_nom,
@@ -568,17 +647,52 @@ def _assemble_model(
         mode_group=tuple(int(group_of[g]) for g, _ in mode_order),
         groups=groups,
         basis=basis,
-        truncation=truncation_terms(systems, mds, form, owners, nu, dtype),
+        truncation=truncation_terms(
+            systems[:n_hinge_systems],
+            mds[:n_hinge_systems],
+            form,
+            {key: q for key, q in owners.items() if key[0] < n_hinge_systems},
+            len(S),
+            dtype,
+        ),
+        appendages=tuple(apps),
     )
     return with_inverse(hm)
 
 
-def _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, umaps, basis):
-    """:func:`_build_pre` with each substructure's modal columns: every substructure, also one
-    with no retained mode (its mass still moves with its base)."""
+def _with_appendages(model, S, groups, tms, apps, a_bar, R_bases, xp):
+    """The small coordinates' inertia (Eq. 36d's ``a_bar``, the small rows and columns of Eq. 1's
+    matrix) with the appendages' modal coordinates after the hinges: each substructure's own block
+    (``A0`` of its Taylor terms) less ``p p^T / M`` of the translational momenta ``p`` (in {b^0})
+    over the vehicle's mass M, the elimination of b_0's translation as in Eq. (1). The hinges'
+    block is Eq. (1)'s, with the tree's mass replaced by the vehicle's."""
+    nh = len(S)
+    nu = nh + sum(ap.n_modes for ap in apps)
+    m_tree = xp.sum(xp.asarray(model.mass))
+    m_all = m_tree + sum(xp.asarray(ap.mass) for ap in apps)
+    P = xp.zeros((nu, 3))
+    own = xp.zeros((nu, nu))
+    o = nh
+    for i, tm in enumerate(tms):
+        A0 = xp.asarray(tm.A0)
+        if i < len(groups):
+            rows = np.asarray([S.index(k) for k in groups[i].hinges], np.int64)
+        else:
+            rows = np.arange(o, o + A0.shape[0] - 6)
+            o += rows.size
+            own = put(xp, own, np.ix_(rows, rows), A0[6:, 6:])
+        P = put(xp, P, rows, (R_bases[i] @ A0[3:6, 6:]).T)
+    hinge_block = xp.zeros((nu, nu))
+    hinge_block = put(xp, hinge_block, np.ix_(np.arange(nh), np.arange(nh)), a_bar + (P[:nh] @ P[:nh].T) / m_tree)
+    return hinge_block + own - (P @ P.T) / m_all
+
+
+def _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, umaps, basis, apps=()):
+    """:func:`_build_pre` with each substructure's modal columns: every substructure (and
+    appendage), also one with no retained mode (its mass still moves with its base)."""
     u, m = parts["accel"].shape[1], parts["positions"].shape[1]
     gm, gu = [], []
-    for gi in range(len(groups)):
+    for gi in range(len(groups) + len(apps)):
         if gi in group_of:
             gm.append(mmaps[group_of.index(gi)])
             gu.append(umaps[group_of.index(gi)])
@@ -588,4 +702,4 @@ def _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, uma
     if basis == "set":  # the set's modes span every substructure
         gm = [np.arange(m)] * len(groups)
         gu = [np.arange(u)] * len(groups)
-    return _build_pre(model, groups, tms, S, g_nom, parts, gm, gu, u, m)
+    return _build_pre(model, groups, tms, S, g_nom, parts, gm, gu, u, m, apps)

@@ -330,8 +330,8 @@ def retained_modes(
     auto = isinstance(n_modes, str)
     if basis == "substructure" and n_modes is not None and not auto and not isinstance(n_modes, (int, np.integer)):
         per = list(n_modes)
-        if len(per) != len(groups):
-            raise ValueError(f"hybrid_model: n_modes has {len(per)} entries for {len(groups)} substructures")
+        if len(per) != len(systems):
+            raise ValueError(f"hybrid_model: n_modes has {len(per)} entries for {len(systems)} substructures")
     else:
         per = [n_modes] * len(mds)
     blocks, picked = [], []
@@ -339,7 +339,7 @@ def retained_modes(
         sigma = np.asarray(md.frequencies)
         rigid = np.asarray(md.rigid)
         cands = list(range(len(sigma))) if form == "real" else [j for j in range(len(sigma)) if not rigid[j]]
-        where = "" if basis == "set" else f" for substructure {gi} (from hinge {model.names[groups[gi].hinges[0]]!r})"
+        where = "" if basis == "set" else f" for substructure {gi} (from hinge {systems[gi][4][0]!r})"
         if form == "first_order" and rigid.any():
             where += " (rigid modes left out of the first-order form)"
         rank = _time_scale(md, sigma)

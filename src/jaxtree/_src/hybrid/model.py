@@ -53,6 +53,7 @@ class Precomputed(eqx.Module):
     mcols: tuple = eqx.field(static=True)
     ucols: tuple = eqx.field(static=True)
     bases: tuple = eqx.field(static=True)
+    added_mass: jax.Array | None = None  # the finite-element appendages' mass (not in the tree's)
 
 
 # the products v_b v_c (b <= c) of a base's spatial velocity (the first 21 features psi of
@@ -168,12 +169,19 @@ class HybridModel(eqx.Module):
     groups: tuple = eqx.field(static=True, default=())
     basis: str = eqx.field(static=True, default="set")
     truncation: Truncation | None = None
+    appendages: tuple = ()
 
     # ------------------------------------------------------------------ sizes
     @property
     def nu(self) -> int:
         """Number of small hinges."""
         return len(self.small)
+
+    @property
+    def n_small(self) -> int:
+        """Number of small coordinates: the small hinges, then each finite-element appendage's
+        held-interface modal coordinates (:mod:`jaxtree._src.appendage`)."""
+        return self.positions.shape[0]
 
     @property
     def n_modes(self) -> int:
@@ -192,7 +200,8 @@ class HybridModel(eqx.Module):
         :meth:`retain` still count."""
         if self.basis == "set":
             return (self.n_modes,)
-        return tuple(sum(1 for g in self.mode_group if g == i) for i in range(len(self.groups)))
+        n = len(self.groups) + len(self.appendages)
+        return tuple(sum(1 for g in self.mode_group if g == i) for i in range(n))
 
     @property
     def u(self) -> int:
@@ -255,9 +264,37 @@ class HybridModel(eqx.Module):
         gamma, gamma_dot, _ = self.large_configuration(t, gL, gdL)
         ES, _, _ = self.selectors(y.dtype)
         s = s * self.keep_m().astype(y.dtype)
-        gamma = gamma + ES @ (self.positions @ s)
-        gamma_dot = gamma_dot + ES @ (self.rates @ s)
+        nu = self.nu
+        gamma = gamma + ES @ (self.positions[:nu] @ s)
+        gamma_dot = gamma_dot + ES @ (self.rates[:nu] @ s)
         return State(self.attitude.to_dcm(att), w, gamma, gamma_dot)
+
+    def appendage_coordinates(self, y):
+        """Each finite-element appendage's held-interface modal coordinates and their rates in the
+        flat state `y`: a list of ``(q (k,), q' (k,))``, in the order of ``appendages``."""
+        s = self.unpack(y)[4] * self.keep_m().astype(y.dtype)
+        out, o = [], self.nu
+        for ap in self.appendages:
+            k = ap.n_modes
+            out.append((self.positions[o : o + k] @ s, self.rates[o : o + k] @ s))
+            o += k
+        return out
+
+    def appendage_displacement(self, y, index: int = 0, node: int | None = None):
+        """The displacement (translations, then small rotations; body's frame) of `node` of
+        appendage `index` (default: its first output node) in the flat state `y`."""
+        ap = self.appendages[index]
+        if node is None:
+            if not ap.outputs:
+                raise ValueError("appendage_displacement: the appendage has no output nodes; pass node=")
+            node = ap.outputs[0]
+        q, _ = self.appendage_coordinates(y)[index]
+        return ap.displacement(q, node)
+
+    def _small_vector(self, y, yd):
+        """``[y; y']`` of the small hinges padded with the appendages' coordinates at rest."""
+        z = jnp.zeros(self.n_small - self.nu, y.dtype)
+        return jnp.concatenate([y, z, yd, z])
 
     def pack(self, state: State) -> jax.Array:
         """Flat hybrid state of a physical :class:`~jaxtree.State`: the modal coordinates are
@@ -269,7 +306,7 @@ class HybridModel(eqx.Module):
         S = np.asarray(self.small, dtype=np.int64) - 1
         L = np.asarray(self.large, dtype=np.int64) - 1
         y = gamma[S] - self.gamma_nominal.astype(dtype)[S]
-        s = self.project @ jnp.concatenate([y, gamma_dot[S]]) * self.keep_m().astype(dtype)
+        s = self.project @ self._small_vector(y, gamma_dot[S]) * self.keep_m().astype(dtype)
         return jnp.concatenate(
             [
                 self.attitude.from_dcm(jnp.asarray(state.dcm, dtype)),
@@ -286,11 +323,9 @@ class HybridModel(eqx.Module):
         :meth:`pack` (0 when the motion lies in the retained modes)."""
         dtype = jnp.result_type(self.model.mass)
         S = np.asarray(self.small, dtype=np.int64) - 1
-        x = jnp.concatenate(
-            [
-                jnp.asarray(state.gamma, dtype)[S] - self.gamma_nominal.astype(dtype)[S],
-                jnp.asarray(state.gamma_dot, dtype)[S],
-            ]
+        x = self._small_vector(
+            jnp.asarray(state.gamma, dtype)[S] - self.gamma_nominal.astype(dtype)[S],
+            jnp.asarray(state.gamma_dot, dtype)[S],
         )
         s = self.pack(state)[self.size - self.m :] * self.keep_m().astype(dtype)
         back = jnp.concatenate([self.positions @ s, self.rates @ s])

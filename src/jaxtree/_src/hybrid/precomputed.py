@@ -201,7 +201,7 @@ def pre_blocks(hm: HybridModel, t, parts, with_ww: bool = True):
     Kc = np.concatenate([np.arange(3), np.arange(6, nz)])
     A0, A1 = (jnp.concatenate([Azz[x][Rz], Awz[x]], 0) for x in (0, 1))  # (rows, nz)
     b0, b1 = (jnp.concatenate([bz[x][Rz], bw[x]]) for x in (0, 1))
-    minv = 1.0 / jnp.sum(hm.model.mass.astype(dtype))
+    minv = 1.0 / total_mass(hm, dtype)
     A0T, A1T = Azz[0][T], Azz[1][T]  # the translation rows (3, nz)
     AK = A0[:, Kc] + A1[:, Kc] - minv * (A0[:, T] @ A0T[:, Kc] + A1[:, T] @ A0T[:, Kc] + A0[:, T] @ A1T[:, Kc])
     rhs = -(b0 + b1 - minv * (A0[:, T] @ bz[0][T] + A1[:, T] @ bz[0][T] + A0[:, T] @ bz[1][T]))
@@ -212,6 +212,13 @@ def pre_blocks(hm: HybridModel, t, parts, with_ww: bool = True):
     Mxw = Azw[Rz] - minv * A0[:nx, T] @ Azw[T]
     Pww = A0[nx:, T] @ Azw[T] if with_ww else None
     return AK[:nx, :nx], Mxw, AK[nx:, :nx], Pww, rhs[:nx], rhs[nx:]
+
+
+def total_mass(hm: HybridModel, dtype):
+    """The vehicle's mass: the tree's and the finite-element appendages'."""
+    m = jnp.sum(hm.model.mass.astype(dtype))
+    pre = hm.pre
+    return m if pre is None or pre.added_mass is None else m + pre.added_mass.astype(dtype)
 
 
 def substructure_order(hm: HybridModel):
@@ -236,7 +243,7 @@ def pre_system(hm: HybridModel, t, parts):
     U = np.zeros((len(order), hm.u + 1))
     U[np.arange(len(order)), order] = 1.0
     U = jnp.asarray(U[:, : hm.u], dtype)  # substructure rows -> global rows (summed)
-    minv = 1.0 / jnp.sum(hm.model.mass.astype(dtype))
+    minv = 1.0 / total_mass(hm, dtype)
     s_in = parts[4] * hm.keep_m().astype(dtype)
     assert hm.pre is not None and Pww is not None
     Mww = hm.pre.ww0 - minv * U.T @ Pww @ U + hm.kin

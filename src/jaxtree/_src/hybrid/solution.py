@@ -171,7 +171,7 @@ def _small_unbalanced(hm: HybridModel, t, y):
     dtype = y.dtype
     gdd = jnp.zeros(model.n, dtype)
     gdd = gdd.at[np.asarray(hm.large, np.int64) - 1].set(gddL)
-    gdd = gdd.at[np.asarray(hm.small, np.int64) - 1].set(hm.accel @ (acc * hm.keep_u().astype(dtype)))
+    gdd = gdd.at[np.asarray(hm.small, np.int64) - 1].set(hm.accel[: hm.nu] @ (acc * hm.keep_u().astype(dtype)))
     if gddP is not None:
         gdd = gdd.at[np.asarray(model.prescribed, np.int64) - 1].set(gddP)
     f = unbalanced(model, hm.state(t, y), t, None, wd, gdd)
