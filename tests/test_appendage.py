@@ -321,8 +321,8 @@ def _wide_beam(n=20):
 def test_slew_follows_the_rigid_chain_in_full_equations():
     """A hub (300 kg m^2) slewed by a torque sin(2 pi t / 10) over 10 s, the beam clamped 1 m from
     its center: the tip deflection of the hybrid model with 3 retained modes of the finite-element
-    beam within 1 % of its peak of the chain's (measured 0.1 %); without the geometric stiffness
-    of the spin's preload the error is several times larger (measured 7.6 %)."""
+    beam within 1 % of its peak of the chain's (measured 0.2 %; the chains of 8 and 16 segments differ by 3.5 %); without the geometric stiffness
+    of the spin's preload the error is several times larger (measured 8.0 %)."""
     T0, t1 = 200.0, 15.0
     profile = lambda t: jnp.where(t < 10.0, jnp.sin(2 * jnp.pi * t / 10.0), 0.0)
     torque = jaxtree.BodyTorque(0, [0.0, 0.0, T0], profile)
