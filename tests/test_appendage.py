@@ -328,9 +328,7 @@ def test_slew_follows_the_rigid_chain_in_full_equations():
     torque = jaxtree.BodyTorque(0, [0.0, 0.0, T0], profile)
     hub = jaxtree.Body("hub", 100.0, np.diag([HUB_INERTIA] * 3))
     ts = np.linspace(0.0, t1, 61)
-    tips = [
-        _chain_tip(_chain(N, [hub], 0, (HUB_POINT, 0.0, 0.0)).with_loads(torque), N, t1, ts, 0) for N in CHAIN_N
-    ]
+    tips = [_chain_tip(_chain(N, [hub], 0, (HUB_POINT, 0.0, 0.0)).with_loads(torque), N, t1, ts, 0) for N in CHAIN_N]
     ref = _extrapolated(tips)
     peak = np.max(np.abs(ref))
     assert peak > 0.1  # 0.22 m: the beam bends
@@ -426,3 +424,76 @@ def test_slew_gradient_through_the_structure():
     fd = np.array([(float(loss(p.at[i].add(h))) - float(loss(p.at[i].add(-h)))) / (2 * h) for i in range(2)])
     assert np.all(np.abs(fd) > 1e-2)  # both parameters move the tip
     np.testing.assert_allclose(g, fd, rtol=1e-5)
+
+
+def test_scene_appendages_by_file_and_by_beam(tmp_path, kane_beam):
+    """A scene's ``appendages`` (a structure file, a precomputed-modes file, the beam generator)
+    give the appendages the Python calls give, bit for bit; the scene is written back and read
+    again; the full Eq. (1) warns that it leaves them out, and hybrid_model asks for them."""
+    import json
+
+    from jaxtree._src.appendage import save_appendage, save_fe
+
+    save_fe(tmp_path / "boom.npz", kane_beam)
+    direct = appendage(kane_beam, "hub", point=(1.0, 0, 0), n_modes=4, outputs=(40,))
+    save_appendage(tmp_path / "boom_modes.npz", direct)
+    spec = dict(length=LENGTH, elements=10, E=E, rho=RHO, area=AREA, Iy=IY, up=[0, 1, 0])
+    scene = {
+        "format": "jaxtree-scene/1",
+        "name": "hub_and_booms",
+        "bodies": [{"name": "hub", "mass": 100.0, "inertia": np.diag([300.0] * 3).tolist()}],
+        "appendages": [
+            {"name": "a", "body": "hub", "file": "boom.npz", "point": [1, 0, 0], "modes": 4, "outputs": [40]},
+            {"name": "b", "body": "hub", "file": "boom_modes.npz"},
+            {"name": "c", "body": 0, "beam": spec, "frame": [[-1, 0, 0], [0, -1, 0], [0, 0, 1]], "modes": "auto"},
+        ],
+    }
+    (tmp_path / "s.json").write_text(json.dumps(scene))
+    model = jaxtree.load_scene(tmp_path / "s.json")
+    a, b, c = jaxtree.scene_appendages(model)
+    for got in (a, b):
+        for x, y in zip(jax.tree_util.tree_leaves(got), jax.tree_util.tree_leaves(direct)):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    spec_args = {k: v for k, v in spec.items() if k not in ("length", "elements")}
+    want = appendage(beam(LENGTH, 10, **spec_args), 0, frame=np.diag([-1.0, -1.0, 1.0]), n_modes="auto", name="c")
+    np.testing.assert_array_equal(np.asarray(c.terms.A0), np.asarray(want.terms.A0))
+    assert (a.name, b.name, c.name) == ("a", "b", "c")
+    jaxtree.save_scene(model, tmp_path / "again.json")
+    again = jaxtree.load_scene(tmp_path / "again.json")
+    assert again.appendages == model.appendages
+    with pytest.raises(jaxtree.SceneError, match="appendages=jaxtree.scene_appendages"):
+        jaxtree.hybrid_model(model, ())
+    hm = jaxtree.hybrid_model(model, (), 2, appendages=jaxtree.scene_appendages(model))
+    assert hm.modes_per_substructure == (2, 2, 2)
+    with pytest.warns(jaxtree.SceneWarning, match="left out"):
+        jaxtree.simulate(model, 0.1, saveat=2)
+
+
+@pytest.mark.parametrize(
+    "entry, message",
+    [
+        ({"body": "hub"}, "exactly one of 'file'"),
+        ({"body": "nose", "beam": {}}, "names no body"),
+        ({"body": "hub", "beam": {"length": 1.0}}, "needs elements, E, rho, area, Iy"),
+        ({"body": "hub", "file": "missing.npz"}, "no such file"),
+        ({"body": "hub", "beam": {"length": 1.0}, "colour": 1}, "colour"),
+        ({"body": "hub", "file": "modes.npz", "point": [0, 0, 1]}, "precomputed modes"),
+        (
+            {"body": "hub", "beam": dict(length=1.0, elements=2, E=1.0, rho=1.0, area=1.0, Iy=1.0), "modes": 0},
+            "'modes'",
+        ),
+        ({"body": "hub", "beam": dict(length=-1.0, elements=2, E=1.0, rho=1.0, area=1.0, Iy=1.0)}, "beam.length"),
+    ],
+)
+def test_scene_appendage_errors_name_the_field(tmp_path, kane_beam, entry, message):
+    from jaxtree._src.appendage import save_appendage
+
+    if entry.get("file") == "modes.npz":
+        save_appendage(tmp_path / "modes.npz", appendage(kane_beam, "hub", n_modes=2))
+    scene = {
+        "format": "jaxtree-scene/1",
+        "bodies": [{"name": "hub", "mass": 100.0, "inertia": np.eye(3).tolist()}],
+        "appendages": [entry],
+    }
+    with pytest.raises(jaxtree.SceneError, match=message):
+        jaxtree._src.scene.scene.scene_from_dict(scene, tmp_path)

@@ -45,6 +45,7 @@ from ._src.appendage import load_fe as load_fe
 from ._src.appendage import read_matrix_market as read_matrix_market
 from ._src.appendage import save_appendage as save_appendage
 from ._src.appendage import save_fe as save_fe
+from ._src.appendage import scene_appendages as scene_appendages
 from ._src.campaigns.campaign import FAILURES as FAILURES
 from ._src.campaigns.campaign import (
     monte_carlo as monte_carlo,
@@ -525,6 +526,7 @@ __all__ = [
     "read_matrix_market",
     "load_appendage",
     "save_appendage",
+    "scene_appendages",
     # campaigns, diagnostics, result files, plots and the 3D viewer
     "monte_carlo",
     "FAILURES",

@@ -18,6 +18,7 @@ from .files import load_fe as load_fe
 from .files import read_matrix_market as read_matrix_market
 from .files import save_appendage as save_appendage
 from .files import save_fe as save_fe
+from .files import scene_appendages as scene_appendages
 from .model import Appendage as Appendage
 from .model import appendage as appendage
 from .model import held_interface_modes as held_interface_modes

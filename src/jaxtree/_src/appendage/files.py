@@ -24,6 +24,8 @@ A file written from one build and read back gives the same appendage to the last
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import pathlib
 
 import jax.numpy as jnp
@@ -32,8 +34,8 @@ import numpy as np
 from .._checks import SceneError
 from ..hybrid.substructure import Terms
 from ..io.files import atomic_write
-from .fe import Elements, FEModel
-from .model import Appendage
+from .fe import Elements, FEModel, beam
+from .model import Appendage, appendage
 
 FE_FORMAT = "jaxtree-fe/1"
 APPENDAGE_FORMAT = "jaxtree-appendage/1"
@@ -187,6 +189,7 @@ def save_appendage(path, ap: Appendage) -> None:
         dofs=np.asarray(ap.dofs),
         geometric=np.asarray(ap.geometric),
         body=np.asarray(ap.body),
+        name=np.asarray(ap.name),
     )
     _write(path, arrays)
 
@@ -208,4 +211,52 @@ def load_appendage(path) -> Appendage:
         outputs=tuple(int(i) for i in data["outputs"]),
         dofs=int(data["dofs"]),
         geometric=bool(data.get("geometric", True)),
+        name=str(data.get("name", "")),
     )
+
+
+@functools.lru_cache(maxsize=64)
+def _from_spec(spec, mtime) -> Appendage:
+    del mtime  # part of the cache key: a file written again is read again
+    if spec.file is not None:
+        with np.load(spec.file, allow_pickle=False) as data:
+            fmt = str(data["format"]) if "format" in data.files else ""
+        if fmt == APPENDAGE_FORMAT:
+            ap = load_appendage(spec.file)
+            if ap.body != spec.body:
+                raise SceneError(
+                    f"appendage {spec.name!r}: {pathlib.Path(spec.file).name} was computed for body {ap.body!r}, "
+                    f"the scene fixes it to {spec.body!r}"
+                )
+            return dataclasses.replace(ap, name=spec.name) if ap.name != spec.name else ap
+        fe = load_fe(spec.file)
+    else:
+        args = spec.beam_arguments()
+        fe = beam(args.pop("length"), args.pop("elements"), area=args.pop("area"), **args)
+    frame = None if spec.frame is None else np.asarray(spec.frame)
+    try:
+        return appendage(
+            fe,
+            spec.body,
+            interface=spec.interface,
+            point=spec.point,
+            frame=frame,
+            n_modes=spec.modes,
+            tol=spec.tol,
+            damping=spec.damping,
+            outputs=spec.outputs,
+            geometric=spec.geometric,
+            name=spec.name,
+        )
+    except SceneError as e:
+        raise SceneError(f"appendage {spec.name!r}: {e}") from None
+
+
+def scene_appendages(model) -> tuple[Appendage, ...]:
+    """The finite-element appendages the scene of `model` declares (its ``appendages``), built (and
+    cached per entry and file) for :func:`jaxtree.hybrid_model`'s `appendages`."""
+    out = []
+    for spec in getattr(model, "appendages", ()):
+        mtime = pathlib.Path(spec.file).stat().st_mtime_ns if spec.file is not None else 0
+        out.append(_from_spec(spec, mtime))
+    return tuple(out)

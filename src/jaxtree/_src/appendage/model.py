@@ -86,6 +86,7 @@ class Appendage(eqx.Module):
     outputs: tuple = eqx.field(static=True)
     dofs: int = eqx.field(static=True)
     geometric: bool = eqx.field(static=True)
+    name: str = eqx.field(static=True, default="")
 
     @property
     def n_modes(self) -> int:
@@ -273,6 +274,7 @@ def appendage(
     damping=0.0,
     outputs=(),
     geometric: bool = True,
+    name: str = "",
 ) -> Appendage:
     """A finite-element appendage fixed to `body` (a body's name or index of the tree it will join).
 
@@ -287,6 +289,7 @@ def appendage(
       response (translations, the largest over the structure and the six);
     - `damping`: modal damping ratios (scalar or one per retained mode);
     - `outputs`: node indices whose motion the results report (tip, corners);
+    - `name`: a label for results and messages;
     - `geometric`: add the geometric stiffness of the base's inertial preload (module
       docstring; needs the structure's elements). On by default: without it a spinning appendage
       is wrong above its first frequency.
@@ -370,4 +373,5 @@ def appendage(
         outputs=outs,
         dofs=fe.dofs,
         geometric=bool(geometric),
+        name=str(name),
     )

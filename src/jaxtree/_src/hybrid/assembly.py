@@ -305,7 +305,7 @@ def hybrid_model(
     basis: str | None = None,
     tol: float = 1e-2,
     like: HybridModel | None = None,
-    appendages=(),
+    appendages=None,
 ) -> HybridModel:
     """The hybrid-coordinate equations of `model` with the hinges of `small` (the set A) in
     truncated large-deformation modal coordinates (Eqs. 105-123).
@@ -361,13 +361,20 @@ def hybrid_model(
       and ``"auto"`` apply to it as to a substructure). `small` may then be empty (``()``). Needs
       the substructure basis and the precomputed terms. The truncation estimate covers the small
       hinges' substructures; `energy` and `angular_momentum` of :func:`simulate_hybrid` are the
-      tree's, without the appendages.
+      tree's, without the appendages. A model whose scene declares appendages needs the argument
+      (``appendages=jaxtree.scene_appendages(model)``, or ``()`` to leave them out).
 
     Rigid (zero-frequency) modes have no first-order eigenvectors (Sec. III E, all-small case):
     the first-order form leaves them out.
 
     **Returns:** :class:`HybridModel`.
     """
+    if appendages is None and getattr(model, "appendages", ()):
+        raise SceneError(
+            f"hybrid_model: the scene declares finite-element appendages "
+            f"({', '.join(a.name for a in model.appendages)}); pass appendages=jaxtree.scene_appendages(model) "
+            "to include them, or appendages=() to leave them out"
+        )
     apps = _appendage_args(model, appendages)
     no_hinges = apps and (small is None or (isinstance(small, (list, tuple)) and len(small) == 0))
     _hybrid_model_args(

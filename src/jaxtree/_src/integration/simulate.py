@@ -18,6 +18,7 @@ progress meters are diffrax objects, passed to :func:`diffrax.diffeqsolve` uncha
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from typing import Any, NamedTuple, cast
 
@@ -29,7 +30,7 @@ import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
-from .._checks import SceneError, SceneTypeError, as_float, short
+from .._checks import SceneError, SceneTypeError, SceneWarning, as_float, short
 from ..equations._math import regular
 from ..equations.attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
 from ..equations.control import AbstractController, with_model_laws
@@ -79,6 +80,14 @@ def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controlle
     pointing from `t0` toward `t1`, `translation` a bool or ``(X0 (3,), X_dot0 (3,))``, and
     diffrax objects where diffrax objects go."""
     check_model("simulate", model)
+    if getattr(model, "appendages", ()):
+        warnings.warn(
+            f"simulate: the scene's finite-element appendages ({', '.join(a.name for a in model.appendages)}) are "
+            "not part of the full Eq. (1) and are left out; integrate them in hybrid coordinates: "
+            "jaxtree.hybrid_model(model, small, appendages=jaxtree.scene_appendages(model))",
+            SceneWarning,
+            stacklevel=4,
+        )
     if dt0 is not None and not is_traced((dt0, t0, t1)):
         h = float(as_float(dt0, "simulate: dt0", ()))
         direction = float(np.asarray(t1, float)) - float(np.asarray(t0, float))

@@ -34,6 +34,7 @@ from ..vehicle.profiles import (
     pad_tables,
 )
 from ..vehicle.topology import Topology
+from .appendages import parse_appendages
 from .laws import laws_to_dict, prescribed_joints, with_scene_laws
 
 FORMAT = "jaxtree-scene/1"
@@ -799,10 +800,10 @@ def _body_from_dict(d, k):
 
 
 # ----------------------------------------------------------------------------- JSON
-_SCENE_KEYS = {"format", "name", "description", "bodies", "initial", "loads", "control", "orbit"}
+_SCENE_KEYS = {"format", "name", "description", "bodies", "initial", "loads", "control", "orbit", "appendages"}
 
 
-def scene_from_dict(data: dict) -> Model:
+def scene_from_dict(data: dict, base_dir=None) -> Model:
     """Build a model from a parsed ``jaxtree-scene/1`` document.
 
     Besides the bodies and the initial state, the optional keys ``loads``, ``control`` and
@@ -826,7 +827,9 @@ def scene_from_dict(data: dict) -> Model:
     if initial is not None and not isinstance(initial, dict):
         raise SceneTypeError(f"scene: field 'initial' must be an object, got {short(initial)}")
 
-    return with_scene_laws(build_model(data["bodies"], initial, name=data.get("name", "")), data)
+    model = with_scene_laws(build_model(data["bodies"], initial, name=data.get("name", "")), data)
+    specs = parse_appendages(data.get("appendages"), model.names, base_dir)
+    return dataclasses.replace(model, appendages=specs) if specs else model
 
 
 def scene_path(name: str) -> pathlib.Path:
@@ -852,10 +855,10 @@ def load_scene(path) -> Model:
             data = json.load(f)
         except json.JSONDecodeError as e:
             raise SceneError(f"{p}: not valid JSON ({e})") from None
-    return scene_from_dict(data)
+    return scene_from_dict(data, p.parent)
 
 
-def scene_to_dict(model: Model, description: str = "") -> dict:
+def scene_to_dict(model: Model, description: str = "", base_dir=None) -> dict:
     """The ``jaxtree-scene/1`` document of a model, with its loads, control laws and orbit.
 
     Raises ValueError for what has no JSON form: a prescription, load or law given as a Python
@@ -896,13 +899,14 @@ def scene_to_dict(model: Model, description: str = "") -> dict:
         "bodies": bodies,
         "initial": {"gamma": f(s.gamma), "gamma_dot": f(s.gamma_dot), "omega0": f(s.omega0), "attitude_dcm": f(s.dcm)},
         **laws,
+        **({"appendages": [a.to_dict(base_dir) for a in model.appendages]} if model.appendages else {}),
     }
 
 
 def save_scene(model: Model, path, description: str = "") -> None:
     """Write a model as ``jaxtree-scene/1`` JSON, atomically (temporary file, then rename)."""
     path = pathlib.Path(path)
-    text = json.dumps(scene_to_dict(model, description), indent=1) + "\n"
+    text = json.dumps(scene_to_dict(model, description, path.parent.resolve()), indent=1) + "\n"
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "w") as fh:

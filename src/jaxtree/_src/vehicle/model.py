@@ -124,6 +124,9 @@ class Model(eqx.Module):
 
     Build models with :func:`jaxtree.build_model` or :func:`jaxtree.load_scene`,
     which validate the input before anything is traced.
+    `appendages`: the finite-element appendages a scene declares (static records,
+    :class:`~jaxtree._src.scene.appendages.AppendageSpec`), built by :func:`jaxtree.scene_appendages`
+    for :func:`jaxtree.hybrid_model`; the full Eq. (1) leaves them out.
     """
 
     mass: jax.Array
@@ -146,6 +149,7 @@ class Model(eqx.Module):
     law: Any = None
     controller: Any = None
     orbit: Any = None
+    appendages: tuple = eqx.field(static=True, default=())
 
     def __check_init__(self):
         if self.method not in ("auto", "dense", "articulated"):
