@@ -44,7 +44,11 @@ def enable() -> str | None:
     """Turn the cache on (see the module's text); returns its directory, or None when off or when
     JAX already has a cache directory of the user's."""
     path = directory()
-    if path is None or os.environ.get("JAX_COMPILATION_CACHE_DIR") or jax.config.jax_compilation_cache_dir:
+    if (
+        path is None
+        or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+        or getattr(jax.config, "jax_compilation_cache_dir", None)
+    ):
         return None
     jax.config.update("jax_compilation_cache_dir", path)
     jax.config.update("jax_compilation_cache_max_size", MAX_BYTES)
