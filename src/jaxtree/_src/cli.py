@@ -348,7 +348,8 @@ def _hybrid_options(s):
         "--hybrid-small",
         metavar="HINGES",
         help="hybrid coordinates (Eqs. 105-123): the small hinges (indices, names, ranges a-b, or 'all') "
-        "replaced by truncated modal coordinates",
+        "replaced by truncated modal coordinates; 'none' for the scene's finite-element appendages alone "
+        "(a scene's appendages are always in modal coordinates here)",
     )
     s.add_argument(
         "--modes",

@@ -30,6 +30,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
+from .._checks import SceneError
+from ..appendage.files import scene_appendages
 from ..equations.dynamics import angular_momentum, kinetic_energy
 from ..hybrid import hybrid_model, simulate_hybrid
 from ..integration.autosolver import choose_solver, save_points
@@ -87,6 +89,8 @@ def parse_hinges(model: Model, spec) -> tuple[int, ...]:
     """The hinges that `spec` names, ascending: ``"all"`` (every hinge that is neither
     prescribed nor inert), text of comma-separated indices 1..n, body names and ranges ``a-b``,
     or a sequence of indices and names. Raises ``ValueError`` saying what is wrong."""
+    if isinstance(spec, str) and spec.strip() == "none":
+        return ()
     if isinstance(spec, str) and spec.strip() == "all":
         if not model.unknown_hinges:
             raise ValueError("the scene has no hinge that can be small")
@@ -446,10 +450,19 @@ def _hybrid_of(model, cfg, dtype):
     except ValueError as e:
         raise ChunkedRunError("hybrid_small", str(e)) from None
     try:
+        appendages = scene_appendages(model)
+    except SceneError as e:
+        raise ChunkedRunError("hybrid_small", f"the scene's appendages: {e}") from None
+    if not small and not appendages:
+        raise ChunkedRunError(
+            "hybrid_small", "'none' leaves nothing in modal coordinates (the scene has no appendages)"
+        )
+    try:
         return hybrid_model(
             model,
             small,
             None if cfg["n_modes"] == -1 else "auto" if cfg["n_modes"] == -2 else cfg["n_modes"],
+            appendages=appendages,
             tol=cfg.get("modes_tol", 1e-2),
             cutoff=None if cfg["cutoff"] < 0 else cfg["cutoff"],
             omega0=jnp.asarray(cfg["spin"], dtype),
@@ -574,6 +587,7 @@ class _HybridPart:
             attitude=np.asarray(s.ys)[:count, : self.hybrid.attitude.size],
             attitude_name=self.hybrid.attitude.name,
             modal=_take(s.modal, count),
+            **_appendage_rows(self.hybrid, s.ys, count),
         )
 
     def next_start(self):
@@ -584,6 +598,23 @@ class _HybridPart:
         if self.sol.truncation_state is not None:
             out["resume_truncation"] = (("truncation_coordinate", "re_im"), np.asarray(self.sol.truncation_state))
         return out
+
+
+def _appendage_rows(hybrid, ys, count) -> dict:
+    """The finite-element appendages' output nodes: displacements (T, P, 6) and names (P,)."""
+    outs = [(i, node) for i, ap in enumerate(hybrid.appendages) for node in ap.outputs]
+    if not outs:
+        return {}
+    ys = np.asarray(ys)[:count]
+    rows = np.stack(
+        [
+            np.asarray(jax.vmap(lambda y, i=i, node=node: hybrid.appendage_displacement(y, i, node))(ys))
+            for i, node in outs
+        ],
+        1,
+    )
+    names = [f"{hybrid.appendages[i].name or f'appendage{i}'}:{node}" for i, node in outs]
+    return {"appendage_output": rows, "appendage_output_name": names}
 
 
 def _part_dataset(runner, part, count, skip_first, attrs):

@@ -288,7 +288,7 @@ def _solve_hybrid(
         failure=code,
         truncation=dyn,
         truncation_static=stat,
-        truncation_error=None if dyn is None else jnp.max(jnp.abs(dyn), -1),
+        truncation_error=None if dyn is None else jnp.max(jnp.abs(dyn), -1, initial=0.0),
         truncation_state=q_end,
     )
     if report:

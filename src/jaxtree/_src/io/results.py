@@ -197,6 +197,8 @@ def simulation_dataset(
     hold_torque=None,
     orthogonality=None,
     modal=None,
+    appendage_output=None,
+    appendage_output_name=None,
     positions: bool | tuple[ArrayLike, ArrayLike] = True,
     attrs: dict | None = None,
 ):
@@ -205,7 +207,10 @@ def simulation_dataset(
     `ts` (T,); `gamma`, `gamma_dot` (T, n); `omega0` (T, 3); `dcm` (T, 3, 3); optional `energy`
     (T,), `angular_momentum` (T, 3), `attitude` (T, size) with its `attitude_name`,
     `hold_torque` (T, len(model.prescribed)), `orthogonality` (T,), `modal` (T, m) hybrid modal
-    coordinates; `positions` adds the mass centers and hinge points of every body
+    coordinates, `appendage_output` (T, P, 6) (the variable ``appendage_displacement`` over the
+    dimension ``appendage_output``) the displacements (translations, small rotations; the
+    body's frame) of the finite-element appendages' output nodes, named by `appendage_output_name`
+    (P,: ``"appendage:node"``); `positions` adds the mass centers and hinge points of every body
     (:func:`body_positions`, or given as that function's pair of arrays); `attrs`
     are stored as global attributes (with the format, the scene JSON and :func:`versions`).
     """
@@ -259,6 +264,19 @@ def simulation_dataset(
             )
         else:
             v[name] = _var(dims, pick(histories[name]), units, long_name)
+    if appendage_output is not None and np.shape(appendage_output)[1] > 0:
+        v["appendage_displacement"] = _var(
+            ("time", "appendage_output", "dof"),
+            pick(appendage_output),
+            "m or rad",
+            "displacement of a finite-element appendage's output node (translations x, y, z, then small rotations), "
+            "its body's frame",
+        )
+        coords["appendage_output"] = (
+            "appendage_output",
+            np.asarray(list(appendage_output_name), dtype=object),
+            {"long_name": "appendage name and output node"},
+        )
     if histories["hold_torque"] is not None:
         coords["prescribed_hinge"] = (
             "prescribed_hinge",
