@@ -274,7 +274,7 @@ def simulation_dataset(
         )
         coords["appendage_output"] = (
             "appendage_output",
-            np.asarray(list(appendage_output_name), dtype=object),
+            np.asarray(list(appendage_output_name or ()), dtype=object),
             {"long_name": "appendage name and output node"},
         )
     if histories["hold_torque"] is not None:
