@@ -42,6 +42,8 @@ from ._src.appendage import beam as beam
 from ._src.appendage import held_interface_modes as held_interface_modes
 from ._src.appendage import load_appendage as load_appendage
 from ._src.appendage import load_fe as load_fe
+from ._src.appendage import plate as plate
+from ._src.appendage import plate_edge as plate_edge
 from ._src.appendage import read_matrix_market as read_matrix_market
 from ._src.appendage import save_appendage as save_appendage
 from ._src.appendage import save_fe as save_fe
@@ -518,6 +520,8 @@ __all__ = [
     # finite-element appendages: held-interface modes, modal invariants, geometric stiffness
     "FEModel",
     "beam",
+    "plate",
+    "plate_edge",
     "held_interface_modes",
     "Appendage",
     "appendage",

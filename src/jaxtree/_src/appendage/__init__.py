@@ -11,8 +11,11 @@ base's frame gives the Taylor coefficients a substructure gives.
 
 from .fe import Elements as Elements
 from .fe import FEModel as FEModel
+from .fe import PlateElements as PlateElements
 from .fe import beam as beam
 from .fe import geometric_stiffness as geometric_stiffness
+from .fe import plate as plate
+from .fe import plate_edge as plate_edge
 from .files import load_appendage as load_appendage
 from .files import load_fe as load_fe
 from .files import read_matrix_market as read_matrix_market

@@ -1,5 +1,5 @@
-"""A structure's finite-element model (mass and stiffness matrices on a node table) and a
-generator of its own for beams.
+"""A structure's finite-element model (mass and stiffness matrices on a node table) and
+generators of its own for beams and plates.
 
 The report's flexible appendages are chains of rigid panels; the structures engineers model are
 finite-element models, and what a multibody tool takes in from them is a mass matrix ``M``, a
@@ -12,7 +12,11 @@ elements with the consistent mass matrix (Przemieniecki, *Theory of Matrix Struc
 1968, Sec. 5.3 and 11.3), differentiable in its length, material and section (every argument a
 JAX array may carry a tracer). Its elements are kept (:class:`Elements`) so that the geometric
 stiffness of an axial preload can be formed (:func:`geometric_stiffness`): the centrifugal
-stiffening of a spinning appendage (:mod:`.invariants`).
+stiffening of a spinning appendage (:mod:`.model`). :func:`plate` builds a flat rectangular
+plate (a solar array's panel) of four-node shell elements: bilinear membrane, Reissner-Mindlin
+bending with the transverse shear at the element's center (Hughes, *The Finite Element Method*,
+1987, Sec. 5.6: selective reduced integration), consistent mass; its :class:`PlateElements` give
+the geometric stiffness of in-plane stress.
 """
 
 from __future__ import annotations
@@ -35,6 +39,62 @@ class Elements(eqx.Module):
     axial: jax.Array
     nodes: tuple = eqx.field(static=True)
 
+    def stresses(self, u):
+        """The preload's stress resultants (one per element: the axial force) in the static
+        displacement `u` (N,), linear in it."""
+        return axial_forces(self, u)
+
+    def blocks(self):
+        """``(dofs (E, 12), G (E, 12, 12))``: the geometric stiffness of a unit stress resultant,
+        on the degrees of freedom it acts on, in the structure's frame."""
+        Gl = jax.vmap(geometric_element)(self.length, jnp.ones_like(self.length))
+        T = jax.vmap(element_rotation)(self.frame)
+        return element_dofs(self.nodes), jnp.einsum("eba,ebc,ecd->ead", T, Gl, T)
+
+
+class PlateElements(eqx.Module):
+    """Four-node plate elements of one flat plate, for the geometric stiffness of an in-plane
+    preload: `nodes` (static, (ne, 4) node indices, counter-clockwise), `normal` (3,), `axes`
+    (2, 3: the plate's in-plane axes x, y in the structure's frame), `dN` (ng, 2, 4: the shape
+    functions' derivatives in x, y at each Gauss point), `weights` (ng,: the Gauss points' areas),
+    `membrane` (3, 3: the membrane stiffness E t / (1 - nu^2) [[1, nu, 0], [nu, 1, 0], [0, 0,
+    (1 - nu) / 2]]). The stress resultants are (N_xx, N_yy, N_xy) per element and Gauss point."""
+
+    normal: jax.Array
+    axes: jax.Array
+    dN: jax.Array
+    weights: jax.Array
+    membrane: jax.Array
+    nodes: tuple = eqx.field(static=True)
+
+    def _translations(self, u):
+        idx = 6 * np.asarray(self.nodes, np.int64)[:, :, None] + np.arange(3)  # (ne, 4, 3)
+        return u[idx]
+
+    def stresses(self, u):
+        ut = self._translations(u)  # (ne, 4, 3)
+        um = jnp.einsum("enc,ac->ena", ut, self.axes)  # in-plane (ne, 4, 2)
+        ux = jnp.einsum("gn,ena->gea", self.dN[:, 0], um)  # d/dx of (u, v): (ng, ne, 2)
+        uy = jnp.einsum("gn,ena->gea", self.dN[:, 1], um)
+        strain = jnp.stack([ux[..., 0], uy[..., 1], ux[..., 1] + uy[..., 0]], -1)  # (ng, ne, 3)
+        res = jnp.einsum("ij,gej->egi", self.membrane, strain)  # (ne, ng, 3)
+        return res.reshape(-1)
+
+    def blocks(self):
+        ne, ng = len(self.nodes), self.dN.shape[0]
+        nn = jnp.outer(self.normal, self.normal)
+        gx, gy = self.dN[:, 0], self.dN[:, 1]  # (ng, 4)
+        w = self.weights[:, None, None]
+        xx = w * gx[:, :, None] * gx[:, None, :]
+        yy = w * gy[:, :, None] * gy[:, None, :]
+        xy = w * (gx[:, :, None] * gy[:, None, :] + gy[:, :, None] * gx[:, None, :])
+        per = jnp.stack([xx, yy, xy], 1)  # (ng, 3, 4, 4): N_xx, N_yy, N_xy
+        G = jnp.einsum("gcab,ij->gcaibj", per, nn).reshape(ng, 3, 12, 12)
+        G = jnp.broadcast_to(G[None], (ne, ng, 3, 12, 12)).reshape(ne * ng * 3, 12, 12)
+        idx = (6 * np.asarray(self.nodes, np.int64)[:, :, None] + np.arange(3)).reshape(ne, 12)
+        dofs = np.repeat(idx[:, None, :], ng * 3, axis=1).reshape(ne * ng * 3, 12)
+        return dofs, G
+
 
 class FEModel(eqx.Module):
     """A structure's finite-element model.
@@ -43,14 +103,14 @@ class FEModel(eqx.Module):
       node (translations x, y, z, then, with ``dofs = 6``, small rotations about x, y, z);
     - `nodes` (n_nodes, 3): positions in the structure's frame;
     - `dofs` (static): 6 or 3 per node;
-    - `elements`: the beam elements (:class:`Elements`) when the model knows them (the
-      geometric stiffness needs them), else None.
+    - `elements`: the beam (:class:`Elements`) or plate (:class:`PlateElements`) elements when
+      the model knows them (the geometric stiffness needs them), else None.
     """
 
     mass: jax.Array
     stiffness: jax.Array
     nodes: jax.Array
-    elements: Elements | None = None
+    elements: Elements | PlateElements | None = None
     dofs: int = eqx.field(static=True, default=6)
 
     def __check_init__(self):
@@ -227,17 +287,142 @@ def axial_forces(elements: Elements, u):
 
 
 def geometric_stiffness(fe: FEModel, u):
-    """The geometric stiffness (N, N) of the preload whose static displacement is `u`: the sum of
-    the elements' :func:`geometric_element` under their axial forces, in the structure's frame."""
+    """The geometric stiffness (N, N) of the preload whose static displacement is `u`: each
+    element's geometric stiffness under its stress resultants, in the structure's frame."""
     if fe.elements is None:
         raise SceneError("geometric_stiffness: the FEModel has no elements (give its preload's matrices instead)")
     el = fe.elements
-    Nf = axial_forces(el, u)
-    Gl = jax.vmap(geometric_element)(el.length, Nf)  # (ne, 12, 12)
-    T = jax.vmap(element_rotation)(el.frame)
-    Gg = jnp.einsum("eba,ebc,ecd->ead", T, Gl, T)
-    dofs = element_dofs(el.nodes)
-    rows = np.repeat(dofs, 12, axis=1).ravel()
-    cols = np.tile(dofs, (1, 12)).ravel()
+    dofs, G = el.blocks()
+    S = el.stresses(u)
+    d = dofs.shape[1]
+    rows = np.repeat(dofs, d, axis=1).ravel()
+    cols = np.tile(dofs, (1, d)).ravel()
     N = fe.mass.shape[0]
-    return jnp.zeros((N, N), Gg.dtype).at[rows, cols].add(Gg.reshape(-1))
+    return jnp.zeros((N, N), G.dtype).at[rows, cols].add((S[:, None, None] * G).reshape(-1))
+
+
+_GAUSS2 = np.array([-1.0, 1.0]) / np.sqrt(3.0)
+_CORNERS = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+
+
+def _shape(xi, eta):
+    """Bilinear shape functions (4,) and their derivatives in (xi, eta) (2, 4)."""
+    N = 0.25 * (1 + _CORNERS[:, 0] * xi) * (1 + _CORNERS[:, 1] * eta)
+    d = np.stack(
+        [0.25 * _CORNERS[:, 0] * (1 + _CORNERS[:, 1] * eta), 0.25 * _CORNERS[:, 1] * (1 + _CORNERS[:, 0] * xi)]
+    )
+    return N, d
+
+
+def _plate_element(a, b, E, nu, rho, t, dtype):
+    """Local 24 x 24 stiffness and consistent mass of a flat a x b rectangular shell element (dofs
+    u, v, w, th_x, th_y, th_z per node, corners counter-clockwise from (-a/2, -b/2)): bilinear
+    membrane (plane stress), Reissner-Mindlin bending with the shear integrated at the center
+    (selective reduced integration, free of shear locking for thin plates), a drilling stiffness
+    and inertia that keep the in-plane rotations out of the low modes; and the Gauss points' shape
+    derivatives in (x, y) (4, 2, 4) and areas (4,)."""
+    J = jnp.stack([a / 2, b / 2])  # d(x, y) / d(xi, eta), a rectangle
+    Dm = E * t / (1 - nu**2) * jnp.array([[1.0, nu, 0.0], [nu, 1.0, 0.0], [0.0, 0.0, (1 - nu) / 2]], dtype)
+    Db = Dm * t**2 / 12.0
+    ks = 5.0 / 6.0 * E / (2 * (1 + nu)) * t
+    K = jnp.zeros((24, 24), dtype)
+    M = jnp.zeros((24, 24), dtype)
+    dNs, ws = [], []
+    area = a * b
+    u = np.arange(4) * 6
+    for xi in _GAUSS2:
+        for eta in _GAUSS2:
+            N, d = _shape(xi, eta)
+            dN = jnp.asarray(d) / J[:, None]  # (2, 4) in x, y
+            w = area / 4.0
+            dNs.append(dN)
+            ws.append(w)
+            Bm = jnp.zeros((3, 24), dtype)
+            Bm = Bm.at[0, u + 0].set(dN[0]).at[1, u + 1].set(dN[1]).at[2, u + 0].set(dN[1]).at[2, u + 1].set(dN[0])
+            # bending: kappa = (th_y,x, -th_x,y, th_y,y - th_x,x)
+            Bb = jnp.zeros((3, 24), dtype)
+            Bb = Bb.at[0, u + 4].set(dN[0]).at[1, u + 3].set(-dN[1]).at[2, u + 4].set(dN[1]).at[2, u + 3].set(-dN[0])
+            K = K + w * (Bm.T @ Dm @ Bm + Bb.T @ Db @ Bb)
+            Nm = jnp.asarray(N, dtype)
+            for c, inertia in ((0, t), (1, t), (2, t), (3, t**3 / 12), (4, t**3 / 12), (5, t**3 / 12)):
+                M = M.at[np.ix_(u + c, u + c)].add(w * rho * inertia * jnp.outer(Nm, Nm))
+    # transverse shear at the center: gamma = (w,x + th_y, w,y - th_x)
+    N0, d0 = _shape(0.0, 0.0)
+    dN0 = jnp.asarray(d0) / J[:, None]
+    Bs = jnp.zeros((2, 24), dtype)
+    Bs = Bs.at[0, u + 2].set(dN0[0]).at[0, u + 4].set(jnp.asarray(N0, dtype))
+    Bs = Bs.at[1, u + 2].set(dN0[1]).at[1, u + 3].set(-jnp.asarray(N0, dtype))
+    K = K + area * ks * Bs.T @ Bs
+    # drilling: a stiffness of the membrane's order on each node's in-plane rotation
+    K = K.at[u + 5, u + 5].add(1e-3 * E * t * area / 4)
+    return K, M, jnp.stack(dNs), jnp.stack(ws) * jnp.ones(4, dtype)
+
+
+def plate(
+    length,
+    width,
+    n_length: int,
+    n_width: int,
+    *,
+    E,
+    rho,
+    thickness,
+    nu=0.3,
+    direction=(1.0, 0.0, 0.0),
+    across=(0.0, 1.0, 0.0),
+    origin=(0.0, 0.0, 0.0),
+) -> FEModel:
+    """A flat rectangular plate (a solar array's panel) of `n_length` x `n_width` four-node shell
+    elements: `length` along `direction` from `origin` (node 0), `width` along `across` (made
+    orthogonal to `direction`). Nodes row by row along the length: node ``i + (n_length + 1) j`` at
+    ``origin + i a direction + j b across``; the edge ``i = 0`` (nodes ``(n_length + 1) j``) is
+    where a panel is usually held (:func:`plate_edge`).
+
+    Bilinear membrane and Reissner-Mindlin bending (shear at the element center: no locking for
+    thin plates), consistent mass with the rotary inertia ``rho t^3 / 12``, six degrees of freedom
+    per node (the in-plane rotation with a drilling stiffness); `E`, `rho`, `thickness`, `nu` may
+    be JAX arrays (differentiable). **Returns:** :class:`FEModel` with its :class:`PlateElements`
+    (the geometric stiffness of in-plane stress)."""
+    na, nb = int(n_length), int(n_width)
+    if na < 1 or nb < 1:
+        raise SceneError(f"plate: n_length and n_width must be positive integers, got {n_length!r}, {n_width!r}")
+    for name, v in dict(length=length, width=width, E=E, rho=rho, thickness=thickness).items():
+        if not is_traced(v) and not (np.ndim(v) == 0 and float(v) > 0):
+            raise SceneError(f"plate: {name} must be a positive number, got {v!r}")
+    dtype = jnp.result_type(float)
+    f = lambda x: jnp.asarray(x, dtype)
+    length, width, E, rho, t, nu = (f(v) for v in (length, width, E, rho, thickness, nu))
+    d = f(direction) / jnp.linalg.norm(f(direction))
+    c = f(across) - jnp.dot(f(across), d) * d
+    if not is_traced((direction, across)) and float(jnp.linalg.norm(c)) < 1e-9:
+        raise SceneError(f"plate: across {list(across)} is along direction {list(direction)}")
+    c = c / jnp.linalg.norm(c)
+    n = jnp.cross(d, c)
+    R = jnp.stack([d, c, n])  # rows: local x, y, z
+    a, b = length / na, width / nb
+    Kl, Ml, dN, ws = _plate_element(a, b, E, nu, rho, t, dtype)
+    T = jnp.kron(jnp.eye(8, dtype=dtype), R)
+    Kg, Mg = T.T @ Kl @ T, T.T @ Ml @ T
+    ii, jj = np.meshgrid(np.arange(na + 1), np.arange(nb + 1), indexing="xy")
+    nodes = f(origin)[None] + (ii.ravel()[:, None] * a) * d[None] + (jj.ravel()[:, None] * b) * c[None]
+    node = lambda i, j: i + (na + 1) * j
+    quads = tuple(
+        (node(i, j), node(i + 1, j), node(i + 1, j + 1), node(i, j + 1)) for j in range(nb) for i in range(na)
+    )
+    q = np.asarray(quads, np.int64)
+    dofs = (6 * q[:, :, None] + np.arange(6)).reshape(len(quads), 24)
+    N = 6 * (na + 1) * (nb + 1)
+    rows = np.repeat(dofs, 24, axis=1).ravel()
+    cols = np.tile(dofs, (1, 24)).ravel()
+    K = jnp.zeros((N, N), dtype).at[rows, cols].add(jnp.tile(Kg.ravel(), len(quads)))
+    M = jnp.zeros((N, N), dtype).at[rows, cols].add(jnp.tile(Mg.ravel(), len(quads)))
+    Dm = E * t / (1 - nu**2) * jnp.array([[1.0, nu, 0.0], [nu, 1.0, 0.0], [0.0, 0.0, (1 - nu) / 2]], dtype)
+    elements = PlateElements(normal=n, axes=R[:2], dN=dN, weights=ws, membrane=Dm, nodes=quads)
+    return FEModel(mass=M, stiffness=K, nodes=nodes, elements=elements, dofs=6)
+
+
+def plate_edge(n_length: int, n_width: int, at: str = "start") -> tuple[int, ...]:
+    """The nodes of a :func:`plate`'s edge across its width: ``"start"`` (``i = 0``, default) or
+    ``"end"`` (``i = n_length``), e.g. the interface of a panel held along its root."""
+    i = 0 if at == "start" else int(n_length)
+    return tuple(i + (int(n_length) + 1) * j for j in range(int(n_width) + 1))

@@ -13,7 +13,9 @@ finite-element tools export in MatrixMarket form (Abaqus, ANSYS; read by scipy).
   small rotations, node by node) or 3;
 - optional, for the geometric stiffness of two-node beam elements: ``element_nodes`` (ne, 2),
   ``element_frame`` (ne, 3, 3; rows the local x, y, z axes), ``element_length`` (ne,),
-  ``element_axial`` (ne,: EA / L).
+  ``element_axial`` (ne,: EA / L); or of a flat plate's four-node elements (:func:`jaxtree.plate`):
+  ``plate_nodes`` (ne, 4), ``plate_normal`` (3,), ``plate_axes`` (2, 3), ``plate_dN`` (ng, 2, 4),
+  ``plate_weights`` (ng,), ``plate_membrane`` (3, 3) (:class:`~jaxtree._src.appendage.fe.PlateElements`).
 
 **Schema** ``jaxtree-appendage/1`` (:func:`save_appendage`, :func:`load_appendage`): the arrays of an
 :class:`~jaxtree._src.appendage.model.Appendage` (its modes, rigid invariants, participations
@@ -34,7 +36,7 @@ import numpy as np
 from .._checks import SceneError
 from ..hybrid.substructure import Terms
 from ..io.files import atomic_write
-from .fe import Elements, FEModel, beam
+from .fe import Elements, FEModel, PlateElements, beam, plate, plate_edge
 from .model import Appendage, appendage
 
 FE_FORMAT = "jaxtree-fe/1"
@@ -84,7 +86,17 @@ def save_fe(path, fe: FEModel) -> None:
         "nodes": np.asarray(fe.nodes),
         "dofs": np.asarray(fe.dofs),
     }
-    if fe.elements is not None:
+    if isinstance(fe.elements, PlateElements):
+        el = fe.elements
+        arrays.update(
+            plate_nodes=np.asarray(el.nodes, np.int64),
+            plate_normal=np.asarray(el.normal),
+            plate_axes=np.asarray(el.axes),
+            plate_dN=np.asarray(el.dN),
+            plate_weights=np.asarray(el.weights),
+            plate_membrane=np.asarray(el.membrane),
+        )
+    elif fe.elements is not None:
         el = fe.elements
         arrays.update(
             element_nodes=np.asarray(el.nodes, np.int64),
@@ -152,6 +164,18 @@ def load_fe(path) -> FEModel:
             length=jnp.asarray(parts["length"]),
             axial=jnp.asarray(parts["axial"]),
             nodes=tuple((int(a), int(b)) for a, b in en),
+        )
+    if "plate_nodes" in data:
+        pn = np.asarray(data["plate_nodes"], np.int64)
+        if pn.ndim != 2 or pn.shape[1] != 4 or pn.min(initial=0) < 0 or pn.max(initial=0) >= nodes.shape[0]:
+            raise SceneError(f"{path}: plate_nodes must be (ne, 4) node indices")
+        keys = ("normal", "axes", "dN", "weights", "membrane")
+        missing = [f"plate_{k}" for k in keys if f"plate_{k}" not in data]
+        if missing:
+            raise SceneError(f"{path}: plate elements need {', '.join(missing)}")
+        elements = PlateElements(
+            **{k: jnp.asarray(np.asarray(data[f"plate_{k}"], float)) for k in keys},
+            nodes=tuple(tuple(int(i) for i in q) for q in pn),
         )
     return FEModel(jnp.asarray(M), jnp.asarray(K), jnp.asarray(nodes), elements, dofs)
 
@@ -230,15 +254,22 @@ def _from_spec(spec, mtime) -> Appendage:
                 )
             return dataclasses.replace(ap, name=spec.name) if ap.name != spec.name else ap
         fe = load_fe(spec.file)
+    elif spec.plate is not None:
+        args = spec.plate_arguments()
+        na, nb = args.pop("n_length"), args.pop("n_width")
+        fe = plate(args.pop("length"), args.pop("width"), na, nb, **args)
     else:
         args = spec.beam_arguments()
         fe = beam(args.pop("length"), args.pop("elements"), area=args.pop("area"), **args)
+    interface = spec.interface
+    if interface is None:
+        interface = plate_edge(na, nb) if spec.plate is not None else (0,)
     frame = None if spec.frame is None else np.asarray(spec.frame)
     try:
         return appendage(
             fe,
             spec.body,
-            interface=spec.interface,
+            interface=interface,
             point=spec.point,
             frame=frame,
             n_modes=spec.modes,

@@ -43,7 +43,7 @@ import numpy as np
 from .._checks import SceneError, is_traced
 from ..equations._math import build_jit
 from ..hybrid.substructure import Terms, taylor_terms
-from .fe import FEModel, axial_forces, element_dofs, element_rotation, geometric_element
+from .fe import FEModel
 
 
 class Appendage(eqx.Module):
@@ -240,9 +240,9 @@ def _appendage_terms(X, Phi, M, W, P, R0, dofs: int, geometric: bool, mass):
 
 
 def _preload_maps(fe: FEModel, interface, Phi):
-    """``W (ne, N)``: the elements' axial forces per unit acceleration of each degree of freedom
-    (the static response of the held structure to ``f = -M acc``), and ``P (ne, k, k)``: each
-    element's geometric stiffness under a unit axial force, projected on the modes."""
+    """``W (E, N)``: the elements' stress resultants per unit acceleration of each degree of
+    freedom (the static response of the held structure to ``f = -M acc``), and ``P (E, k, k)``: the
+    geometric stiffness of each unit resultant, projected on the modes."""
     el = fe.elements
     assert el is not None, "checked by appendage()"
     N = fe.mass.shape[0]
@@ -251,14 +251,10 @@ def _preload_maps(fe: FEModel, interface, Phi):
     Kff = fe.stiffness[np.ix_(free, free)]
     comp = jnp.zeros((N, N), fe.mass.dtype).at[np.ix_(free, free)].set(jnp.linalg.inv(Kff))
     U = -(comp @ fe.mass)  # (N, N): static displacement per unit acceleration of each dof
-    W = jax.vmap(lambda u: axial_forces(el, u), in_axes=1, out_axes=1)(U)  # (ne, N)
-    ones = jnp.ones_like(el.length)
-    Gl = jax.vmap(geometric_element)(el.length, ones)
-    T = jax.vmap(element_rotation)(el.frame)
-    Gg = jnp.einsum("eba,ebc,ecd->ead", T, Gl, T)  # (ne, 12, 12) in the structure's frame
-    dofs = element_dofs(el.nodes)
-    Pe = Phi[dofs]  # (ne, 12, k)
-    P = jnp.einsum("eak,eab,ebl->ekl", Pe, Gg, Pe)
+    W = jax.vmap(el.stresses, in_axes=1, out_axes=1)(U)  # (E, N)
+    dofs, G = el.blocks()
+    Pe = Phi[dofs]  # (E, d, k)
+    P = jnp.einsum("eak,eab,ebl->ekl", Pe, G, Pe)
     return W, P
 
 

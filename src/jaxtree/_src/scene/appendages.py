@@ -11,9 +11,11 @@ Each entry is an object:
   and frame, so ``point``, ``frame``, ``modes``, ``tol``, ``interface``, ``damping``, ``outputs`` and
   ``geometric`` are not given with it), or ``beam``: the arguments of :func:`jaxtree.beam`
   (``length``, ``elements``, ``E``, ``rho``, ``area``, ``Iy``; optional ``Iz``, ``J``, ``G``,
-  ``direction``, ``up``, ``origin``);
+  ``direction``, ``up``, ``origin``), or ``plate``: those of :func:`jaxtree.plate` (``length``,
+  ``width``, ``n_length``, ``n_width``, ``E``, ``rho``, ``thickness``; optional ``nu``,
+  ``direction``, ``across``, ``origin``), held by default along its root edge;
 - ``modes``: a number or ``"auto"`` (default) with ``tol`` (default 0.01); ``interface`` (default
-  [0]); ``damping`` (modal damping ratio, default 0); ``outputs`` (node indices); ``geometric``
+  [0], a plate's root edge); ``damping`` (modal damping ratio, default 0); ``outputs`` (node indices); ``geometric``
   (default true); ``name`` (default ``"appendage<i>"``).
 
 This module parses and checks the entries (errors name the appendage and the field) into
@@ -37,6 +39,7 @@ _KEYS = {
     "frame",
     "file",
     "beam",
+    "plate",
     "modes",
     "tol",
     "interface",
@@ -46,6 +49,10 @@ _KEYS = {
 }
 _BEAM_KEYS = {"length", "elements", "E", "rho", "area", "Iy", "Iz", "J", "G", "direction", "up", "origin"}
 _BEAM_REQUIRED = ("length", "elements", "E", "rho", "area", "Iy")
+_PLATE_KEYS = {"length", "width", "n_length", "n_width", "E", "rho", "thickness", "nu", "direction", "across", "origin"}
+_PLATE_REQUIRED = ("length", "width", "n_length", "n_width", "E", "rho", "thickness")
+_INTEGERS = ("elements", "n_length", "n_width")
+_VECTORS = ("direction", "up", "origin", "across")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,15 +66,19 @@ class AppendageSpec:
     frame: tuple | None = None
     file: str | None = None
     beam: tuple | None = None
+    plate: tuple | None = None
     modes: int | str = "auto"
     tol: float = 1e-2
-    interface: tuple = (0,)
+    interface: tuple | None = None
     damping: float = 0.0
     outputs: tuple = ()
     geometric: bool = True
 
     def beam_arguments(self) -> dict:
         return {k: (np.asarray(v) if isinstance(v, tuple) else v) for k, v in (self.beam or ())}
+
+    def plate_arguments(self) -> dict:
+        return {k: (np.asarray(v) if isinstance(v, tuple) else v) for k, v in (self.plate or ())}
 
     def to_dict(self, base_dir=None) -> dict:
         """The scene entry (the file relative to `base_dir` when it lies below it)."""
@@ -80,15 +91,17 @@ class AppendageSpec:
                 except ValueError:
                     pass
             d["file"] = str(f)
-        if self.beam is not None:
-            d["beam"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.beam}
+        for key in ("beam", "plate"):
+            gen = getattr(self, key)
+            if gen is not None:
+                d[key] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in gen}
         precomputed = self.file is not None and _is_precomputed(self.file)
         if not precomputed:
             d.update(
                 point=list(self.point),
                 modes=self.modes,
                 tol=self.tol,
-                interface=list(self.interface),
+                **({} if self.interface is None else {"interface": list(self.interface)}),
                 damping=self.damping,
                 outputs=list(self.outputs),
                 geometric=self.geometric,
@@ -114,6 +127,33 @@ def _ints(value, where: str, field: str) -> tuple:
             raise SceneError(f"{where}: field {field!r} must hold node indices (integers >= 0), got {short(value)}")
         out.append(int(v))
     return tuple(out)
+
+
+def _generator(b, key, keys, required, where) -> tuple:
+    """A generator's arguments (``beam`` or ``plate``) as sorted ``(key, value)`` pairs."""
+    if not isinstance(b, dict):
+        raise SceneTypeError(f"{where}: field {key!r} must be an object, got {short(b)}")
+    unknown_keys(b, keys, f"{where}: field {key!r}")
+    missing = [k for k in required if k not in b]
+    if missing:
+        raise SceneError(f"{where}: field {key!r} needs {', '.join(missing)}")
+    items = []
+    for k in sorted(b):
+        v = b[k]
+        if k in _INTEGERS:
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise SceneError(f"{where}: field '{key}.{k}' must be a positive integer, got {short(v)}")
+        elif k in _VECTORS:
+            v = tuple(float(x) for x in as_float(v, f"{where}: field '{key}.{k}'", (3,)))
+        else:
+            v = float(as_float(v, f"{where}: field '{key}.{k}'", ()))
+            if k == "nu":
+                if not -1.0 < v < 0.5:
+                    raise SceneError(f"{where}: field '{key}.nu' must be in (-1, 0.5), got {v}")
+            elif not v > 0:
+                raise SceneError(f"{where}: field '{key}.{k}' must be positive, got {v}")
+        items.append((k, v))
+    return tuple(items)
 
 
 def parse_appendages(entries, names, base_dir=None) -> tuple[AppendageSpec, ...]:
@@ -143,13 +183,13 @@ def parse_appendages(entries, names, base_dir=None) -> tuple[AppendageSpec, ...]
             raise SceneError(f"{where}: field 'body' must be a body name or an index 0..{len(names) - 1}")
         else:
             body = int(body)
-        has_file, has_beam = "file" in e, "beam" in e
-        if has_file == has_beam:
+        given = [k for k in ("file", "beam", "plate") if k in e]
+        if len(given) != 1:
             raise SceneError(
-                f"{where}: give exactly one of 'file' (a .npz) and 'beam' (the beam generator's arguments)"
+                f"{where}: give exactly one of 'file' (a .npz), 'beam' and 'plate' (a generator's arguments)"
             )
         kw: dict = {}
-        if has_file:
+        if given[0] == "file":
             f = e["file"]
             if not isinstance(f, str):
                 raise SceneTypeError(f"{where}: field 'file' must be a path, got {short(f)}")
@@ -160,36 +200,18 @@ def parse_appendages(entries, names, base_dir=None) -> tuple[AppendageSpec, ...]
                 raise SceneError(f"{where}: field 'file': no such file {str(p)!r}")
             kw["file"] = str(p.resolve())
             if _is_precomputed(p):
-                given = sorted(
+                fixed = sorted(
                     set(e) & {"point", "frame", "modes", "tol", "interface", "damping", "outputs", "geometric"}
                 )
-                if given:
+                if fixed:
                     raise SceneError(
                         f"{where}: {p.name} holds precomputed modes (jaxtree-appendage/1), which fix "
-                        f"{', '.join(given)}; leave them out of the scene"
+                        f"{', '.join(fixed)}; leave them out of the scene"
                     )
         else:
-            b = e["beam"]
-            if not isinstance(b, dict):
-                raise SceneTypeError(f"{where}: field 'beam' must be an object, got {short(b)}")
-            unknown_keys(b, _BEAM_KEYS, f"{where}: field 'beam'")
-            missing = [k for k in _BEAM_REQUIRED if k not in b]
-            if missing:
-                raise SceneError(f"{where}: field 'beam' needs {', '.join(missing)}")
-            items = []
-            for k in sorted(b):
-                v = b[k]
-                if k == "elements":
-                    if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                        raise SceneError(f"{where}: field 'beam.elements' must be a positive integer, got {short(v)}")
-                elif k in ("direction", "up", "origin"):
-                    v = tuple(float(x) for x in as_float(v, f"{where}: field 'beam.{k}'", (3,)))
-                else:
-                    v = float(as_float(v, f"{where}: field 'beam.{k}'", ()))
-                    if not v > 0:
-                        raise SceneError(f"{where}: field 'beam.{k}' must be positive, got {v}")
-                items.append((k, v))
-            kw["beam"] = tuple(items)
+            key = given[0]
+            keys, required = (_BEAM_KEYS, _BEAM_REQUIRED) if key == "beam" else (_PLATE_KEYS, _PLATE_REQUIRED)
+            kw[key] = _generator(e[key], key, keys, required, where)
         if "point" in e:
             kw["point"] = tuple(float(x) for x in as_float(e["point"], f"{where}: field 'point'", (3,)))
         if "frame" in e:
