@@ -1,5 +1,5 @@
 """The notebooks of notebooks/ (quickstart, modes and hybrid coordinates, identification, Monte
-Carlo) are stored executed top to bottom with their outputs, and run again here, top to bottom, in
+Carlo, finite-element appendages) are stored executed top to bottom with their outputs, and run again here, top to bottom, in
 a fresh Jupyter kernel of this Python (nbclient, as nbmake does).
 
 The checks are the notebooks' own cells: each asserts what it shows against an independent source
@@ -29,12 +29,13 @@ NOTEBOOKS = sorted((pathlib.Path(__file__).resolve().parents[1] / "notebooks").g
 MAX_BYTES = 300_000  # outputs stay small: figures at 120 dpi of a few panels, 3D pages of a few dozen frames
 
 
-def test_the_four_notebooks_are_there():
+def test_the_five_notebooks_are_there():
     assert {p.name for p in NOTEBOOKS} == {
         "quickstart.ipynb",
         "modes_hybrid.ipynb",
         "identify_wings.ipynb",
         "monte_carlo.ipynb",
+        "fe_appendages.ipynb",
     }
 
 
