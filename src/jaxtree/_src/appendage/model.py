@@ -42,6 +42,7 @@ import numpy as np
 
 from .._checks import SceneError, is_traced
 from ..equations._math import build_jit
+from ..equations.kinematics import tilde
 from ..hybrid.substructure import Terms, taylor_terms
 from .fe import FEModel
 
@@ -123,24 +124,12 @@ def _rigid_modes(X, dofs: int, dtype):
     the origin of the node positions `X` (n, 3)."""
     n = X.shape[0]
     eye = jnp.eye(3, dtype=dtype)
-    skew_minus = -_skew(X)  # translation of a node under a rotation e: e x X = -[X x] e
+    skew_minus = -tilde(X)  # translation of a node under a rotation e: e x X = -[X x] e
     t_rows = jnp.concatenate([skew_minus, jnp.broadcast_to(eye, (n, 3, 3))], -1)  # (n, 3, 6)
     if dofs == 3:
         return t_rows.reshape(3 * n, 6)
     r_rows = jnp.concatenate([jnp.broadcast_to(eye, (n, 3, 3)), jnp.zeros((n, 3, 3), dtype)], -1)
     return jnp.concatenate([t_rows, r_rows], 1).reshape(6 * n, 6)
-
-
-def _skew(x):
-    z = jnp.zeros_like(x[..., 0])
-    return jnp.stack(
-        [
-            jnp.stack([z, -x[..., 2], x[..., 1]], -1),
-            jnp.stack([x[..., 2], z, -x[..., 0]], -1),
-            jnp.stack([-x[..., 1], x[..., 0], z], -1),
-        ],
-        -2,
-    )
 
 
 def held_interface_modes(fe: FEModel, interface):
@@ -206,7 +195,7 @@ def _gauss(X, Phi, M, W, P, KgA, dofs: int, geometric: bool):
         x = X + Pt @ q
         B = jnp.zeros((N, 6 + k), dtype)
         eye = jnp.broadcast_to(jnp.eye(3, dtype=dtype), (n, 3, 3))
-        Bt = jnp.concatenate([-_skew(x), eye, Pt], -1)  # (n, 3, 6+k)
+        Bt = jnp.concatenate([-tilde(x), eye, Pt], -1)  # (n, 3, 6+k)
         B = B.at[t].set(Bt.reshape(3 * n, 6 + k))
         xd = Pt @ qd
         ct = jnp.cross(w, vo)[None] + jnp.cross(w[None], jnp.cross(w[None], x)) + 2.0 * jnp.cross(w[None], xd)
