@@ -186,7 +186,10 @@ def read_matrix_market(mass_path, stiffness_path, nodes, dofs: int = 6) -> FEMod
     storage mirrored) and the node table `nodes` (n_nodes, 3; degrees of freedom node by node).
     Without element data the geometric stiffness is not available (``appendage(...,
     geometric=False)``)."""
-    import scipy.io
+    try:
+        import scipy.io
+    except ImportError:
+        raise ImportError("read_matrix_market reads MatrixMarket files with scipy: pip install scipy") from None
 
     nodes = np.asarray(nodes, float)
     N = dofs * nodes.shape[0]
