@@ -458,6 +458,8 @@ def test_scene_appendages_by_file_and_by_beam(tmp_path, kane_beam):
     want = appendage(beam(LENGTH, 10, **spec_args), 0, frame=np.diag([-1.0, -1.0, 1.0]), n_modes="auto", name="c")
     np.testing.assert_array_equal(np.asarray(c.terms.A0), np.asarray(want.terms.A0))
     assert (a.name, b.name, c.name) == ("a", "b", "c")
+    report = str(jaxtree.check_scene(model))  # a hub alone: no hinge tables; the appendages listed
+    assert "Tables 1-2: none" in report and "a: on 'hub' at [1.0, 0.0, 0.0]" in report
     jaxtree.save_scene(model, tmp_path / "again.json")
     again = jaxtree.load_scene(tmp_path / "again.json")
     assert again.appendages == model.appendages

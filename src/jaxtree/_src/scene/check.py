@@ -110,7 +110,14 @@ class SceneReport:
             lines += ["", "loads and laws (applied by jaxtree simulate):", *laws]
         lines += ["", "tree (body index, name, mass; hinge k joins body k to its parent):"]
         lines += ["  " + s for s in self.tree]
-        if tables:
+        if m.appendages:
+            lines += ["", "finite-element appendages (in hybrid coordinates only; jaxtree.scene_appendages):"]
+            for a in m.appendages:
+                source = "beam" if a.beam is not None else "plate" if a.plate is not None else f"file {a.file}"
+                lines.append(f"  {a.name}: on {a.body!r} at {list(a.point)}, {source}, modes {a.modes}")
+        if tables and n == 0:
+            lines += ["", "Tables 1-2: none (the tree has no hinges)"]
+        elif tables:
             idx = list(range(n + 1))
             lines.append("")
             lines += _table(
