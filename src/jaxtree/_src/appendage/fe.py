@@ -271,7 +271,7 @@ def beam(
     M = jnp.zeros((N, N), dtype).at[rows, cols].add(jnp.tile(Mg.ravel(), n))
     elements = Elements(
         frame=jnp.broadcast_to(frame, (n, 3, 3)),
-        length=jnp.full((n,), L, dtype) if not is_traced(L) else jnp.broadcast_to(L, (n,)),
+        length=jnp.broadcast_to(L, (n,)),
         axial=jnp.broadcast_to(E * area / L, (n,)),
         nodes=pairs,
     )

@@ -115,7 +115,7 @@ class Appendage(eqx.Module):
         return self.shapes[d * node : d * node + d] @ q
 
 
-def _dof_index(n_nodes: int, dofs: int, nodes) -> np.ndarray:
+def _dof_index(dofs: int, nodes) -> np.ndarray:
     return (np.asarray(nodes, np.int64)[:, None] * dofs + np.arange(dofs)[None, :]).ravel()
 
 
@@ -138,7 +138,7 @@ def held_interface_modes(fe: FEModel, interface):
     on the interface. By Cholesky reduction of ``K_ff phi = omega^2 M_ff phi`` to a symmetric
     eigenproblem, differentiable (JAX's eigenvector derivatives need distinct frequencies)."""
     N = fe.mass.shape[0]
-    held = _dof_index(fe.n_nodes, fe.dofs, interface)
+    held = _dof_index(fe.dofs, interface)
     free = np.setdiff1d(np.arange(N), held)
     Mff = fe.mass[np.ix_(free, free)]
     Kff = fe.stiffness[np.ix_(free, free)]
@@ -184,8 +184,8 @@ def _gauss(X, Phi, M, W, P, KgA, dofs: int, geometric: bool):
     n = X.shape[0]
     k = Phi.shape[1]
     dtype = Phi.dtype
-    t = _dof_index(n, dofs, range(n)).reshape(n, dofs)[:, :3].ravel()
-    r = _dof_index(n, dofs, range(n)).reshape(n, dofs)[:, 3:].ravel() if dofs == 6 else None
+    t = _dof_index(dofs, range(n)).reshape(n, dofs)[:, :3].ravel()
+    r = _dof_index(dofs, range(n)).reshape(n, dofs)[:, 3:].ravel() if dofs == 6 else None
     Pt = Phi[t].reshape(n, 3, k)
     Pr = Phi[r].reshape(n, 3, k) if r is not None else None
     N = Phi.shape[0]
@@ -235,7 +235,7 @@ def _preload_maps(fe: FEModel, interface, Phi):
     el = fe.elements
     assert el is not None, "checked by appendage()"
     N = fe.mass.shape[0]
-    held = _dof_index(fe.n_nodes, fe.dofs, interface)
+    held = _dof_index(fe.dofs, interface)
     free = np.setdiff1d(np.arange(N), held)
     Kff = fe.stiffness[np.ix_(free, free)]
     comp = jnp.zeros((N, N), fe.mass.dtype).at[np.ix_(free, free)].set(jnp.linalg.inv(Kff))
