@@ -225,10 +225,10 @@ def test_float32(scenes):
 
 
 def test_eliminate_against_numpy():
-    """_math.eliminate (the block recursion's LAPACK-free factorization): A11^{-1} A12, the Schur
+    """numerics.eliminate (the block recursion's LAPACK-free factorization): A11^{-1} A12, the Schur
     complement and the LDL^T pivots of a stack of SPD matrices, against numpy's solve and
     Cholesky."""
-    from jaxtree._src.equations._math import eliminate
+    from jaxtree._src.numerics import eliminate
 
     rng = np.random.default_rng(5)
     X = rng.normal(size=(4, 11, 11))

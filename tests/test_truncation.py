@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree._src._checks import SceneError
+from jaxtree import SceneError
 
 TOL = 1e-10  # the runs' tolerances: their integration error is far below the truncation error
 FACTOR = 3  # the hybrid goals' bound: the truncation estimate within a factor 3 of the true error

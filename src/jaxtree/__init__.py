@@ -32,9 +32,6 @@ from ._src import cache as _cache
 _cache.enable()
 
 from ._src import VERSION as _VERSION
-from ._src._checks import SceneError as SceneError
-from ._src._checks import SceneTypeError as SceneTypeError
-from ._src._checks import SceneWarning as SceneWarning
 from ._src.appendage import Appendage as Appendage
 from ._src.appendage import FEModel as FEModel
 from ._src.appendage import appendage as appendage
@@ -173,6 +170,9 @@ from ._src.equations.loads import (
 from ._src.equations.loads import (
     thruster_pulse as thruster_pulse,
 )
+from ._src.errors import SceneError as SceneError
+from ._src.errors import SceneTypeError as SceneTypeError
+from ._src.errors import SceneWarning as SceneWarning
 from ._src.hybrid import (
     HybridModel as HybridModel,
 )
@@ -377,9 +377,6 @@ from ._src.scene.scene import (
 from ._src.scene.scene import (
     scene_to_dict as scene_to_dict,
 )
-from ._src.scene.scene import (
-    validate_model as validate_model,
-)
 from ._src.vehicle.model import (
     BodyLoads as BodyLoads,
 )
@@ -399,6 +396,9 @@ from ._src.vehicle.model import (
     State as State,
 )
 from ._src.vehicle.topology import Topology as Topology
+from ._src.vehicle.validate import (
+    validate_model as validate_model,
+)
 
 __version__ = _VERSION
 

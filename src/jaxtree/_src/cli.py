@@ -762,7 +762,7 @@ def _per_substructure(hyb, cfg) -> str:
         how = (
             f"{per[0]} per substructure" if len(set(per)) == 1 else f"per substructure {list(per)}"
         ) + f", {len(per)} substructure{'s' if len(per) > 1 else ''}"
-    if cfg.get("n_modes") == -2:
+    if cfg.get("n_modes") == "auto":
         how += f", chosen for --modes-tol {cfg['modes_tol']:g}"
     return how
 

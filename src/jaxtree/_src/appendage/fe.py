@@ -26,7 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import SceneError, is_traced
+from ..errors import SceneError
+from ..numerics import is_traced
 
 
 class Elements(eqx.Module):

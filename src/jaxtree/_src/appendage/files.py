@@ -33,7 +33,7 @@ import pathlib
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import SceneError
+from ..errors import SceneError
 from ..hybrid.substructure import Terms
 from ..io.files import atomic_write
 from .fe import Elements, FEModel, PlateElements, beam, plate, plate_edge

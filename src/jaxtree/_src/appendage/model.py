@@ -40,10 +40,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import SceneError, is_traced
-from ..equations._math import build_jit
 from ..equations.kinematics import tilde
+from ..errors import SceneError
 from ..hybrid.substructure import Terms, taylor_terms
+from ..numerics import build_jit, is_traced
 from .fe import FEModel
 
 

@@ -30,15 +30,15 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from .._checks import SceneError
 from ..appendage.files import scene_appendages
 from ..equations.dynamics import angular_momentum, kinetic_energy
+from ..errors import SceneError
 from ..hybrid import hybrid_model, simulate_hybrid
 from ..integration.autosolver import choose_solver, save_points
 from ..integration.core import KINDS, MESSAGES, SimulationError, default_tolerance, failure_kind
 from ..integration.radau import Radau5
 from ..integration.simulate import simulate
-from ..io.results import ChunkedResult, body_positions, scene_json, simulation_dataset
+from ..io.results import ChunkedResult, body_positions, run_attrs, simulation_dataset
 from ..linear.linearize import resolve_hinges
 from ..linear.modes import ModalError
 from ..vehicle.model import Model, State
@@ -161,7 +161,6 @@ def chunked_config(
         _, choice = choose_solver(model, t1, t0=t0, rtol=rtol)
         solver, why = choice.name, f"auto: {choice.reason}"
     cfg: dict[str, Any] = {
-        "scene": scene_json(model),
         "t0": float(t0),
         "t1": float(t1),
         "points": int(save_points(model, float(t1 - t0))[0] if points is None else points),
@@ -176,9 +175,9 @@ def chunked_config(
     if hybrid_small is not None:
         cfg.update(
             hybrid_small=hybrid_small if isinstance(hybrid_small, str) else ",".join(map(str, hybrid_small)),
-            n_modes=-1 if modes is None else -2 if modes == "auto" else int(modes),
-            cutoff=-1.0 if cutoff is None else float(cutoff),
-            modal_damping=-1.0 if modal_damping is None else float(modal_damping),
+            n_modes=None if modes is None else "auto" if modes == "auto" else int(modes),
+            cutoff=None if cutoff is None else float(cutoff),
+            modal_damping=None if modal_damping is None else float(modal_damping),
             spin=list(map(float, spin if spin is not None else model.initial.omega0)),
         )
         if modes == "auto":
@@ -257,7 +256,7 @@ class _Chunked:
                 why = f"no interrupted run to continue ({self.writer.parts_dir} does not exist)"
             raise ChunkedRunError("resume", why)
         saved = parts[0].attrs
-        for key, value in self.cfg.items():
+        for key, value in run_attrs(self.model, self.cfg).items():
             have = saved.get(key)
             same = (
                 np.allclose(np.asarray(have, float), np.asarray(value, float), rtol=0, atol=0)
@@ -285,7 +284,7 @@ class _Chunked:
             f"{len(self.bounds)} parts" + (f", resuming after part {start}" if start else "") + " (compiling first)"
         )
         try:
-            failed = self._run_parts(start, {**cfg, **attrs, "complete": 0}, progress)
+            failed = self._run_parts(start, {**run_attrs(self.model, cfg), **attrs, "complete": 0}, progress)
             extra: dict[str, Any] = {}
             if failed is None and error_estimate:
                 log("error estimate (the run again at 10x the tolerances)")
@@ -461,12 +460,12 @@ def _hybrid_of(model, cfg, dtype):
         return hybrid_model(
             model,
             small,
-            None if cfg["n_modes"] == -1 else "auto" if cfg["n_modes"] == -2 else cfg["n_modes"],
+            cfg["n_modes"],
             appendages=appendages,
             tol=cfg.get("modes_tol", 1e-2),
-            cutoff=None if cfg["cutoff"] < 0 else cfg["cutoff"],
+            cutoff=cfg["cutoff"],
             omega0=jnp.asarray(cfg["spin"], dtype),
-            damping=None if cfg["modal_damping"] < 0 else cfg["modal_damping"],
+            damping=cfg["modal_damping"],
             attitude=cfg["attitude"],
         )
     except ModalError as e:

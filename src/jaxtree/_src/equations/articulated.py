@@ -42,7 +42,7 @@ and everything outboard of it is the quadratic form of
 
     M = [[A, K], [K^T, C]] + N^T P_out N
 
-in ``(gamma_ddot, a, 1)``. Eliminating the b hinge accelerations (:func:`jaxtree._src.equations._math.eliminate`:
+in ``(gamma_ddot, a, 1)``. Eliminating the b hinge accelerations (:func:`jaxtree._src.numerics.eliminate`:
 b Gauss-Jordan rank-one updates, the blocks of one level at once, no LAPACK call) leaves the
 Schur complement ``P = M22 - M21 M11^{-1} M12`` for the block's parent and ``G = M11^{-1} M12``
 for the way out: ``gamma_ddot = -G (a, 1)``, and the port's acceleration is
@@ -63,8 +63,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._math import eliminate
-from ._math import regular_pivots as _regular_pivots
+from ..numerics import eliminate
+from ..numerics import regular_pivots as _regular_pivots
 from .kinematics import ancestor_sum, cross, dot
 from .spatial import force_cross, inertia_apply, inertia_matrix, motion_cross
 
@@ -382,7 +382,7 @@ def _inward(bp, blocks, body):
 
     Minimizing Z over gamma_ddot is a Schur complement: eliminating the block's b hinge
     accelerations from M = [[A, K], [K^T, C]] leaves the articulated inertia of the block,
-    P = C - K^T A^{-1} K, and G = A^{-1} K for the outward pass (_math.eliminate: no LAPACK
+    P = C - K^T A^{-1} K, and G = A^{-1} K for the outward pass (numerics.eliminate: no LAPACK
     call, whose batched CPU kernels can deadlock XLA's thread pool)."""
     b = bp.size
     M0, N = blocks.M0, blocks.N

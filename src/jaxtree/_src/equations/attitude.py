@@ -32,7 +32,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._checks import SceneError, short
+from ..errors import SceneError, short
 from .kinematics import tilde
 
 

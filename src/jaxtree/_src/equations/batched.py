@@ -49,7 +49,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._math import SINGULAR_PIVOT
+from ..numerics import SINGULAR_PIVOT
 
 # ----------------------------------------------------------------------------- component algebra
 # A 3-vector is a tuple of three arrays of one shape (bodies of a level, members); a symmetric

@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..vehicle._hinges import selector
+from ..vehicle.hinges import selector
 from ..vehicle.model import State
 
 

@@ -42,16 +42,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import is_traced
-from ..vehicle import _hinges
-from ..vehicle.model import Model, State
-from . import articulated, batched
-from ._math import (
+from ..numerics import (
     SINGULAR_PIVOT,  # noqa: F401 (SINGULAR_PIVOT is public here)
+    is_traced,
     spd_inverse,
 )
-from ._math import regular as _regular
-from ._math import regular_pivots as _regular_pivots
+from ..numerics import regular as _regular
+from ..numerics import regular_pivots as _regular_pivots
+from ..vehicle import hinges
+from ..vehicle.model import Model, State
+from . import articulated, batched
 from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum, tilde
 
 
@@ -340,7 +340,7 @@ def _rhs_from_sums(model, cfg, sub, tau, loads):
 
 def complete_state(model, t, state: State):
     """`state` with its prescribed hinges from the prescription at time t, and their accelerations."""
-    return _hinges.complete(model, t, state, _dtype(model, state.gamma))
+    return hinges.complete(model, t, state, _dtype(model, state.gamma))
 
 
 @full_precision
@@ -405,7 +405,7 @@ def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelera
 
 def solve_unchecked(model, state, t, tau, completed=None):
     """Eq. (1) at a state; `completed`: the prescribed accelerations of a state already
-    completed with its prescribed hinges (:func:`jaxtree._src.vehicle._hinges.complete`, once per right side),
+    completed with its prescribed hinges (:func:`jaxtree._src.vehicle.hinges.complete`, once per right side),
     or None to complete it here."""
     if completed is None:
         state, gdd_p = complete_state(model, t, state)
@@ -500,7 +500,7 @@ def _solve_members(size, dyn, flags, static):
     model, state, t, tau, gdd_p = eqx.combine(dyn, static)
     mflags, sflags = eqx.combine(flags, static)[:2]
     axes = jax.tree_util.tree_map(lambda b: 0 if b else None, flags)
-    prescribed = _hinges.index(model.prescribed)
+    prescribed = hinges.index(model.prescribed)
 
     def member(d):
         m, s, tt, ta, gp = eqx.combine(d, static)
@@ -537,7 +537,7 @@ def _solve_one(model, state, t, tau, gdd_p):
 
 def _unknown_rows_and_prescribed(model):
     """Rows of Eq. (1) of its unknowns (omega0, then the unknown hinges) and of the prescribed hinges."""
-    u, p, _ = _hinges.split(model)
+    u, p, _ = hinges.split(model)
     return np.concatenate([np.arange(3), u + 3]), p + 3
 
 
@@ -561,7 +561,7 @@ def _from_matrix(model, A, rhs, gdd_p, solve):
 def _full_accelerations(model, x_u, gdd_p):
     """``(omega0_dot, gamma_ddot)`` from the unknowns `x_u` (omega0_dot, then the unknown hinges)
     and the prescribed accelerations (inert hinges: zero)."""
-    _, _, inverse = _hinges.split(model)
+    _, _, inverse = hinges.split(model)
     parts = [x_u[3:]] + ([] if gdd_p is None else [gdd_p]) + [jnp.zeros((len(model.inert),), x_u.dtype)]
     return x_u[:3], jnp.concatenate(parts)[inverse]
 
@@ -657,7 +657,7 @@ def _solve_completed_jvp(primals, tangents):
     along the state in closed form, :func:`_unbalanced_jvp`) and ``A_uu^{-1}`` is
     applied to every tangent at once (``jax.jacfwd``: one solve with many right sides): with the
     dense method's Cholesky factor, or for the articulated method (which calls no LAPACK routine)
-    as an inverse by Gauss-Jordan elimination in a loop (:func:`jaxtree._src.equations._math.spd_inverse`),
+    as an inverse by Gauss-Jordan elimination in a loop (:func:`jaxtree._src.numerics.spd_inverse`),
     computed once from the primal configuration and applied to all tangents by one product
     (:func:`_tangent_one`).
 
@@ -789,7 +789,7 @@ def _factor(model, state, t, tau):
     """``(A, solve_u)``: the matrix of Eq. (1) and the solve with its block of the unknowns, by the
     dense method's Cholesky factor or, for the articulated method (which calls no LAPACK
     routine), an inverse by Gauss-Jordan elimination in a loop
-    (:func:`jaxtree._src.equations._math.spd_inverse`) applied by one product; and whether the
+    (:func:`jaxtree._src.numerics.spd_inverse`) applied by one product; and whether the
     block is regular."""
     rows_u, _ = _unknown_rows_and_prescribed(model)
     A, rhs = rotational_equations(model, state, t, tau)

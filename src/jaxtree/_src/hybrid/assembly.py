@@ -26,14 +26,15 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import SceneError, SceneTypeError, as_float, as_int, is_traced, short, tolerance
-from ..equations._math import build_jit
 from ..equations.attitude import AbstractAttitude, attitude_argument, get_attitude
 from ..equations.dynamics import configuration, mass_matrix
 from ..equations.kinematics import cross, full_precision, mv
+from ..errors import SceneError, SceneTypeError, short
 from ..linear.linearize import linearize, linearize_args, resolve_hinges
-from ..linear.modes import ModalError, check_modal_damping
+from ..linear.modes import ModalError, check_modal_damping, tolerance
 from ..linear.modes import modes as _modes
+from ..numerics import build_jit, is_traced
+from ..values import as_float, as_int
 from ..vehicle.model import Model
 from . import substructure as _sub
 from .basis import base_loads, modal_matrices, put, retained_like, retained_modes, truncation_terms

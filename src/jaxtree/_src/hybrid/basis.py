@@ -57,7 +57,7 @@ import warnings
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import is_traced
+from ..numerics import is_traced
 from ..vehicle.model import Model
 from .model import HybridModel, Truncation
 

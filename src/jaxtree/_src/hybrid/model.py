@@ -21,9 +21,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import is_traced
 from ..equations.attitude import AbstractAttitude
-from ..vehicle._hinges import prescribed_motion, selector
+from ..numerics import is_traced
+from ..vehicle.hinges import prescribed_motion, selector
 from ..vehicle.model import Model, State
 
 

@@ -50,10 +50,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import is_traced
-from ..equations._math import build_jit
 from ..equations.kinematics import ancestor_sum, body_rotations, cross, mm, mv
 from ..equations.spatial import force_cross, inertia_apply, inertia_matrix, motion_cross
+from ..numerics import build_jit, is_traced
 from ..vehicle.topology import Topology
 
 

@@ -41,8 +41,8 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from .._checks import is_traced
 from ..linear.linearize import linearize_vehicle, vehicle_linearization
+from ..numerics import is_traced
 from ..vehicle.model import Model, State
 from .core import default_tolerance
 from .radau import Radau5

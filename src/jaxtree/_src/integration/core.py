@@ -21,7 +21,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import SceneError, SceneTypeError, as_float, as_int, is_traced, short
+from ..errors import SceneError, SceneTypeError, short
+from ..numerics import is_traced
+from ..values import as_float, as_int
 from ..vehicle.model import Model, State
 from .radau import Radau5
 

@@ -30,8 +30,6 @@ import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
-from .._checks import SceneError, SceneTypeError, SceneWarning, as_float, short
-from ..equations._math import regular
 from ..equations.attitude import AbstractAttitude, Quaternion, get_attitude, orthogonality_error
 from ..equations.control import AbstractController, with_model_laws
 from ..equations.dynamics import (
@@ -47,9 +45,12 @@ from ..equations.dynamics import (
     unknown_rows,
 )
 from ..equations.kinematics import full_precision
-from ..scene.scene import check_model
-from ..vehicle import _hinges
+from ..errors import SceneError, SceneTypeError, SceneWarning, short
+from ..numerics import regular
+from ..values import as_float
+from ..vehicle import hinges
 from ..vehicle.model import Model, State
+from ..vehicle.validate import check_model
 from .autosolver import choose_checked, given
 from .core import (
     DEFAULT_MAX_STEPS,
@@ -143,7 +144,7 @@ class Problem(eqx.Module):
     def free_hinges(self) -> tuple[int, ...]:
         """Hinges (1..n) in the state: all but the prescribed ones. They are the unknowns of
         Eq. (1) plus any inert hinges (only massless bodies outboard), whose acceleration is zero."""
-        return _hinges.free_hinges(self.model)
+        return hinges.free_hinges(self.model)
 
     @property
     def n_unknown(self) -> int:
@@ -182,7 +183,7 @@ class Problem(eqx.Module):
         """The :class:`~jaxtree.State` (all n hinges, C from the attitude variables) of a flat
         state and the prescribed accelerations (one evaluation of the prescription)."""
         att, w, g, gd, _, _, _ = self.unpack(y)
-        gamma, gamma_dot, gdd_p = _hinges.from_free(self.model, t, g, gd)
+        gamma, gamma_dot, gdd_p = hinges.from_free(self.model, t, g, gd)
         return State(self.attitude.to_dcm(att), w, gamma, gamma_dot), gdd_p
 
     def state(self, t, y) -> State:
@@ -207,7 +208,7 @@ class Problem(eqx.Module):
 
     def _accelerations(self, t, att, w, g_u, gd_u, z_flat):
         """:meth:`accelerations` from the parts of a flat state (:meth:`unpack`)."""
-        gamma, gamma_dot, gdd_p = _hinges.from_free(self.model, t, g_u, gd_u)
+        gamma, gamma_dot, gdd_p = hinges.from_free(self.model, t, g_u, gd_u)
         state = State(self.attitude.to_dcm(att), w, gamma, gamma_dot)
         z = self._unravel_control(z_flat)
         tau = self.torque(t, state, z)
@@ -533,7 +534,7 @@ def _rhs_evaluations(solver, stats, dt0_given: bool):
 
 def _singular(problem: Problem, t, y):
     """True when the Eq. (1) matrix at (t, y) is singular to working precision (a pivot at
-    round-off level, :func:`~jaxtree._src.equations._math.regular`): one factorization, no eigenvalues. An exactly singular matrix may leave the
+    round-off level, :func:`~jaxtree._src.numerics.regular`): one factorization, no eigenvalues. An exactly singular matrix may leave the
     factorization a pivot at round-off level instead of failing it, and the solve then returns
     finite garbage; this catches both."""
     model = problem.model

@@ -69,17 +69,6 @@ def _save(fig, path):
         fh.write(buf.getvalue())
 
 
-def _scene_has_dampers(text: str) -> bool:
-    """Whether the scene JSON stored in a result gives any hinge a damper."""
-    import json
-
-    try:
-        bodies = json.loads(text)["bodies"] if text else []
-    except (ValueError, KeyError, TypeError):
-        return False
-    return any(float((b.get("joint") or {}).get("damping", 0.0) or 0.0) != 0.0 for b in bodies)
-
-
 # the histories a plot reads: its key, and the name in a Solution or a result Dataset
 _HISTORIES = dict(
     gamma="gamma", gamma_dot="gamma_dot", omega0="omega0", dcm="dcm", energy="energy", H="angular_momentum"
@@ -105,7 +94,7 @@ def _series(result) -> dict:
             prescribed=tuple(int(k) for k in ds["prescribed_hinge"].values) if "prescribed_hinge" in ds.coords else (),
             model=model,
         )
-        out["damped"] = _scene_has_dampers(ds.attrs.get("scene", ""))
+        out["damped"] = model is not None and bool(np.any(np.asarray(model.damping) != 0))
         return out
     sol = result
     ts = np.asarray(sol.ts)

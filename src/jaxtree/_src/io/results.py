@@ -110,6 +110,24 @@ def scene_json(model: Model) -> str:
         return ""
 
 
+# the options of a chunked run that may be absent (None) or "auto": netCDF attributes hold neither,
+# so the file stores an absent value as -1 and "auto" as -2 (all of them are >= 0 when given)
+_ABSENT, _AUTO = -1, -2
+_OPTIONAL = ("n_modes", "cutoff", "modal_damping")
+
+
+def run_attrs(model: Model, config: dict) -> dict:
+    """The attributes that a chunked run's result file stores for its configuration
+    (:func:`jaxtree._src.campaigns.chunked.chunked_config`): the scene's text
+    (:func:`scene_json`) and the options in a form netCDF keeps (no None, no mixed types)."""
+    out = {"scene": scene_json(model), **config}
+    for key in _OPTIONAL:
+        if key in out:
+            value = out[key]
+            out[key] = _ABSENT if value is None else _AUTO if value == "auto" else value
+    return out
+
+
 def _attr(value):
     """A value NetCDF can hold as an attribute (no None, no bool, no nested lists)."""
     if isinstance(value, (bool, np.bool_)):

@@ -42,12 +42,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import BUILTIN_ERRORS, SceneTypeError, as_float, hinge_set, is_traced, nominal_motion
 from ..equations.dynamics import rotational_equations
 from ..equations.kinematics import full_precision, tilde
-from ..scene.scene import check_model
-from ..vehicle._hinges import selector
+from ..errors import BUILTIN_ERRORS, SCENE_ERRORS, Errors, SceneTypeError, short
+from ..numerics import is_traced
+from ..values import as_float, rotation
+from ..vehicle.hinges import selector
 from ..vehicle.model import Model, State
+from ..vehicle.validate import check_model
 
 
 class LinearSystem(eqx.Module):
@@ -133,6 +135,67 @@ class Structure(NamedTuple):
 
 
 # ----------------------------------------------------------------------------- input checks
+def hinge_set(model, small, name: str, errors: Errors = SCENE_ERRORS) -> tuple[int, ...]:
+    """The set A of `model` (``n``, ``names``, ``prescribed``) as an ascending tuple of hinge
+    indices 1..n: `small` holds hinge indices or body names (hinge k is named by body k), none
+    repeated, none prescribed. Raises the classes of `errors` with messages that begin with `name`."""
+    if isinstance(small, (str, int, np.integer)):
+        small = (small,)
+    try:
+        items = list(small)
+    except TypeError:
+        raise errors.type(
+            f"{name}: small must be hinge indices 1..{model.n} or body names, got {short(small)}"
+        ) from None
+    if not items:
+        raise errors.value(f"{name}: the set A of small hinges is empty")
+    out: list[int] = []
+    for item in items:
+        if isinstance(item, str):
+            if item not in model.names:
+                raise errors.key(
+                    f"{name}: no body named {item!r}; hinges are named by their outboard body: {model.names[1:]}"
+                )
+            k = model.names.index(item)
+            if k == 0:
+                raise errors.value(f"{name}: {item!r} is the reference body b_0, which has no hinge")
+        elif isinstance(item, (bool, np.bool_)) or not isinstance(item, (int, np.integer)):
+            raise errors.type(f"{name}: hinges are given by index 1..{model.n} or by body name, got {short(item)}")
+        else:
+            k = int(item)
+            if not 1 <= k <= model.n:
+                raise errors.value(
+                    f"{name}: hinge index {k} is not in 1..{model.n} (hinge k joins body k to its parent)"
+                )
+        if k in out:
+            raise errors.value(f"{name}: hinge {k} ({model.names[k]!r}) is listed twice in the set A")
+        if k in model.prescribed:
+            raise errors.value(
+                f"{name}: hinge {k} ({model.names[k]!r}) is kinematically prescribed; it cannot be a "
+                "small (linearized) variable. Leave it out of the set A: it is then held at its "
+                "nominal angle."
+            )
+        out.append(k)
+    return tuple(sorted(out))
+
+
+def nominal_motion(name: str, n: int, omega0, gamma, dcm, t) -> None:
+    """The nominal motion's omega0 (3,), gamma (n,), dcm (a rotation) and t: concrete ones
+    finite and of the right shape (None and traced values are left alone)."""
+    for label, value, shape in (
+        ("omega0", omega0, (3,)),
+        ("gamma", gamma, (n,)),
+        ("dcm", dcm, (3, 3)),
+        ("t", t, ()),
+    ):
+        if value is None or is_traced(value):
+            continue
+        if label == "dcm":
+            rotation(value, f"{name}: dcm", tol=1e-6)
+        else:
+            as_float(value, f"{name}: {label}", shape)
+
+
 def resolve_hinges(model: Model, small) -> tuple[int, ...]:
     """The set A as an ascending tuple of hinge indices 1..n.
 

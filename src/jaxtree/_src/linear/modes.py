@@ -48,9 +48,66 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _checks
-from .._checks import is_traced
+from ..errors import SceneError, SceneTypeError, short
+from ..numerics import is_traced
+from ..values import as_float
 from .linearize import LinearSystem, structure
+
+
+def tolerance(name: str, rtol, label: str = "rtol") -> float:
+    """A relative tolerance in [0, 1)."""
+    r = float(as_float(rtol, f"{name}: {label}", ()))
+    if not 0.0 <= r < 1.0:
+        raise SceneError(f"{name}: {label} must be in [0, 1), got {r}")
+    return r
+
+
+def _matrices(I, J, K):
+    """``(I, J, K)``, or those of a :class:`~jaxtree._src.linear.linearize.LinearSystem` given as `I` (or any object with its fields)."""
+    if all(hasattr(I, field) for field in ("I", "J", "K", "coordinates", "hinges")):
+        return I.I, I.J, I.K
+    return I, J, K
+
+
+def modes_args(I, J=None, K=None, damping=None, kind=None, labels=None, rtol=1e-9):
+    """Arguments of :func:`jaxtree.modes`: I, J, K square float matrices of one size (finite
+    when concrete), `damping` a non-negative scalar or one per coordinate, `kind` known,
+    `labels` one string per coordinate, `rtol` in [0, 1)."""
+    name = "modes"
+    I, J, K = _matrices(I, J, K)
+    if J is None or K is None:
+        raise SceneTypeError(f"{name}: give I, J, K (or a LinearSystem)")
+    sizes = []
+    for label, M in (("I", I), ("J", J), ("K", K)):
+        shape = np.shape(M) if is_traced(M) else as_float(M, f"{name}: {label}", finite=True).shape
+        if len(shape) != 2 or shape[0] != shape[1]:
+            raise SceneError(f"{name}: {label} must be a square matrix, got shape {shape}")
+        sizes.append(shape[0])
+    if len(set(sizes)) != 1:
+        raise SceneError(f"{name}: I, J, K must have one size, got {sizes[0]}, {sizes[1]}, {sizes[2]}")
+    nu = sizes[0]
+    if nu == 0:
+        raise SceneError(f"{name}: I, J, K are empty (no coordinate)")
+    if kind is not None and kind not in ("real", "gyroscopic", "general"):
+        raise SceneError(f"{name}: kind must be 'real', 'gyroscopic', 'general' or None, got {short(kind)}")
+    if damping is not None and not is_traced(damping):
+        z = as_float(damping, f"{name}: damping")
+        if z.ndim > 1 or (z.ndim == 1 and z.shape != (nu,)):
+            raise SceneError(
+                f"{name}: damping must be a scalar or one ratio per coordinate ({nu}), got shape {z.shape}"
+            )
+        if np.any(z < 0):
+            raise SceneError(f"{name}: modal damping ratios must be >= 0, got {z.tolist()}")
+    if labels is not None:
+        if isinstance(labels, str):
+            raise SceneTypeError(f"{name}: labels must be a sequence of {nu} names, got the string {labels!r}")
+        try:
+            labels = list(labels)
+        except TypeError:
+            raise SceneTypeError(f"{name}: labels must be a sequence of {nu} names, got {short(labels)}") from None
+        if len(labels) != nu:
+            raise SceneError(f"{name}: {len(labels)} labels for {nu} coordinates")
+    tolerance(name, rtol)
 
 
 class ModalError(ValueError):
@@ -323,7 +380,7 @@ def modes(
     eigenvectors are fine. In the real and gyroscopic cases the result is
     differentiable (``jax.grad`` of `frequencies`) for distinct nonzero frequencies.
     """
-    _checks.modes_args(I, J, K, damping, kind, labels, rtol)
+    modes_args(I, J, K, damping, kind, labels, rtol)
     I, J, K, coords, hinges_of = _system(I, J, K, labels)
     dtype = I.dtype
     nu = I.shape[0]

@@ -1,8 +1,11 @@
-"""The scene: a vehicle described in the ``jaxtree-scene/1`` format or by builder calls.
+"""The scene format: a vehicle described in ``jaxtree-scene/1`` files or by builder calls, read,
+checked as text and written back; a boundary beside :mod:`jaxtree._src.io`, which the engine
+(equations, integration, linear, hybrid, campaigns) never imports.
 
-``scene`` (the format read and written, the builder, the closed family of joint laws,
-``validate_model`` and ``check_model``), ``laws`` (a scene's optional ``loads``, ``control`` and
-``orbit`` keys, which build the hinge laws and loads of :mod:`jaxtree._src.equations`) and
-``check`` (:func:`check_scene`, what ``jaxtree check`` prints). This stage comes after the
-equations because a scene builds their laws and loads.
+``scene`` (the format read and written, the builder and the closed family of joint laws),
+``keys`` (unknown keys refused, extension keys read past), ``laws`` (a scene's optional
+``loads``, ``control`` and ``orbit`` keys, which build the hinge laws and loads of
+:mod:`jaxtree._src.equations`), ``appendages`` (a scene's finite-element appendages) and
+``check`` (:func:`check_scene`, what ``jaxtree check`` prints). The validation of a model's
+leaves is the vehicle's (:mod:`jaxtree._src.vehicle.validate`).
 """

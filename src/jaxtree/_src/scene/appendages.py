@@ -30,7 +30,9 @@ import pathlib
 
 import numpy as np
 
-from .._checks import SceneError, SceneTypeError, as_float, rotation, short, unknown_keys
+from ..errors import SceneError, SceneTypeError, short
+from ..values import as_float, rotation
+from .keys import unknown_keys
 
 _KEYS = {
     "name",

@@ -21,10 +21,11 @@ from __future__ import annotations
 import equinox as eqx
 import numpy as np
 
-from .._checks import SceneError, SceneTypeError, as_float, rotation, short, unknown_keys
 from ..equations.attitude import dcm_to_euler123, euler123_to_dcm
 from ..equations.control import HingePD, HingePID
 from ..equations.loads import AttitudePD, CircularOrbit, CombinedLoads, GravityGradient, ScheduledLoads, combine_loads
+from ..errors import SceneError, SceneTypeError, short
+from ..values import as_float, rotation
 from ..vehicle.model import Model, SinePrescription
 from ..vehicle.profiles import (
     FunctionPrescription,
@@ -33,6 +34,7 @@ from ..vehicle.profiles import (
     TablePrescription,
     checked_table,
 )
+from .keys import unknown_keys
 
 SCENE_LAW_KEYS = ("loads", "control", "orbit")
 EARTH_MU = 3.986004418e14  # m^3/s^2, the default central body

@@ -31,7 +31,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import SceneError, as_float
+from ..errors import SceneError
+from ..values import as_float
 from .model import Prescription
 
 PRESCRIBED_SHAPES = ("ramp", "smooth_step")

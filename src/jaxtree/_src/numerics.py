@@ -1,10 +1,14 @@
-"""Small numerical helpers shared by the solvers of Eq. (1)."""
+"""Small numerical helpers shared across the packages: the singularity test and the elimination
+of Eq. (1)'s factorizations, the symmetric-positive-definite inverse of the derivative rule, the
+compile options of one-off builds, and :func:`is_traced` (whether a value is known only at run
+time, so that its checks are left to run time)."""
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.core import Tracer
 
 # A pivot d_i^2 of the Cholesky factorization A = L L^T of Eq. (1)'s matrix is at round-off
 # level when d_i^2 / A_ii < SINGULAR_PIVOT sqrt(m) eps (m rows, eps the unit roundoff). d_i^2 / A_ii
@@ -134,3 +138,9 @@ def build_jit(fn):
             return fn(*args, **kwargs)
 
     return wrapper
+
+
+def is_traced(tree) -> bool:
+    """True when any leaf of `tree` is a JAX tracer (inside jit, vmap or grad): its value is
+    known only at run time, so checks on values are left to run time."""
+    return any(isinstance(x, Tracer) for x in jax.tree_util.tree_leaves(tree))
