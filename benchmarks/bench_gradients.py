@@ -131,7 +131,7 @@ def main():
 
     say("\n[where the time goes] one right side of Eq. (1) for fig4_free, in a jitted loop of 2000")
     from jaxtree._src.equations.attitude import Quaternion
-    from jaxtree._src.integration.simulate import Problem
+    from jaxtree._src.integration.problem import Problem
 
     prob = Problem(model, Quaternion(), None, None, None, False, 0)
     y = prob.pack(model.initial)

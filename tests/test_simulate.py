@@ -657,11 +657,11 @@ def test_simulate_validates_its_model_once(scenes, monkeypatch):
     """simulate validates the model once: its automatic solver choice linearizes the checked
     model (choose_solver -> linearize_vehicle) without validating it again, while the public
     choose_solver, called alone, still validates it."""
-    from jaxtree._src.scene import scene
+    from jaxtree._src.vehicle import validate as validation
 
     calls = []
-    validate = scene.validate_model
-    monkeypatch.setattr(scene, "validate_model", lambda model: calls.append(model) or validate(model))
+    validate = validation.validate_model
+    monkeypatch.setattr(validation, "validate_model", lambda model: calls.append(model) or validate(model))
     model = scenes["fig4"]
     law = lambda t, state, params: 0.0 * state.gamma  # a hinge law: the solver choice linearizes
     sol = simulate(model, 0.05, saveat=3, law=law)

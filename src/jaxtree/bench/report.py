@@ -54,8 +54,9 @@ from jaxtree._src.equations.dynamics import mass_matrix
 from jaxtree._src.equations.loads import BodyTorque
 from jaxtree._src.hybrid import hybrid_model, simulate_hybrid
 from jaxtree._src.integration.autosolver import choose_solver
-from jaxtree._src.integration.core import RK4, failure_kind
+from jaxtree._src.integration.failures import failure_kind
 from jaxtree._src.integration.radau import Radau5
+from jaxtree._src.integration.rk4 import RK4
 from jaxtree._src.integration.simulate import simulate
 from jaxtree._src.io.files import atomic_write
 from jaxtree._src.io.plots import plot_work_precision

@@ -52,8 +52,9 @@ import numpy as np
 
 from ..equations.attitude import dcm_to_quaternion
 from ..equations.dynamics import SINGULAR_CONDITION
-from ..integration.core import DEFAULT_MAX_STEPS, Failure, default_tolerance
-from ..integration.simulate import condition_jit, simulate
+from ..integration.core import DEFAULT_MAX_STEPS, default_tolerance
+from ..integration.failures import Failure, condition_jit
+from ..integration.simulate import simulate
 from ..io.files import atomic_write
 from ..vehicle.model import Model, State
 
@@ -122,7 +123,7 @@ def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
     if model.prescribed:
         hist["hold_torque"] = sol.hold_torque
     finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in hist.values()]))
-    code = sol.failure  # an integration.core.Failure code (the first five of FAILURES)
+    code = sol.failure  # an integration.failures.Failure code (the first five of FAILURES)
     state_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in sol.final]))
     diagnosis = jnp.where(
         code > 0,

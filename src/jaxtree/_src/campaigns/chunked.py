@@ -35,7 +35,8 @@ from ..equations.dynamics import angular_momentum, kinetic_energy
 from ..errors import SceneError
 from ..hybrid import hybrid_model, simulate_hybrid
 from ..integration.autosolver import choose_solver, save_points
-from ..integration.core import KINDS, MESSAGES, SimulationError, default_tolerance, failure_kind
+from ..integration.core import default_tolerance
+from ..integration.failures import KINDS, MESSAGES, SimulationError, failure_kind
 from ..integration.radau import Radau5
 from ..integration.simulate import simulate
 from ..io.results import ChunkedResult, body_positions, run_attrs, simulation_dataset

@@ -31,22 +31,17 @@ from ..equations.dynamics import energy_and_momentum, unbalanced
 from ..equations.kinematics import full_precision
 from ..integration.core import (
     DEFAULT_MAX_STEPS,
-    MESSAGES,
-    Failure,
-    SimulationError,
     check_state,
     check_times,
     default_controller,
-    failure_report,
     integrate,
-    is_traced,
     progress_meter,
-    report_failures,
-    result_code,
     solver_statistics,
     tolerances,
 )
+from ..integration.failures import MESSAGES, Failure, SimulationError, failure_report, report_failures, result_code
 from ..integration.radau import Radau5
+from ..numerics import is_traced
 from ..vehicle.model import State
 from .model import HybridModel
 from .rhs import hybrid_jacobian, hybrid_rhs, solve

@@ -1,14 +1,13 @@
-"""The integration core shared by :func:`jaxtree.simulate` (Eq. 1), :func:`jaxtree.simulate_hybrid`
+"""The driver shared by :func:`jaxtree.simulate` (Eq. 1), :func:`jaxtree.simulate_hybrid`
 (Eqs. 105-123) and the campaign runner: defaults of solver and step-size control, the checks of
-times, tolerances and the initial state before tracing, the layout of save times (a history
-plus the final state), a start that cannot be integrated, failure kinds as a named enumeration,
-and the failure report (a host callback, one per batch). Each formulation supplies its vector
-field, its state packing and the text of its report; the integration itself is diffrax's.
+times, tolerances and the initial state before tracing, and one integration with the layout of
+save times (a history plus the final state) by :func:`diffrax.diffeqsolve`. Each formulation
+supplies its vector field, its state packing and the text of its failure report
+(:mod:`.failures`); the solvers are diffrax's, :mod:`.radau`'s and :mod:`.rk4`'s.
 """
 
 from __future__ import annotations
 
-import enum
 import math
 import typing
 import warnings
@@ -28,6 +27,9 @@ from ..vehicle.model import Model, State
 from .radau import Radau5
 
 # Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
+
+
+# Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
 DEFAULT_RTOL = 1e-9
 DEFAULT_ATOL = 1e-9
 DEFAULT_SAVE_POINTS = 101
@@ -39,45 +41,6 @@ DTMIN_FRACTION = 1e-12
 # it rejects ~5% of the steps instead of ~17% with pure integral control, for the same error.
 PCOEFF = 0.3
 ICOEFF = 0.3
-
-
-class Failure(enum.IntEnum):
-    """How a run ended: ``Solution.failure`` / ``HybridSolution.failure`` hold these codes (0 is
-    success). The names, lower-cased, are the kinds result files and campaigns record."""
-
-    NONE = 0
-    MAX_STEPS = 1  # the solver's step limit
-    DT_MIN = 2  # the step size collapsed below DTMIN_FRACTION of the span
-    SINGULAR_ATTITUDE = 3  # the Euler angles' singularity guard (Eq. 24) fired
-    OTHER = 4  # any other solver failure
-    NONFINITE_START = 5  # the initial state is not finite: not integrated
-    SINGULAR_START = 6  # Eq. (1) singular to working precision at the start: not integrated
-
-    @property
-    def kind(self) -> str:
-        return self.name.lower()
-
-
-# the failure kinds by code - 1 (the codes' names as result files and campaigns spell them)
-KINDS = tuple(f.kind for f in Failure if f is not Failure.NONE)
-
-MESSAGES = {
-    "max_steps": "the maximum number of solver steps was reached (increase max_steps, or the motion became singular)",
-    "dt_min": "the step size collapsed (the accelerations became singular or non-finite)",
-    "singular_attitude": "the attitude angles approach their singularity (|cos theta_2| fell below the "
-    "tolerance of Eq. 24); use attitude='quaternion' or 'dcm'",
-    "other": "the solver failed",
-    "nonfinite_start": "the initial state is not finite",
-    "singular_start": "the Eq. (1) matrix is singular at the initial state to working precision (a pivot of its "
-    "Cholesky factorization is at round-off level): the accelerations are undetermined",
-}
-
-
-def failure_kind(code) -> str | None:
-    """The kind of the first failed member of a code (array), or None when all succeeded."""
-    code = np.asarray(code).reshape(-1)
-    bad = np.flatnonzero(code)
-    return None if bad.size == 0 else KINDS[int(code[bad[0]]) - 1]
 
 
 def default_controller(rtol, atol, t0, t1) -> dfx.PIDController:
@@ -102,26 +65,6 @@ def terms(solver, vector_field: Callable):
     if typing.get_origin(structure) is dfx.MultiTerm or isinstance(structure, dfx.MultiTerm):
         return dfx.MultiTerm(dfx.ODETerm(_zero_field), term)
     return term
-
-
-class RK4(dfx.AbstractERK):
-    """The classical fourth-order Runge-Kutta method, for fixed steps
-    (``stepsize_controller=diffrax.ConstantStepSize(), dt0=h``), as fixed-step engines
-    (MuJoCo's ``RK4``, Basilisk's ``svIntegratorRK4``) use it. It has no embedded error
-    estimate (its error weights are zero): an adaptive controller would accept every step."""
-
-    tableau: typing.ClassVar[dfx.ButcherTableau] = dfx.ButcherTableau(
-        c=np.array([0.5, 0.5, 1.0]),
-        b_sol=np.array([1 / 6, 1 / 3, 1 / 3, 1 / 6]),
-        b_error=np.zeros(4),
-        a_lower=(np.array([0.5]), np.array([0.0, 0.5]), np.array([0.0, 0.0, 1.0])),
-    )
-    interpolation_cls: typing.ClassVar[Callable[..., dfx.ThirdOrderHermitePolynomialInterpolation]] = (
-        dfx.ThirdOrderHermitePolynomialInterpolation.from_k
-    )
-
-    def order(self, terms):
-        return 4
 
 
 class Run(NamedTuple):
@@ -358,90 +301,9 @@ def warn_below_roundoff(rtol, dtype, stacklevel):
         )
 
 
-class SimulationError(RuntimeError):
-    """A simulation stopped early: step-size collapse, max_steps, a singular Eq. (1) matrix,
-    a non-finite state or an attitude singularity. The message gives the time and the state."""
-
-
 def last_finite(ts):
     idx = jnp.arange(ts.shape[0])
     return jnp.maximum(jnp.max(jnp.where(jnp.isfinite(ts), idx, -1)), 0)
-
-
-def report_failures(host, failed, args, extra=None):
-    """Call ``host(*args, *extra(args))`` on the host at run time when a run `failed`: one call
-    for a whole ``jax.vmap`` batch, none when every run succeeded.
-
-    ``jax.debug.callback`` alone is unrolled by vmap into one callback per batch member (a
-    campaign of 4096 runs: 4096 host calls, and compile and run times that grow with the
-    batch); this custom batching rule hands the batch to a single callback instead (`host`
-    takes arrays with leading batch axes, as a batch of solutions has). The call, and `extra`
-    (diagnostics that cost a decomposition, computed per run), sit behind a ``lax.cond`` on
-    "some run failed", so a successful run pays neither (simulate's fixed cost per call). `args`
-    carry no gradient (`stop_gradient`): reporting does not enter derivatives."""
-
-    def call(failed, args):
-        more = ()
-        if extra is not None:
-            fn = extra
-            for _ in range(jnp.ndim(failed)):  # one vmap per batch axis
-                fn = jax.vmap(fn)
-            more = tuple(fn(*args))
-        jax.debug.callback(host, *args, *more)
-
-    @jax.custom_batching.custom_vmap
-    def report(failed, args):
-        jax.lax.cond(jnp.any(failed), call, lambda f, a: None, failed, args)
-        return jnp.zeros((), jnp.int32)
-
-    @report.def_vmap
-    def _batched(axis_size, in_batched, failed, args):
-        bf, ba = in_batched
-        failed = failed if bf else jnp.broadcast_to(failed, (axis_size,) + jnp.shape(failed))
-        args = jax.tree_util.tree_map(
-            lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x)), args, ba
-        )
-        report(failed, args)
-        return jnp.zeros((axis_size,), jnp.int32), True
-
-    report(failed, args)
-
-
-def failure_report(code, describe):
-    """The message for the failed members of a (batch of) run(s), or None if none failed.
-
-    `code` holds ``KINDS`` indices + 1 (0: success), with the batch's leading axes; for the
-    first three failed members ``describe(kind, pick)`` gives the lines of one report, where
-    ``pick(x)`` takes that member's entry of an array with the same leading axes."""
-    code = np.asarray(code)
-    flat = code.reshape(-1)
-    bad = np.flatnonzero(flat)
-    if bad.size == 0:
-        return None
-    msgs = []
-    for b in bad[:3]:
-        idx = np.unravel_index(b, code.shape) if code.ndim else ()
-        pick = lambda x, idx=idx: np.asarray(x)[idx]
-        prefix = f"[batch index {tuple(int(i) for i in idx)}] " if code.ndim else ""
-        msgs.append(prefix + describe(KINDS[int(flat[b]) - 1], pick))
-    if bad.size > 3:
-        msgs.append(f"... and {bad.size - 3} more failed batch members")
-    return "\n".join(msgs)
-
-
-def result_code(result, singular: bool | jax.Array = False):
-    """The :class:`Failure` code of a failed diffrax result (whatever it is; success is masked
-    by the caller): step limit, step-size collapse, a singular attitude (`singular`), or other."""
-    R = dfx.RESULTS
-    return jnp.where(
-        result == R.max_steps_reached,
-        int(Failure.MAX_STEPS),
-        jnp.where(
-            result == R.dt_min_reached,
-            int(Failure.DT_MIN),
-            jnp.where(singular, int(Failure.SINGULAR_ATTITUDE), int(Failure.OTHER)),
-        ),
-    )
 
 
 def progress_meter(progress):

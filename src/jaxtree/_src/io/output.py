@@ -12,7 +12,7 @@ from typing import Any, cast
 import jax
 import numpy as np
 
-from ..integration.simulate import Solution
+from ..integration.solution import Solution
 from .files import atomic_write as atomic_write
 from .plots import plot_histories
 

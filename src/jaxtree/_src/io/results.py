@@ -48,8 +48,9 @@ from jax.typing import ArrayLike
 from .. import VERSION
 from ..equations.attitude import get_attitude
 from ..equations.dynamics import configuration
-from ..integration.core import KINDS, failure_kind
-from ..integration.simulate import Problem, Solution
+from ..integration.failures import KINDS, failure_kind
+from ..integration.problem import Problem
+from ..integration.solution import Solution
 from ..linear.modes import Modes
 from ..scene.scene import scene_from_dict, scene_to_dict
 from ..vehicle.model import Model, State

@@ -1,0 +1,176 @@
+"""What a run of Eq. (1) returns: :class:`Solution`, its histories completed with the prescribed
+hinges (Sec. II B), energy and angular momentum, hold torques and the solver's statistics.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import diffrax as dfx
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ..equations.attitude import Quaternion, orthogonality_error
+from ..equations.dynamics import (
+    energy_and_momentum,
+    solve_accelerations,
+)
+from ..vehicle.model import Model, State
+
+# Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
+from .failures import check_solution, failure_kind
+from .problem import Problem
+
+
+class Solution(eqx.Module):
+    """Time histories of a simulation (rows: saved times) and its diagnostics.
+
+    - `ts` (T,); `gamma`, `gamma_dot` (T, n) for every hinge, prescribed ones included
+      (``gamma[:, k-1] = gamma_k``); `omega0` (T, 3) in {b^0}; `dcm` (T, 3, 3) C of Def. 9,
+      whatever the attitude variables; `attitude` (T, size) the integrated attitude variables;
+      `control_state` the controller's states (leading axis T) or None; `X`, `X_dot` (T, 3)
+      inertial position and velocity of the system mass center (Eq. 2) or None.
+    - `hold_torque` (T, len(model.prescribed)): torque holding each prescribed hinge
+      (Sec. II B), in the order of ``model.prescribed``.
+    - `energy` (T,): kinetic energy relative to the mass center plus hinge-spring energy;
+      `angular_momentum` (T, 3) about the mass center, inertial components;
+      `orthogonality` (T,) ``max |C C^T - U|`` (the drift of Eq. 3 for ``attitude="dcm"``).
+    - `t_final`, `final` (:class:`~jaxtree.State`), `final_control_state`, `final_X`,
+      `final_X_dot`: where the run ended (t1, an event time or the time of a failure).
+    - `result` (:class:`diffrax.RESULTS`), `event_mask` (the user's event; None without one),
+      `singular` (True if the attitude angles reached their singularity), `margin` (distance
+      of the attitude angles to their singularity at `t_final`; NaN if none), `failure` (0 when
+      the run reached t1 or a user event; else a code for :class:`SimulationError`).
+    - `stats`: ``num_steps``, ``num_accepted_steps``, ``num_rejected_steps``, ``max_steps`` and
+      ``rhs_evaluations`` (steps times the solver's stages, plus the start-up evaluations;
+      -1 for solvers that are not explicit Runge-Kutta), and ``solver``: the
+      :class:`~jaxtree.SolverChoice` (which solver ran, whether ``"auto"`` picked it, and why).
+    - `raw`: the :class:`diffrax.Solution` (its dense output, if requested, evaluates flat
+      states; :meth:`evaluate` turns them into :class:`~jaxtree.State`); `problem`: the ODE.
+    """
+
+    ts: jax.Array
+    gamma: jax.Array
+    gamma_dot: jax.Array
+    omega0: jax.Array
+    dcm: jax.Array
+    attitude: jax.Array
+    control_state: Any
+    X: jax.Array | None
+    X_dot: jax.Array | None
+    hold_torque: jax.Array
+    energy: jax.Array
+    angular_momentum: jax.Array
+    orthogonality: jax.Array
+    t_final: jax.Array
+    final: State
+    final_control_state: Any
+    final_X: jax.Array | None
+    final_X_dot: jax.Array | None
+    result: Any
+    event_mask: Any
+    singular: jax.Array
+    margin: jax.Array
+    failure: jax.Array
+    stats: dict
+    raw: dfx.Solution | None  # None in a Solution read back from a file (jaxtree.results)
+    problem: Problem
+
+    @property
+    def ok(self) -> bool:
+        """True when the run reached t1 or stopped at a user event (concrete values only)."""
+        return failure_kind(self.failure) is None
+
+    def evaluate(self, t) -> State:
+        """State at time t from the dense output (needs ``saveat=diffrax.SaveAt(..., dense=True)``)."""
+        if self.raw is None:
+            raise ValueError("evaluate: this Solution has no dense output (it was read back from a file)")
+        if self.raw.interpolation is None:
+            raise ValueError("evaluate: run simulate with saveat=diffrax.SaveAt(..., dense=True)")
+        return self.problem.state(t, self.raw.evaluate(t))
+
+    def energy_drift(self):
+        """``max |E(t) - E(t0)| / |E(t0)|`` over the saved times (the absolute drift when E(t0) = 0,
+        e.g. a vehicle at rest: finite, with finite derivatives)."""
+        e = self.energy
+        return jnp.nanmax(jnp.abs(e - e[0])) / _nonzero(jnp.abs(e[0]))
+
+    def momentum_drift(self):
+        """``max |H(t) - H(t0)| / |H(t0)|`` over the saved times (H about the mass center; the
+        absolute drift when H(t0) = 0: finite, with finite derivatives)."""
+        H = self.angular_momentum
+        return jnp.nanmax(_safe_norm(H - H[0])) / _nonzero(_safe_norm(H[0]))
+
+    def check(self) -> Solution:
+        """Raise :class:`SimulationError` (time, state, diagnosis) if the run failed; else return self."""
+        check_solution(self)
+        return self
+
+
+def _safe_norm(x):
+    """Euclidean norm over the last axis whose derivative at zero is zero, not NaN (the norm of a
+    zero vector, e.g. the angular momentum of a vehicle at rest, has an undefined gradient)."""
+    sq = jnp.sum(x * x, axis=-1)
+    pos = sq > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0)
+
+
+def _nonzero(x):
+    """`x`, or 1 where it is zero (a relative measure falls back to an absolute one)."""
+    return jnp.where(x > 0, x, jnp.ones_like(x))
+
+
+def histories_of(problem: Problem, ts, ys):
+    """The saved flat states decoded: all hinges, C, attitude variables, controller states, X."""
+
+    def row(t, y) -> dict[str, Any]:
+        state = problem.state(t, y)
+        att, _, _, _, _, X, Xd = problem.unpack(y)
+        return dict(
+            gamma=state.gamma,
+            gamma_dot=state.gamma_dot,
+            omega0=state.omega0,
+            dcm=state.dcm,
+            attitude=att,
+            control_state=problem.control_state(y),
+            X=X,
+            X_dot=Xd,
+            orthogonality=orthogonality_error(state.dcm),
+        )
+
+    return jax.vmap(row)(ts, ys)
+
+
+@eqx.filter_jit
+def run_diagnostics(model: Model, law, controller, params, ts, states: State, zs):
+    """Energy, angular momentum and hold torques of the saved states.
+
+    Compiled apart from the solve, and keyed on the model alone when it has no prescribed hinges
+    (the hold torques need the hinge law only then): runs that differ in attitude variables,
+    solver, tolerances, events or control laws share it.
+    """
+    problem = Problem(model, Quaternion(), law, controller, params, False, 0)
+
+    def row(t, state, z):
+        kinetic, H = energy_and_momentum(model, state)
+        energy = kinetic + 0.5 * jnp.sum(model.stiffness * state.gamma**2)
+        if model.prescription is None:
+            hold = jnp.zeros((0,), state.gamma.dtype)
+        else:
+            tau = problem.torque(t, state, z)
+            tau = None if tau is None else jnp.asarray(tau, state.gamma.dtype)
+            hold = solve_accelerations(model, state, t, tau).hold_torque
+        return energy, H, hold
+
+    return jax.vmap(row)(ts, states, zs)
+
+
+def rhs_evaluations(solver, stats, dt0_given: bool):
+    tableau = getattr(solver, "tableau", None)
+    if tableau is None or not isinstance(solver, dfx.AbstractERK):
+        return jnp.asarray(-1)
+    stages = len(tableau.c) + 1
+    per_step = stages - 1 if tableau.fsal else stages
+    start = (1 if tableau.fsal else 0) + (0 if dt0_given else 2)
+    return stats["num_steps"] * per_step + start
