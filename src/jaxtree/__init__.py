@@ -209,12 +209,12 @@ from ._src.integration.events import hinge_angle_event as hinge_angle_event
 from ._src.integration.events import state_event as state_event
 from ._src.integration.failures import Failure as Failure
 from ._src.integration.failures import SimulationError as SimulationError
-from ._src.integration.failures import check_solution as check_solution
 from ._src.integration.problem import Problem as Problem
 from ._src.integration.radau import Radau5 as Radau5
 from ._src.integration.rk4 import RK4 as RK4
 from ._src.integration.simulate import simulate as simulate
 from ._src.integration.solution import Solution as Solution
+from ._src.integration.solution import check_solution as check_solution
 from ._src.io.output import (
     atomic_write as atomic_write,
 )

@@ -27,9 +27,6 @@ from ..vehicle.model import Model, State
 from .radau import Radau5
 
 # Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
-
-
-# Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
 DEFAULT_RTOL = 1e-9
 DEFAULT_ATOL = 1e-9
 DEFAULT_SAVE_POINTS = 101

@@ -16,8 +16,6 @@ import optimistix as optx
 
 from ..equations.attitude import AbstractAttitude
 from ..errors import SceneTypeError, short
-
-# Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
 from .problem import Problem
 
 

@@ -8,7 +8,6 @@ campaigns report through the same :func:`failure_report` with their own text.
 from __future__ import annotations
 
 import enum
-import typing
 
 import diffrax as dfx
 import equinox as eqx
@@ -21,11 +20,8 @@ from ..equations.dynamics import (
     matrix_condition,
     null_direction_text,
     rotational_equations,
-    unknown_labels,
 )
 from ..vehicle.model import Model, State
-
-# Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
 
 
 def condition_at(model: Model, state: State, t):
@@ -35,28 +31,6 @@ def condition_at(model: Model, state: State, t):
 
 
 condition_jit = eqx.filter_jit(condition_at)
-if typing.TYPE_CHECKING:
-    from .solution import Solution
-
-
-def report_from_callback(out: Solution) -> None:
-    """Under a caller's jit/vmap the values are not known until run time: report failures from a
-    host callback, which raises with the time and state of every failed member."""
-    problem = out.problem
-    attitude_name, labels = problem.attitude.name, unknown_labels(problem.model)
-
-    def host(code, t, state, margin, model, condition, direction):
-        _raise_from_callback(code, t, state, condition, margin, attitude_name, direction, labels)
-
-    def diagnose(code, t, state, margin, model):  # only when a run failed: an eigendecomposition
-        return condition_at(model, state, t)
-
-    report_failures(
-        host,
-        out.failure != 0,
-        jax.lax.stop_gradient((out.failure, out.t_final, out.final, out.margin, problem.model)),
-        diagnose,
-    )
 
 
 def attitude_margin(problem, y):
@@ -94,7 +68,7 @@ def format_failure(
     return "\n".join(lines)
 
 
-def _raise_from_callback(code, t, state, condition, margin, attitude_name, direction=None, labels=None):
+def raise_failures(code, t, state, condition, margin, attitude_name, direction=None, labels=None):
     def describe(kind, pick):
         return format_failure(
             kind,
@@ -110,32 +84,6 @@ def _raise_from_callback(code, t, state, condition, margin, attitude_name, direc
     message = failure_report(code, describe)
     if message is not None:
         raise SimulationError(message)
-
-
-def check_solution(sol: Solution) -> None:
-    """Raise :class:`SimulationError` with the time, the state and a diagnosis if `sol` failed.
-
-    For solutions computed under ``jax.vmap`` the first failed members are reported.
-    """
-    code = np.asarray(sol.failure)
-    if not np.any(code):
-        return
-    # The condition number is a diagnosis, computed only for a failed run (for a batch of
-    # solutions the model may be batched too, and it is left out).
-    if code.ndim == 0:
-        condition, direction = condition_jit(sol.problem.model, sol.final, sol.t_final)
-    else:
-        condition, direction = np.full(code.shape, np.nan), None
-    _raise_from_callback(
-        code,
-        sol.t_final,
-        sol.final,
-        condition,
-        sol.margin,
-        sol.problem.attitude.name,
-        direction=direction,
-        labels=unknown_labels(sol.problem.model),
-    )
 
 
 class Failure(enum.IntEnum):

@@ -30,8 +30,6 @@ from ..vehicle import hinges
 from ..vehicle.model import Model, State
 from .radau import Radau5, jacobian_by_parts
 
-# Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
-
 
 class Problem(eqx.Module):
     """The ODE of a simulation, passed to diffrax as ``args`` (so event functions see it).

@@ -9,8 +9,6 @@ from collections.abc import Callable
 import diffrax as dfx
 import numpy as np
 
-# Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
-
 
 class RK4(dfx.AbstractERK):
     """The classical fourth-order Runge-Kutta method, for fixed steps

@@ -50,13 +50,11 @@ from .failures import (
     Failure,
     SimulationError,
     attitude_margin,
-    check_solution,
     format_failure,
-    report_from_callback,
     result_code,
 )
 from .problem import Problem, make_problem, problem_field, with_jacobian
-from .solution import Solution, histories_of, rhs_evaluations, run_diagnostics
+from .solution import Solution, check_solution, histories_of, report_from_callback, rhs_evaluations, run_diagnostics
 
 
 def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw):

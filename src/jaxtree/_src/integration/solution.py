@@ -10,16 +10,16 @@ import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..equations.attitude import Quaternion, orthogonality_error
 from ..equations.dynamics import (
     energy_and_momentum,
     solve_accelerations,
+    unknown_labels,
 )
 from ..vehicle.model import Model, State
-
-# Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
-from .failures import check_solution, failure_kind
+from .failures import condition_at, condition_jit, failure_kind, raise_failures, report_failures
 from .problem import Problem
 
 
@@ -174,3 +174,49 @@ def rhs_evaluations(solver, stats, dt0_given: bool):
     per_step = stages - 1 if tableau.fsal else stages
     start = (1 if tableau.fsal else 0) + (0 if dt0_given else 2)
     return stats["num_steps"] * per_step + start
+
+
+def report_from_callback(out: Solution) -> None:
+    """Under a caller's jit/vmap the values are not known until run time: report failures from a
+    host callback, which raises with the time and state of every failed member."""
+    problem = out.problem
+    attitude_name, labels = problem.attitude.name, unknown_labels(problem.model)
+
+    def host(code, t, state, margin, model, condition, direction):
+        raise_failures(code, t, state, condition, margin, attitude_name, direction, labels)
+
+    def diagnose(code, t, state, margin, model):  # only when a run failed: an eigendecomposition
+        return condition_at(model, state, t)
+
+    report_failures(
+        host,
+        out.failure != 0,
+        jax.lax.stop_gradient((out.failure, out.t_final, out.final, out.margin, problem.model)),
+        diagnose,
+    )
+
+
+def check_solution(sol: Solution) -> None:
+    """Raise :class:`SimulationError` with the time, the state and a diagnosis if `sol` failed.
+
+    For solutions computed under ``jax.vmap`` the first failed members are reported.
+    """
+    code = np.asarray(sol.failure)
+    if not np.any(code):
+        return
+    # The condition number is a diagnosis, computed only for a failed run (for a batch of
+    # solutions the model may be batched too, and it is left out).
+    if code.ndim == 0:
+        condition, direction = condition_jit(sol.problem.model, sol.final, sol.t_final)
+    else:
+        condition, direction = np.full(code.shape, np.nan), None
+    raise_failures(
+        code,
+        sol.t_final,
+        sol.final,
+        condition,
+        sol.margin,
+        sol.problem.attitude.name,
+        direction=direction,
+        labels=unknown_labels(sol.problem.model),
+    )
