@@ -413,11 +413,15 @@ def test_every_solver_name_builds_a_solver():
 
 def test_what_import_changes_and_its_opt_outs():
     """`import jaxtree` turns on JAX's x64 mode and sets OPENBLAS_NUM_THREADS=1, each with the
-    opt-out the README documents: JAXTREE_ENABLE_X64=0 leaves x64 off, a user's thread count wins.
-    Fresh interpreters, so this process's settings do not leak in."""
-    probe = "import os, jax, jaxtree; print(jax.config.jax_enable_x64, os.environ['OPENBLAS_NUM_THREADS'])"
+    opt-out the README documents: JAXTREE_ENABLE_X64=0 leaves x64 off, a user's thread count wins,
+    and with an accelerator as JAX's default platform the thread setting is not made (its
+    workaround serves the CPU backend's LAPACK). Fresh interpreters, so this process's settings do
+    not leak in."""
+    probe = "import os, jax, jaxtree; print(jax.config.jax_enable_x64, os.environ.get('OPENBLAS_NUM_THREADS', 'unset'))"
     env = {
-        k: v for k, v in os.environ.items() if k not in ("JAXTREE_ENABLE_X64", "OPENBLAS_NUM_THREADS", "JAX_ENABLE_X64")
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("JAXTREE_ENABLE_X64", "OPENBLAS_NUM_THREADS", "JAX_ENABLE_X64", "JAX_PLATFORMS")
     }
 
     def run(**extra):
@@ -427,8 +431,9 @@ def test_what_import_changes_and_its_opt_outs():
         assert out.returncode == 0, out.stderr
         return out.stdout.split()
 
-    assert run() == ["True", "1"]
+    assert run(JAX_PLATFORMS="cpu") == ["True", "1"]
     assert run(JAXTREE_ENABLE_X64="0", OPENBLAS_NUM_THREADS="3") == ["False", "3"]
+    assert run(JAX_PLATFORMS="cuda") == ["True", "unset"]
 
 
 def test_persistent_compilation_cache(tmp_path):

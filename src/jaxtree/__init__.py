@@ -3,29 +3,24 @@
 An implementation of P. W. Likins, *Large-Deformation Modal Coordinates for
 Nonrigid Vehicle Dynamics*, JPL TR 32-1565 (1972).
 
-Importing jaxtree changes two things in the process (README, "What `import jaxtree` changes"):
+Importing jaxtree changes three things in the process (:mod:`jaxtree._src.process`; README,
+"What `import jaxtree` changes"):
 
 - JAX's float64 mode (``jax_enable_x64``) is turned on: float64 is the default everywhere;
   float32 models (``model.astype(jnp.float32)``) work for GPU batches. ``JAXTREE_ENABLE_X64=0``
   in the environment leaves JAX's setting as it is (with x64 off, models are float32).
-- ``OPENBLAS_NUM_THREADS`` is set to 1 unless the environment sets it (a setting of yours wins).
+- ``OPENBLAS_NUM_THREADS`` is set to 1 where JAX computes on the CPU, unless the environment
+  sets it (a setting of yours wins); with an accelerator as JAX's default it is left alone.
 - JAX's persistent compilation cache is turned on (:func:`jaxtree._src.cache.enable`), in
   ``$XDG_CACHE_HOME/jaxtree/xla`` (``~/.cache/jaxtree/xla``): a second process skips XLA's
   compilation of the programs a first one compiled. ``JAXTREE_CACHE_DIR`` moves it,
   ``JAXTREE_CACHE_DIR=0`` turns it off; a cache directory set for JAX itself is left alone.
 """
 
-import os as _os
+from ._src import process as _process
 
-# The Cholesky factorizations of Eq. (1) are small (n + 3 rows); a multi-threaded OpenBLAS
-# spins threads against XLA's own and can be 10-100x slower on a busy machine. Respect a
-# user's setting; this only takes effect if scipy's OpenBLAS has not been loaded yet.
-_os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
-import jax as _jax
-
-if _os.environ.get("JAXTREE_ENABLE_X64", "1").strip().lower() not in ("0", "false", "no", "off"):
-    _jax.config.update("jax_enable_x64", True)
+_process.limit_openblas_threads()  # before JAX and scipy load OpenBLAS
+_process.enable_x64()
 
 from ._src import cache as _cache
 
