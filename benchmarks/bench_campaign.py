@@ -21,7 +21,34 @@ saved at 101 times. Prints the machine and versions, then:
   ``MjModel`` per member for its stiffness) at the largest fixed step that reaches the error goal;
   the ratios of throughputs (goals: >= 20x Pinocchio, >= 5x MuJoCo; the batch issue, point 3).
 
+With ``--scene flex95``, the flexible-vehicle campaign instead (the batch issue, point 3: goal
+>= 10x Pinocchio + scipy Radau in two processes): N members (default 256) of bench_hybrid.py's
+flex95 slew (10 s, 201 saves), each with the 90 wing hinges' stiffness scaled by its own factor
+and the slew torque by another, both uniform in [0.9, 1.1] (numpy's ``default_rng(0)``: member
+i's pair does not depend on N, and the subsample is the campaign's first members). Prints:
+
+- the accuracy setting: a tight reference per subsample member (the full Eq. (1), Dopri8 at
+  rtol = atol = 1e-10) and each candidate's error in bench_hybrid.py's measure (hub rate
+  ``max |omega0 - ref| / max |omega0_ref|``, wing angles likewise; goal hub 1e-3, wings 1e-2) over
+  a tolerance ladder: the hybrid model (3 modes per wing, rebuilt for each member's stiffness by
+  ``jaxtree.hybrid_model(..., like=nominal)``) with jaxtree.Radau5 and with Dopri8, and the full
+  Eq. (1) with both (``--no-full`` skips it); each at its loosest tolerance meeting the goal,
+  the cheapest integration a member (the subsample's members one after another in one compiled
+  program; the rebuild is timed in the campaign, where a chunk amortizes its fixed part) is the
+  campaign's setting;
+- jaxtree on the whole campaign with that setting: a single run of the nominal member, then the
+  members in chunks of ``--chunk`` three ways: vmapped, one after another in one compiled
+  program (``lax.map``), and that split over ``--devices`` host devices (two: the machine's
+  cores); first chunk (compile + run) apart from the campaign's time, the members' rebuild
+  (hybrid) apart from their integration, members per second, steps, Radau5's Jacobians and
+  factorizations a member;
+- the peer: Pinocchio's ABA under scipy's Radau (the forward-difference Jacobian of
+  ``jaxtree.bench.peers.pinocchio_runner``, the torque in numpy as the free flyer's generalized
+  force) at its loosest tolerance of the ladder meeting the same goal on the same subsample, the
+  members split over two processes; the ratio of throughputs against the goal.
+
 Run:  python benchmarks/bench_campaign.py [--runs 1000] [--chunk 128] [--json results/bench_campaign.json]
+      python benchmarks/bench_campaign.py --scene flex95 [--runs 256] [--subsample 4] [--note TEXT] [--json PATH]
 """
 
 from __future__ import annotations
@@ -36,22 +63,47 @@ T1, SAVES, GOAL_ERROR = 10.0, 101, 1e-6
 
 def _args():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--runs", type=int, default=1000)
+    p.add_argument("--scene", default="fig4_free", choices=["fig4_free", "flex95"])
+    p.add_argument("--runs", type=int, help="members (default 1000; flex95 256)")
     p.add_argument("--chunk", type=int, default=128)
-    p.add_argument("--subsample", type=int, default=8, help="members whose error is measured")
-    p.add_argument("--tols", type=float, nargs="+", default=[1e-6, 3e-7, 1e-7, 3e-8])
+    p.add_argument("--subsample", type=int, help="members whose error is measured (default 8; flex95 4)")
+    p.add_argument(
+        "--tols",
+        type=float,
+        nargs="+",
+        help="tolerances tried (default 1e-6 3e-7 1e-7 3e-8; flex95: the implicit ladder of jaxtree.Radau5 "
+        "and scipy's Radau, 1e-4 5e-5 3e-5 2e-5 1e-5 1e-6)",
+    )
     p.add_argument("--dt", type=float, nargs="+", default=[0.02, 0.01], help="fixed steps tried")
     p.add_argument(
         "--mujoco-dt", type=float, nargs="+", default=[0.005, 0.0025, 0.002, 0.00125, 0.001], help="RK4 steps tried"
     )
+    p.add_argument(
+        "--explicit-tols",
+        type=float,
+        nargs="+",
+        default=[1e-3, 1e-4, 1e-5, 1e-6],
+        help="flex95: Dopri8's ladder",
+    )
+    p.add_argument("--no-full", action="store_true", help="flex95: leave the full Eq. (1) out of the choice")
+    p.add_argument("--devices", type=int, default=2, help="flex95: host devices of the split sequential run")
+    p.add_argument("--note", help="a line printed under the machine's (e.g. who else used it)")
     p.add_argument("--no-peer", action="store_true")
     p.add_argument("--json")
-    return p.parse_args()
+    a = p.parse_args()
+    flex = a.scene == "flex95"
+    a.runs = a.runs or (256 if flex else 1000)
+    a.subsample = a.subsample or (4 if flex else 8)
+    a.tols = a.tols or ([1e-4, 5e-5, 3e-5, 2e-5, 1e-5, 1e-6] if flex else [1e-6, 3e-7, 1e-7, 3e-8])
+    return a
 
 
 ARGS = _args()
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
+if ARGS.scene == "flex95" and ARGS.devices > 1 and "host_platform_device_count" not in os.environ["XLA_FLAGS"]:
+    # host devices for the split sequential run only (fig4_free's campaign keeps one device)
+    os.environ["XLA_FLAGS"] += f" --xla_force_host_platform_device_count={ARGS.devices}"
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import equinox as eqx
@@ -63,7 +115,7 @@ import jaxtree
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _common import dispersed_fig4 as sample
-from _common import machine, write_json
+from _common import machine, timed, write_json
 
 
 def say(*a):
@@ -191,9 +243,11 @@ def peer_error(hist, ref, n):
     return float(max(w, g))
 
 
-def main():
+def main_fig4():
     results = {"machine": machine(), "runs": ARGS.runs, "t1": T1, "saves": SAVES}
     say(results["machine"])
+    if ARGS.note:
+        say(ARGS.note)
     try:
         import pinocchio
 
@@ -331,6 +385,420 @@ def main():
         results["ratio_mujoco"] = ratio
     if ARGS.json:
         write_json(ARGS.json, results)
+
+
+# ----------------------------------------------------------------------------- flex95
+FLEX_T1, FLEX_SAVES, FLEX_GOAL = 10.0, 201, 10.0
+_FLEX_PEER: dict = {}  # the peer's numpy side, set before the worker processes fork
+
+
+def flex_factors(n):
+    """(n, 2): each member's wing stiffness and slew torque factors, uniform in [0.9, 1.1]."""
+    return np.random.default_rng(0).uniform(0.9, 1.1, (n, 2))
+
+
+class Flex:
+    """bench_hybrid.py's flex95 slew, its wing hinges, save times and nominal hybrid model."""
+
+    def __init__(self):
+        from bench_hybrid import scenario
+
+        self.model, small, self.state, self.torque = scenario("flex95", 1.0)
+        self.small = small
+        self.wings = np.asarray(small) - 1
+        self.ts = jnp.linspace(0.0, FLEX_T1, FLEX_SAVES)
+        t = time.perf_counter()
+        self.hm0 = jaxtree.hybrid_model(self.model, small, 3, omega0=self.state.omega0)
+        self.build0_s = time.perf_counter() - t
+
+    def member(self, ks, kt):
+        """The member's full model: wing stiffness x ks, slew torque x kt."""
+        m = self.model
+        return eqx.tree_at(
+            lambda m: (m.stiffness, m.loads.torque),
+            m,
+            (m.stiffness.at[self.wings].multiply(ks), m.loads.torque * kt),
+        )
+
+    def hybrid(self, ks, kt):
+        """The member's hybrid model, rebuilt from its stiffness with the nominal model's retained
+        modes; without the truncation estimate's terms, which the timed runs do not use."""
+        hm = jaxtree.hybrid_model(self.member(ks, kt), self.small, 3, omega0=self.state.omega0, like=self.hm0)
+        return eqx.tree_at(lambda h: h.truncation, hm, None)
+
+
+def flex_runner(flex, form, solver, mode):
+    """``run(factors (B, 2), tol) -> (omega0 (B, T, 3), gamma (B, T, n), counts (B, 3), build s, run s)``
+    for a chunk of members (counts: accepted steps, Jacobians and factorizations; -1 where the
+    solver keeps none). `form`: "hybrid" or "full"; `mode`: "vmap" (the members vmapped),
+    "sequence" (one after another in one compiled program, ``lax.map``) or "devices" (the
+    sequence split over the host devices by ``shard_map``). Two compiled programs: the members'
+    models (a hybrid model rebuilt per member, by ``lax.map``: vmapped, the build's batched complex
+    LU deadlocked in jaxlib's LAPACK pool here) and their integration."""
+    from jax.sharding import Mesh, NamedSharding
+    from jax.sharding import PartitionSpec as P
+
+    def sim(x, tol):
+        kw = dict(y0=flex.state, saveat=flex.ts, rtol=tol, atol=tol, solver=solver)
+        if form == "hybrid":
+            sol = jaxtree.simulate_hybrid(x, FLEX_T1, truncation_error=False, **kw)
+        else:
+            sol = jaxtree.simulate(x, FLEX_T1, **kw)
+        none = jnp.asarray(-1, jnp.int32)
+        counts = [
+            sol.stats["num_accepted_steps"],
+            sol.stats.get("jacobians", none),
+            sol.stats.get("factorizations", none),
+        ]
+        return sol.omega0, sol.gamma, jnp.stack([jnp.asarray(c, jnp.int32) for c in counts])
+
+    one = flex.hybrid if form == "hybrid" else flex.member
+    build = jax.jit(lambda f: jax.lax.map(lambda x: one(x[0], x[1]), f))
+    sharding = None
+    if mode == "vmap":
+        integrate = jax.jit(jax.vmap(sim, in_axes=(0, None)))
+    elif mode == "sequence":
+        integrate = jax.jit(lambda xs, tol: jax.lax.map(lambda x: sim(x, tol), xs))
+    else:
+        mesh = Mesh(np.array(jax.devices()[: ARGS.devices]), ("m",))
+        sharding = NamedSharding(mesh, P("m"))
+        integrate = jax.jit(
+            jax.shard_map(
+                lambda xs, tol: jax.lax.map(lambda x: sim(x, tol), xs),
+                mesh=mesh,
+                in_specs=(P("m"), P()),
+                out_specs=P("m"),
+                check_vma=False,
+            )
+        )
+
+    def run(factors, tol):
+        t = time.perf_counter()
+        xs = jax.block_until_ready(build(jnp.asarray(factors)))
+        if sharding is not None:
+            xs = jax.device_put(xs, sharding)
+        t_build = time.perf_counter() - t
+        t = time.perf_counter()
+        w, g, counts = jax.block_until_ready(integrate(xs, jnp.asarray(tol, float)))
+        return np.asarray(w), np.asarray(g), np.asarray(counts), t_build, time.perf_counter() - t
+
+    return run
+
+
+def flex_errors(w, g, ref, S):
+    """The largest (hub, wings) error of bench_hybrid.py over the members of (w, g) against `ref`."""
+    from bench_hybrid import errors
+
+    e = [errors(w[i], g[i], dict(omega0=ref[0][i], gamma=ref[1][i]), S) for i in range(len(w))]
+    return max(x[0] for x in e), max(x[1] for x in e)
+
+
+def flex_meets(e):
+    from bench_hybrid import HUB_GOAL, SMALL_GOAL
+
+    return e[0] <= HUB_GOAL and e[1] <= SMALL_GOAL
+
+
+def _pulse(t):
+    """bench_hybrid.py's slew pulse in numpy (on at 1 s, off at 3 s, tanh edges)."""
+    return 0.5 * (np.tanh((t - 1.0) / 0.1) - np.tanh((t - 3.0) / 0.1))
+
+
+def _flex_peer_worker(job):
+    """Pinocchio ABA + scipy Radau for a list of (wing factor, torque factor) members:
+    ((omega0, gamma) histories or None, right sides, Jacobians)."""
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    from scipy.integrate import solve_ivp
+
+    from _peers import pinocchio_rhs
+
+    members, tol, keep = job
+    p = _FLEX_PEER
+    n, x0, ts = p["model"].n, p["x0"], p["ts"]
+    out, nfev, njev = [], 0, 0
+    for ks, kt in members:
+        stiffness = p["stiffness"].copy()
+        stiffness[p["wings"]] *= ks
+        torque = p["torque"] * kt
+        rhs = pinocchio_rhs(p["model"], lambda t, T=torque: T * _pulse(t), stiffness=stiffness, built=p["built"])
+
+        def jac(t, x, rhs=rhs):
+            # pinocchio_runner's forward differences (scipy's own estimate overflows on the rotor's angle)
+            f0 = rhs(t, x)
+            cols = np.empty((x.size, x.size))
+            for i in range(x.size):
+                dx = 1.5e-8 * max(1.0, abs(x[i]))
+                xp = x.copy()
+                xp[i] += dx
+                cols[:, i] = (rhs(t, xp) - f0) / dx
+            return cols
+
+        r = solve_ivp(rhs, (0.0, FLEX_T1), x0, method="Radau", rtol=tol, atol=tol, t_eval=ts, jac=jac)
+        if r.status != 0 or r.y.shape[1] != ts.size:
+            raise RuntimeError(f"scipy Radau: {r.message}")
+        if keep:
+            out.append((r.y[:3].T, r.y[3 : 3 + n].T))
+        nfev += int(r.nfev) + int(r.njev) * (x0.size + 1)
+        njev += int(r.njev)
+    return out, nfev, njev
+
+
+def flex_peer_setup(flex):
+    from _peers import pinocchio_initial, pinocchio_model
+
+    model = eqx.tree_at(lambda m: m.initial, flex.model.with_loads(None), flex.state)
+    model_np = jax.tree_util.tree_map(np.asarray, model)
+    sprung = np.asarray(model.sprung, int) - 1
+    stiffness = np.zeros(model.n)
+    stiffness[sprung] = np.asarray(model.stiffness, float)[sprung]
+    _FLEX_PEER.update(
+        model=model_np,
+        built=pinocchio_model(model_np),
+        x0=pinocchio_initial(model),
+        ts=np.asarray(flex.ts, float),
+        torque=np.asarray(flex.torque, float),
+        stiffness=stiffness,
+        wings=flex.wings,
+    )
+
+
+def flex_peer(factors, tol, processes, keep=False):
+    """The members over `processes` processes: (histories in member order or None, wall s, right sides, Jacobians)."""
+    import multiprocessing as mp
+
+    members = [tuple(map(float, f)) for f in factors]
+    chunks = [members[i::processes] for i in range(processes)]
+    t = time.perf_counter()
+    if processes == 1:
+        results = [_flex_peer_worker((chunks[0], tol, keep))]
+    else:
+        with mp.get_context("fork").Pool(processes) as pool:
+            results = pool.map(_flex_peer_worker, [(c, tol, keep) for c in chunks])
+    wall = time.perf_counter() - t
+    hist = None
+    if keep:
+        hist = [None] * len(members)
+        for p, (h, _, _) in enumerate(results):
+            hist[p::processes] = h
+        hist = (np.stack([h[0] for h in hist]), np.stack([h[1] for h in hist]))
+    return hist, wall, sum(r[1] for r in results), sum(r[2] for r in results)
+
+
+def main_flex():
+    import diffrax as dfx
+    from bench_hybrid import HUB_GOAL, SMALL_GOAL
+
+    results = {"machine": machine(), "scene": "flex95", "runs": ARGS.runs, "t1": FLEX_T1, "saves": FLEX_SAVES}
+    say(results["machine"])
+    if ARGS.note:
+        say(ARGS.note)
+        results["note"] = ARGS.note
+    try:
+        import pinocchio
+
+        say(f"pinocchio {pinocchio.__version__}, scipy {__import__('scipy').__version__}")
+    except ImportError:
+        pinocchio = None
+    say(f"host devices: {jax.device_count()} ({jax.default_backend()})")
+    flex = Flex()
+    S, m, n = flex.wings, ARGS.subsample, ARGS.runs
+    factors = flex_factors(n)
+    sub = factors[:m]
+    say(
+        f"flex95 slew: {FLEX_T1:g} s, {FLEX_SAVES} saves, torque {flex.torque.tolist()} N m from 1 s to 3 s; "
+        f"{n} members, wing stiffness and torque each x U(0.9, 1.1) (member 0: {factors[0][0]:.4f}, "
+        f"{factors[0][1]:.4f}); nominal hybrid model ({flex.hm0.n_modes} modes, {flex.hm0.form}) built in "
+        f"{flex.build0_s:.2f} s"
+    )
+
+    say(f"\n[accuracy] reference: {m} members, full Eq. (1), Dopri8, rtol = atol = 1e-10 (one after another)")
+    runners = {}
+
+    def runner(form, solver_name, mode):
+        key = (form, solver_name, mode)
+        if key not in runners:
+            solver = jaxtree.Radau5() if solver_name == "Radau5" else dfx.Dopri8()
+            runners[key] = flex_runner(flex, form, solver, mode)
+            runners[key].solver = solver
+        return runners[key]
+
+    t = time.perf_counter()
+    w, g, counts, _, _ = runner("full", "Dopri8", "sequence")(sub, 1e-10)
+    ref, steps = (w, g), counts[:, 0]
+    say(f"  {time.perf_counter() - t:.1f} s with its compile; steps {steps.min()}-{steps.max()}")
+    candidates = [("hybrid", "Radau5", ARGS.tols), ("hybrid", "Dopri8", ARGS.explicit_tols)]
+    if not ARGS.no_full:
+        candidates += [("full", "Radau5", ARGS.tols), ("full", "Dopri8", ARGS.explicit_tols)]
+    say(
+        f"  each candidate on the {m} members one after another (lax.map): hub / wings error (goal {HUB_GOAL:g} / "
+        f"{SMALL_GOAL:g}), steps, integration time a member (the members' models apart: the hybrid rebuild's "
+        "fixed part, recomputed at every call, dominates a call of few members)"
+    )
+    rows = []
+    for form, solver_name, tols in candidates:
+        run = runner(form, solver_name, "sequence")
+        t = time.perf_counter()
+        run(sub, max(tols))  # compiles
+        say(f"  {form} {solver_name}: first call (compile + run) {time.perf_counter() - t:.1f} s")
+        for tol in sorted(tols, reverse=True):
+            w, g, counts, tb, tr = run(sub, tol)
+            steps = counts[:, 0]
+            e = flex_errors(w, g, ref, S)
+            row = dict(
+                form=form,
+                solver=solver_name,
+                tol=tol,
+                hub=e[0],
+                wings=e[1],
+                steps_mean=float(steps.mean()),
+                member_ms=1e3 * tr / m,
+                models_ms=1e3 * tb,
+                ok=flex_meets(e),
+            )
+            rows.append(row)
+            say(
+                f"    rtol = atol = {tol:g}: hub {e[0]:.2e}, wings {e[1]:.2e}{' (meets)' if row['ok'] else ''}, "
+                f"steps {steps.min()}-{steps.max()}, {row['member_ms']:.1f} ms a member "
+                f"(the {m} members' models {row['models_ms']:.0f} ms)"
+            )
+            if row["ok"]:
+                break  # the loosest tolerance that meets the goal: tighter ones cost more
+    results["accuracy"] = rows
+    ok = [r for r in rows if r["ok"]]
+    if not ok:
+        say("no candidate meets the goal on the subsample: extend the ladders")
+        return
+    best = min(ok, key=lambda r: r["member_ms"])
+    form, solver_name, tol = best["form"], best["solver"], best["tol"]
+    say(
+        "  loosest setting meeting the goal: "
+        + "; ".join(f"{r['form']} {r['solver']} {r['tol']:g} {r['member_ms']:.1f} ms" for r in ok)
+        + f"\n  chosen (cheapest a member): {form} {solver_name} at rtol = atol = {tol:g}"
+    )
+    full_dopri = [r for r in ok if r["form"] == "full" and r["solver"] == "Dopri8"]
+    if full_dopri:
+        # a vmapped Dopri8 over >= 64 members takes the batch-first Eq. (1): bench_batch.py's 13.45 us a member
+        # and right side (flex95, B = 256, 2026-11-27) bounds it from below, integrator's work aside
+        r = full_dopri[0]
+        say(
+            f"  (full Dopri8 vmapped in a large chunk: at least {r['steps_mean']:.0f} steps x 13 right sides x "
+            f"13.45 us = {r['steps_mean'] * 13 * 13.45e-3:.0f} ms a member; bench_batch.py's batch-first Eq. (1))"
+        )
+    results["setting"] = dict(form=form, solver=solver_name, tol=tol)
+
+    chunk = min(ARGS.chunk, n)
+    chunk += -chunk % max(ARGS.devices, 1)
+    padded = np.concatenate([factors, np.repeat(factors[-1:], -n % chunk, axis=0)])
+    say(
+        f"\n[jaxtree] {n} members, {form} {solver_name} at {tol:g}, chunks of {chunk}"
+        + (f" ({len(padded) - n} padding members in the last)" if len(padded) > n else "")
+    )
+    modes = [("vmap", "vmapped"), ("sequence", "one after another")]
+    if ARGS.devices > 1 and jax.device_count() >= ARGS.devices:
+        modes.append(("devices", f"one after another on {ARGS.devices} host devices"))
+    solver = runners[(form, solver_name, "sequence")].solver
+    sim_kw = dict(y0=flex.state, saveat=flex.ts, rtol=tol, atol=tol, solver=solver)
+    if form == "hybrid":
+        single = lambda: jaxtree.simulate_hybrid(flex.hm0, FLEX_T1, truncation_error=False, **sim_kw)
+    else:
+        single = lambda: jaxtree.simulate(flex.model, FLEX_T1, **sim_kw)
+    sol, first, once = timed(single, 3)
+    say(
+        f"  a single run of the nominal member (jitted call): first {first:.1f} s, then {1e3 * once:.1f} ms "
+        f"(median of 3); {int(sol.stats['num_accepted_steps'])} steps"
+    )
+    rows = {"single": dict(first_s=first, ms_a_member=1e3 * once, members_per_s=1.0 / once)}
+    for mode, label in modes:
+        run = runner(form, solver_name, mode)
+        t = time.perf_counter()
+        run(padded[:chunk], tol)
+        first = time.perf_counter() - t
+        tb = tr = 0.0
+        counts, first_w, first_g = [], None, None
+        t = time.perf_counter()
+        for c in range(0, len(padded), chunk):
+            w, g, cn, b, r = run(padded[c : c + chunk], tol)
+            tb, tr = tb + b, tr + r
+            counts.append(cn)
+            if c == 0:
+                first_w, first_g = w[:m], g[:m]
+        wall = time.perf_counter() - t
+        counts = np.concatenate(counts)[:n]
+        steps = counts[:, 0]
+        e = flex_errors(first_w, first_g, ref, S)
+        rows[mode] = dict(
+            label=label,
+            first_chunk_s=first,
+            wall_s=wall,
+            build_s=tb,
+            integrate_s=tr,
+            members_per_s=n / wall,
+            ms_a_member=1e3 * wall / n,
+            steps_mean=float(steps.mean()),
+            steps_max=int(steps.max()),
+            jacobians_mean=float(counts[:, 1].mean()),
+            factorizations_mean=float(counts[:, 2].mean()),
+            hub=e[0],
+            wings=e[1],
+        )
+        say(
+            f"  {label:40s} first chunk (compile + run) {first:6.1f} s; campaign {wall:6.1f} s = {n / wall:6.1f} "
+            f"members/s ({1e3 * wall / n:.1f} ms a member: models {1e3 * tb / n:.1f}, integration "
+            f"{1e3 * tr / n:.1f}); steps mean {steps.mean():.1f} max {steps.max()}"
+            + (
+                f", Jacobians {counts[:, 1].mean():.1f}, factorizations {counts[:, 2].mean():.1f} a member"
+                if counts[0, 1] >= 0
+                else ""
+            )
+            + f"; subsample error hub {e[0]:.1e} wings {e[1]:.1e}"
+        )
+    results["jaxtree"] = rows
+    best_mode = max((k for k in rows if k != "single"), key=lambda k: rows[k]["members_per_s"])
+    best_rate = rows[best_mode]["members_per_s"]
+
+    if pinocchio is None or ARGS.no_peer:
+        if ARGS.json:
+            write_json(ARGS.json, results)
+        return
+    flex_peer_setup(flex)
+    say(f"\n[peer] Pinocchio ABA + scipy Radau on the {m} members (one process)")
+    peer_tol = None
+    for tol_p in sorted(ARGS.tols, reverse=True):
+        hist, wall, nfev, njev = flex_peer(sub, tol_p, 1, keep=True)
+        e = flex_errors(hist[0], hist[1], ref, S)
+        say(
+            f"  rtol = atol = {tol_p:g}: hub {e[0]:.2e}, wings {e[1]:.2e}{' (meets)' if flex_meets(e) else ''}, "
+            f"{nfev / m:.0f} right sides ({njev / m:.1f} Jacobians) a member, {1e3 * wall / m:.1f} ms a member"
+        )
+        if flex_meets(e):
+            peer_tol = tol_p
+            break
+    if peer_tol is None:
+        say("  the peer meets the goal at no tolerance of the ladder")
+        return
+    say(f"  {n} members, rtol = atol = {peer_tol:g}, two processes")
+    _, wall, nfev, njev = flex_peer(factors, peer_tol, 2)
+    say(
+        f"  {wall:.1f} s = {n / wall:.1f} members/s ({1e3 * wall / n:.1f} ms a member), {nfev / n:.0f} right sides a member"
+    )
+    results["peer"] = dict(tol=peer_tol, wall_s=wall, members_per_s=n / wall, rhs_a_member=nfev / n)
+    ratio = best_rate / (n / wall)
+    results["ratio"] = ratio
+    say(
+        f"\n[goal] jaxtree best ({rows[best_mode]['label']}, {form} {solver_name} {tol:g}) {best_rate:.1f} members/s "
+        f"against Pinocchio + scipy Radau's {n / wall:.1f} in two processes: {ratio:.2f}x "
+        f"(goal >= {FLEX_GOAL:g}x): {'met' if ratio >= FLEX_GOAL else 'NOT met'}"
+    )
+    say("load average at the end: " + " ".join(f"{x:.1f}" for x in os.getloadavg()))
+    if ARGS.json:
+        write_json(ARGS.json, results)
+
+
+def main():
+    if ARGS.scene == "flex95":
+        main_flex()
+    else:
+        main_fig4()
 
 
 if __name__ == "__main__":
