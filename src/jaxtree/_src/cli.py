@@ -838,8 +838,6 @@ def _summary(model, run, written, wall):
         why.append("the scene's control laws do work")
     if model.loads is not None:
         why.append("external loads do work")
-    if getattr(model, "appendages", ()):
-        why.append("the tree's alone, its finite-element appendages exchange energy with it")
     damped = bool(np.any(np.asarray(model.damping)[np.asarray(model.sprung, int) - 1] != 0)) if model.sprung else False
     if damped and "energy" in ds:
         e = np.asarray(ds["energy"].values, float)
@@ -853,13 +851,7 @@ def _summary(model, run, written, wall):
         )
         lines.append(
             f"  angular-momentum drift: max |H - H0| / |H0| = {float(a['momentum_drift']):.3e}"
-            + (
-                " (not conserved: external loads)"
-                if model.loads is not None
-                else " (the tree's alone, without its finite-element appendages)"
-                if getattr(model, "appendages", ())
-                else ""
-            )
+            + (" (not conserved: external loads)" if model.loads is not None else "")
         )
     last = ds.isel(time=-1)
     lines.append(f"  at the last saved time, t = {float(last['time']):.6g} s:")

@@ -31,7 +31,6 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from ..appendage.files import scene_appendages
-from ..equations.dynamics import angular_momentum, kinetic_energy
 from ..errors import SceneError
 from ..hybrid import hybrid_model, simulate_hybrid
 from ..integration.autosolver import choose_solver, save_points
@@ -390,7 +389,6 @@ class _Runner:
         self.solver = solver_named(cfg["solver"])
         self.dtype = jnp.result_type(model.mass)
         self.hybrid = None if "hybrid_small" not in cfg else _hybrid_of(model, cfg, self.dtype)
-        self._diag = None if self.hybrid is None else _hybrid_diagnostics()
         self.truncation_state = None  # the neglected modes' state where the last hybrid part ended
 
         # a scene's controller (internal states) continues from part to part: its states where
@@ -436,7 +434,7 @@ class _Runner:
             self.hybrid, ts[-1], max_steps=self.cfg["max_steps"], truncation_start=self.truncation_state, **common
         )
         self.truncation_state = sol.truncation_state
-        return _HybridPart(sol, self.hybrid, self._diag)
+        return _HybridPart(sol, self.hybrid)
 
 
 def _hybrid_of(model, cfg, dtype):
@@ -533,17 +531,6 @@ def _kinematic_rows(s, count):
     return {k: _take(getattr(s, k), count) for k in ("ts", "gamma", "gamma_dot", "omega0", "dcm")}
 
 
-def _hybrid_diagnostics():
-    @eqx.filter_jit
-    def diag(model, states):
-        def row(s):
-            return (kinetic_energy(model, s) + 0.5 * jnp.sum(model.stiffness * s.gamma**2), angular_momentum(model, s))
-
-        return jax.vmap(row)(states)
-
-    return diag
-
-
 # diffrax's result of a hybrid run, as the failure kinds of jaxtree.simulate (else "other")
 _HYBRID_KINDS = (
     (diffrax.RESULTS.successful, None),
@@ -553,7 +540,7 @@ _HYBRID_KINDS = (
 
 
 class _HybridPart:
-    def __init__(self, sol, hybrid, diag):
+    def __init__(self, sol, hybrid):
         self.sol, self.hybrid = sol, hybrid
         self.kind = next((kind for r, kind in _HYBRID_KINDS if sol.result == r), "other")
         self.t_final = float(np.asarray(sol.t_final))
@@ -568,8 +555,8 @@ class _HybridPart:
         st = sol.stats
         acc, rej = int(np.asarray(st["num_accepted_steps"])), int(np.asarray(st["num_rejected_steps"]))
         self.steps = (acc, rej, -1)
-        states = State(sol.dcm, sol.omega0, sol.gamma, sol.gamma_dot)
-        self.energy, self.H = diag(hybrid.model, states)
+        # the vehicle's, finite-element appendages included (simulate_hybrid's diagnostics)
+        self.energy, self.H = sol.energy, sol.angular_momentum
         S = np.asarray(hybrid.small, int) - 1
         ok = np.isfinite(np.asarray(sol.ts))
         self.truncation = (

@@ -27,8 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import ArrayLike
 
-from ..equations.dynamics import energy_and_momentum, unbalanced
-from ..equations.kinematics import full_precision
+from ..equations.dynamics import configuration_and_rates, energy_and_momentum, mass_center_velocities, unbalanced
+from ..equations.kinematics import cross, full_precision
 from ..integration.core import (
     DEFAULT_MAX_STEPS,
     check_state,
@@ -144,12 +144,54 @@ def _hybrid_failure_message(code, t, state, modal):
     return failure_report(code, describe)
 
 
-def _energy_and_momentum(model, state):
-    """Kinetic energy plus the hinge springs' potential energy, and the angular momentum."""
+def _energy_and_momentum(hm: HybridModel, state, coords=()):
+    """Kinetic energy plus the potential energy of the hinge springs and of the appendages' modes,
+    and the angular momentum about the vehicle's mass center (inertial components).
+
+    The tree's bodies give their share from their velocities relative to the tree's mass center
+    (:func:`~jaxtree._src.equations.dynamics.energy_and_momentum`). Each finite-element appendage
+    (`coords`: its modal coordinates and rates, :meth:`HybridModel.appendage_coordinates`) gives
+    its generalized momentum ``h = A(q) z`` from the Gauss function's Taylor terms of its base
+    (``A = A0 + A1 q``, the same first order in ``q`` as its equations; ``z`` the base's angular
+    velocity and mass-center velocity in its frame, then ``q'``; the base's rows of ``A`` and its
+    modal block, which the geometric stiffness leaves alone): ``z . A z / 2`` of kinetic energy,
+    ``h[:3]`` its angular momentum about the base's mass center, ``h[3:6]`` its linear momentum,
+    ``omega_j^2 q_j^2 / 2`` of strain energy. Koenig's theorem then moves the sum from the tree's
+    mass center to the vehicle's: ``T - M |v_c|^2 / 2`` and ``H - M r_c x v_c``, with ``v_c`` and
+    ``r_c`` the vehicle's mass center velocity and position relative to the tree's. (The
+    geometric stiffness's share, the work of the preload, is not in the potential energy.)"""
+    model = hm.model
     T, H = energy_and_momentum(model, state)
     if model.sprung:
         k = np.asarray(model.sprung, np.int64) - 1
         T = T + 0.5 * jnp.sum(model.stiffness[k] * state.gamma[k] ** 2)
+    if not coords:
+        return T, H
+    dtype = T.dtype
+    cfg, omega = configuration_and_rates(
+        model, state.gamma, jnp.asarray(state.omega0, dtype), jnp.asarray(state.gamma_dot, dtype)
+    )
+    vel = mass_center_velocities(model, cfg, omega)
+    H0 = jnp.zeros((3,), dtype)  # {b^0} components, about the tree's mass center
+    P = jnp.zeros((3,), dtype)
+    S = jnp.zeros((3,), dtype)
+    M = jnp.sum(model.mass.astype(dtype))
+    for ap, (q, qd) in zip(hm.appendages, coords, strict=True):
+        b = model.names.index(ap.body) if isinstance(ap.body, str) else int(ap.body)
+        R = cfg.R[b]
+        z = jnp.concatenate([R.T @ omega[b], R.T @ vel[b], qd])
+        A = ap.terms.A0 + ap.terms.A1 @ q
+        h = A[:6] @ z  # the base's rows: the geometric stiffness is in the modal rows only
+        T = T + 0.5 * (z[:6] @ h + qd @ (A[:6, 6:].T @ z[:6] + A[6:, 6:] @ qd)) + 0.5 * jnp.sum(ap.stiffness * q * q)
+        p = R @ h[3:6]
+        H0 = H0 + R @ h[:3] + cross(cfg.rho[b], p)
+        P = P + p
+        first = ap.first_moment + ap.mass * ap.point + ap.participation[:, 3:6].T @ q  # about b's mass center
+        S = S + ap.mass * cfg.rho[b] + R @ first
+        M = M + ap.mass
+    v_c, r_c = P / M, S / M
+    T = T - 0.5 * M * v_c @ v_c
+    H = H + jnp.asarray(state.dcm, dtype).T @ (H0 - M * cross(r_c, v_c))
     return T, H
 
 
@@ -259,7 +301,9 @@ def _solve_hybrid(
     code = jnp.where(finite_start, _failure_code(sol.result), int(Failure.NONFINITE_START))
     states = jax.vmap(hybrid.state)(ts_h, ys_h)
     final = hybrid.state(t_final, y_final)
-    energy, momentum = jax.vmap(lambda st: _energy_and_momentum(hybrid.model, st))(states)
+    energy, momentum = jax.vmap(lambda st, y: _energy_and_momentum(hybrid, st, hybrid.appendage_coordinates(y)))(
+        states, ys_h
+    )
     dyn = stat = q_end = None
     if truncation and hybrid.truncation is not None:
         dyn, stat, q_end = _truncation_estimate(hybrid, t0, ts_h, ys_h, q_start)
