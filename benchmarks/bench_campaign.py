@@ -510,6 +510,8 @@ def _flex_peer_worker(job):
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
     from scipy.integrate import solve_ivp
 
+    from jaxtree.bench.peers import forward_difference_jacobian
+
     from _peers import pinocchio_rhs
 
     members, tol, keep = job
@@ -522,17 +524,7 @@ def _flex_peer_worker(job):
         torque = p["torque"] * kt
         rhs = pinocchio_rhs(p["model"], lambda t, T=torque: T * _pulse(t), stiffness=stiffness, built=p["built"])
 
-        def jac(t, x, rhs=rhs):
-            # pinocchio_runner's forward differences (scipy's own estimate overflows on the rotor's angle)
-            f0 = rhs(t, x)
-            cols = np.empty((x.size, x.size))
-            for i in range(x.size):
-                dx = 1.5e-8 * max(1.0, abs(x[i]))
-                xp = x.copy()
-                xp[i] += dx
-                cols[:, i] = (rhs(t, xp) - f0) / dx
-            return cols
-
+        jac = forward_difference_jacobian(rhs)  # pinocchio_runner's (scipy's own overflows on the rotor's angle)
         r = solve_ivp(rhs, (0.0, FLEX_T1), x0, method="Radau", rtol=tol, atol=tol, t_eval=ts, jac=jac)
         if r.status != 0 or r.y.shape[1] != ts.size:
             raise RuntimeError(f"scipy Radau: {r.message}")

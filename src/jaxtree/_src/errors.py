@@ -59,11 +59,3 @@ def short(value, limit: int = 80) -> str:
     """``repr(value)``, cut to `limit` characters (a 400-digit integer stays readable)."""
     text = repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def _shape_text(shape) -> str:
-    if len(shape) == 1:
-        return f"length {shape[0]}"
-    if len(shape) == 2 and shape[0] == shape[1]:
-        return f"{shape[0]}x{shape[1]}"
-    return f"shape {shape}"

@@ -208,6 +208,25 @@ def pinocchio_initial(model) -> np.ndarray:
     return np.concatenate([np.asarray(s.omega0), np.asarray(s.gamma), np.asarray(s.gamma_dot), base_velocity(model)])
 
 
+def forward_difference_jacobian(rhs):
+    """``jac(t, x)`` of a right side ``rhs(t, x)`` for scipy's implicit solvers: forward differences
+    with the usual step ``sqrt(eps) max(1, |x_i|)``. scipy's own estimate (``num_jac``) grows its step
+    for columns the right side does not depend on (a rotor's angle) until it overflows: Radau failed
+    on the spinning bus with NaNs in its Jacobian."""
+
+    def jac(t, x):
+        f0 = rhs(t, x)
+        cols = np.empty((x.size, x.size))
+        for i in range(x.size):
+            dx = 1.5e-8 * max(1.0, abs(x[i]))
+            xp = x.copy()
+            xp[i] += dx
+            cols[:, i] = (rhs(t, xp) - f0) / dx
+        return cols
+
+    return jac
+
+
 def pinocchio_runner(model, ts, base_torque=None):
     """``run(method, rtol, atol) -> (omega0 (T, 3), gamma (T, n), wall seconds, right sides)``:
     Pinocchio's ABA (:func:`pinocchio_rhs`) integrated by ``scipy.integrate.solve_ivp``
@@ -220,18 +239,7 @@ def pinocchio_runner(model, ts, base_torque=None):
     n = model.n
     ts = np.asarray(ts, float)
 
-    def jac(t, x):
-        # Forward differences with the usual step sqrt(eps) max(1, |x_i|). scipy's own estimate
-        # (num_jac) grows its step for columns the right side does not depend on (the rotor's
-        # angle) until it overflows: Radau failed on the spinning bus with NaNs in its Jacobian.
-        f0 = rhs(t, x)
-        cols = np.empty((x.size, x.size))
-        for i in range(x.size):
-            dx = 1.5e-8 * max(1.0, abs(x[i]))
-            xp = x.copy()
-            xp[i] += dx
-            cols[:, i] = (rhs(t, xp) - f0) / dx
-        return cols
+    jac = forward_difference_jacobian(rhs)
 
     def run(method, rtol, atol):
         implicit = method in ("Radau", "BDF", "LSODA")
