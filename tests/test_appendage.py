@@ -17,6 +17,8 @@ Every expected number comes from outside the appendage code:
 - central differences for derivatives.
 """
 
+import pathlib
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -29,6 +31,8 @@ from jaxtree._src.appendage import appendage, beam, held_interface_modes
 from jaxtree._src.appendage.model import _appendage_terms
 from jaxtree._src.hybrid import substructure as sub
 from jaxtree._src.hybrid.substructure import held_base
+
+DATA = pathlib.Path(__file__).parent / "data"
 
 # Kane, Ryan and Banerjee's beam (notes/fe_appendages.md): 10 m, EI = 14 000 N m^2, rho A = 1.2 kg/m
 LENGTH, E, RHO, AREA = 10.0, 7e10, 3000.0, 4e-4
@@ -674,3 +678,72 @@ def test_the_vehicles_energy_and_momentum_include_the_appendage():
     assert e_stiff <= 1e-7 and h_stiff <= 1e-7, runs
     assert e_flex <= 2e-5 and h_flex <= 2e-5, runs
     assert trade > 0.1, runs
+
+
+# --------------------------------------------------------------------------------------------
+# NASTRAN OP4 matrices
+
+
+def _op4_text(matrices, per=3, width=23, digits=16):
+    """A formatted OP4 file of real matrices, written here from the format's description (MSC
+    Nastran's OUTPUT4): header ``NCOL NROW NF NTYPE NAME FMT`` (I8 fields, A8 name), then each
+    column's nonzero span as ``ICOL IROW NW`` and NW values in fields of `width`, then the closing
+    record ``NCOL+1 1 1`` and one value."""
+    out = []
+    for name, (form, A) in matrices.items():
+        nrow, ncol = A.shape
+        out.append(f"{ncol:8d}{nrow:8d}{form:8d}{2:8d}{name:<8s}1P,{per}E{width}.{digits}")
+        for j in range(ncol):
+            nz = np.flatnonzero(A[:, j])
+            if nz.size == 0:
+                continue
+            a, b = nz[0], nz[-1]
+            vals = A[a : b + 1, j]
+            out.append(f"{j + 1:8d}{a + 1:8d}{vals.size:8d}")
+            for k in range(0, vals.size, per):
+                out.append("".join(f"{v:{width}.{digits}E}" for v in vals[k : k + per]))
+        out.append(f"{ncol + 1:8d}{1:8d}{1:8d}")
+        out.append(f"{1.0:{width}.{digits}E}")
+    return "\n".join(out) + "\n"
+
+
+def test_op4_matrices_make_the_same_appendage(tmp_path, kane_beam):
+    """read_op4 reads NASTRAN's formatted OP4: a file written by pyNastran 1.4.1
+    (tests/data/tridiagonal.op4, a symmetric 3 x 3 of form 6) gives its matrix; the beam's mass and
+    stiffness written as OP4 (double precision, and single precision's 5E16.9 fields) and read back
+    make the appendage of the arrays (frequencies to 1e-12, and to the single-precision fields'
+    rounding); sparse, complex, binary and broken files are refused with the reason."""
+    read = jaxtree.read_op4(DATA / "tridiagonal.op4")
+    np.testing.assert_array_equal(read["KAA"], [[2.0, -1.0, 0.0], [-1.0, 2.0, -1.0], [0.0, -1.0, 2.0]])
+
+    fe = beam(LENGTH, 8, E=E, rho=RHO, area=AREA, Iy=4 * IY, Iz=IY)
+    M, K = np.asarray(fe.mass), np.asarray(fe.stiffness)
+    base = appendage(fe, 0, n_modes=4, geometric=False)
+    for per, width, digits, tol in ((3, 23, 16, 1e-12), (5, 16, 9, 1e-7)):
+        path = tmp_path / f"beam{width}.op4"
+        path.write_text(_op4_text({"MAA": (6, M), "KAA": (6, K)}, per, width, digits))
+        mats = jaxtree.read_op4(path)
+        assert set(mats) == {"MAA", "KAA"}
+        np.testing.assert_allclose(mats["MAA"], M, rtol=10**-digits * 10, atol=0)
+        fe2 = jaxtree.FEModel(jnp.asarray(mats["MAA"]), jnp.asarray(mats["KAA"]), fe.nodes, None, fe.dofs)
+        ap = appendage(fe2, 0, n_modes=4, geometric=False)
+        np.testing.assert_allclose(np.asarray(ap.frequencies), np.asarray(base.frequencies), rtol=tol)
+
+    bad = {
+        "sparse": "       3      -3       6       2KAA     1P,3E23.16\n",
+        "complex": "       3       3       6       4KAA     1P,3E23.16\n",
+        "header": "not an op4 file\n",
+        "short": "       3       3       6       2KAA     1P,3E23.16\n       1       1       1\n 1.0E+00\n",
+    }
+    for what, text in bad.items():
+        path = tmp_path / f"{what}.op4"
+        path.write_text(text)
+        with pytest.raises(
+            jaxtree.SceneError,
+            match={"sparse": "BIGMAT", "complex": "complex", "header": "header", "short": "before its closing"}[what],
+        ):
+            jaxtree.read_op4(path)
+    binary = tmp_path / "binary.op4"
+    binary.write_bytes(bytes(range(128, 256)) * 4)
+    with pytest.raises(jaxtree.SceneError, match="binary"):
+        jaxtree.read_op4(binary)

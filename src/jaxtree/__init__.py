@@ -37,6 +37,7 @@ from ._src.appendage import load_fe as load_fe
 from ._src.appendage import plate as plate
 from ._src.appendage import plate_edge as plate_edge
 from ._src.appendage import read_matrix_market as read_matrix_market
+from ._src.appendage import read_op4 as read_op4
 from ._src.appendage import save_appendage as save_appendage
 from ._src.appendage import save_fe as save_fe
 from ._src.appendage import scene_appendages as scene_appendages
@@ -505,6 +506,7 @@ __all__ = [
     "load_fe",
     "save_fe",
     "read_matrix_market",
+    "read_op4",
     "load_appendage",
     "save_appendage",
     "scene_appendages",

@@ -19,6 +19,7 @@ from .fe import plate_edge as plate_edge
 from .files import load_appendage as load_appendage
 from .files import load_fe as load_fe
 from .files import read_matrix_market as read_matrix_market
+from .files import read_op4 as read_op4
 from .files import save_appendage as save_appendage
 from .files import save_fe as save_fe
 from .files import scene_appendages as scene_appendages

@@ -205,6 +205,73 @@ def read_matrix_market(mass_path, stiffness_path, nodes, dofs: int = 6) -> FEMod
     return FEModel(jnp.asarray(mats[0]), jnp.asarray(mats[1]), jnp.asarray(nodes), None, dofs)
 
 
+def read_op4(path) -> dict[str, np.ndarray]:
+    """The matrices of a NASTRAN OP4 file in its text form (``OUTPUT4 ... FORMATTED``), by name.
+
+    The format (MSC Nastran DMAP guide, OUTPUT4): for each matrix a header line ``NCOL NROW NF
+    NTYPE NAME FMT`` (the form NF: 1 square, 2 rectangular, 6 symmetric, ...; NTYPE 1 or 2: real
+    single or double precision; FMT a Fortran format such as ``1P,3E23.16``), then columns as
+    records ``ICOL IROW NW`` followed by NW values from row IROW, in fields of FMT's width, and a
+    closing record with ``ICOL = NCOL + 1``. Every column holds its rows in full (symmetric
+    matrices too). Sparse (BIGMAT, ``NROW < 0``), complex and binary files are refused with the
+    reason. pyNastran reads the same files, but its releases require numpy < 2, which jaxtree's
+    JAX cannot import beside; this reader is the format's dense text case, written here.
+    """
+    import re
+
+    try:
+        lines = pathlib.Path(path).read_text().splitlines()
+    except UnicodeDecodeError:
+        raise SceneError(f"{path}: a binary OP4 file; write it with FORMATTED (text) output") from None
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read ({exc})") from None
+    out: dict[str, np.ndarray] = {}
+    i = 0
+    while i < len(lines):
+        head = lines[i]
+        i += 1
+        if not head.strip():
+            continue
+        fields = head[:32].split()
+        m = re.search(r"(\d+)\s*[EDed](\d+)\.(\d+)", head[40:])
+        if len(fields) < 4 or m is None:
+            raise SceneError(f"{path}, line {i}: not an OP4 matrix header: {head.strip()!r}")
+        ncol, nrow, form, ntype = (int(x) for x in fields[:4])
+        name = head[32:40].strip() or f"matrix{len(out) + 1}"
+        if nrow < 0:
+            raise SceneError(f"{path}: {name} is stored sparse (BIGMAT); write it dense")
+        if ntype not in (1, 2):
+            raise SceneError(f"{path}: {name} has NTYPE {ntype} (complex); jaxtree reads real matrices")
+        per, width = int(m.group(1)), int(m.group(2))
+        A = np.zeros((nrow, ncol))
+        while True:
+            if i >= len(lines):
+                raise SceneError(f"{path}: {name} ends before its closing record")
+            rec = lines[i].split()
+            i += 1
+            col = int(rec[0])
+            if col > ncol:  # the closing record, followed by its one value
+                i += 1 if len(rec) >= 3 and int(rec[2]) > 0 else 0
+                break
+            row, nw = int(rec[1]), int(rec[2])
+            values: list[float] = []
+            while len(values) < nw:
+                text = lines[i].replace("D", "E").replace("d", "e")
+                i += 1
+                values += [
+                    float(text[k : k + width])
+                    for k in range(0, min(len(text), per * width), width)
+                    if text[k : k + width].strip()
+                ]
+            if row < 1 or row - 1 + nw > nrow or not 1 <= col <= ncol:
+                raise SceneError(f"{path}: {name}: column {col} from row {row} ({nw} values) outside {nrow} x {ncol}")
+            A[row - 1 : row - 1 + nw, col - 1] = values[:nw]
+        if form == 6 and nrow == ncol and not np.allclose(A, A.T, rtol=1e-12, atol=0.0):
+            raise SceneError(f"{path}: {name} is declared symmetric (form 6) but is not")
+        out[name] = A
+    return out
+
+
 def save_appendage(path, ap: Appendage) -> None:
     """Write `ap`'s modes and invariants (``jaxtree-appendage/1``), atomically."""
     arrays = {k: np.asarray(getattr(ap, k)) for k in _ARRAYS}
