@@ -24,68 +24,6 @@ from ..equations.dynamics import (
 from ..vehicle.model import Model, State
 
 
-def condition_at(model: Model, state: State, t):
-    """Condition number and near-null direction of the Eq. (1) matrix at a state
-    (:func:`jaxtree._src.equations.dynamics.matrix_condition`)."""
-    return matrix_condition(model, rotational_equations(model, state, t)[0])
-
-
-condition_jit = eqx.filter_jit(condition_at)
-
-
-def attitude_margin(problem, y):
-    m = problem.attitude.margin(problem.unpack(y)[0])
-    return jnp.asarray(jnp.nan, y.dtype) if m is None else m
-
-
-def format_failure(
-    kind, t, state: State, condition, margin, attitude_name, result_message="", direction=None, labels=None
-):
-    np.set_printoptions(precision=6, suppress=False, linewidth=120)
-    lines = [f"jaxtree.simulate: {MESSAGES[kind]}."]
-    if result_message:
-        lines.append(f"  diffrax: {result_message}")
-    lines.append(f"  stopped at t = {float(t):.9g}")
-    lines.append(f"  omega0 = {np.asarray(state.omega0)}")
-    lines.append(f"  gamma = {np.asarray(state.gamma)}")
-    lines.append(f"  gamma_dot = {np.asarray(state.gamma_dot)}")
-    lines.append(f"  C = {np.asarray(state.dcm).tolist()}")
-    finite = all(np.all(np.isfinite(np.asarray(x))) for x in state)
-    if not finite:
-        lines.append("  diagnosis: the state is not finite")
-    c = float(condition)
-    if np.isnan(c):
-        pass
-    elif not np.isfinite(c) or c > SINGULAR_CONDITION:
-        where = (
-            null_direction_text(direction, labels)
-            if direction is not None and labels is not None and np.all(np.isfinite(np.asarray(direction)))
-            else "for a gimbal this is gimbal lock"
-        )
-        lines.append(f"  diagnosis: the Eq. (1) matrix is singular or nearly so (condition number {c:.3g}); {where}")
-    if attitude_name == "euler123" and np.isfinite(float(margin)):
-        lines.append(f"  attitude ({attitude_name}) singularity margin |cos theta_2| - tol = {float(margin):.3g}")
-    return "\n".join(lines)
-
-
-def raise_failures(code, t, state, condition, margin, attitude_name, direction=None, labels=None):
-    def describe(kind, pick):
-        return format_failure(
-            kind,
-            pick(t),
-            State(*(pick(x) for x in state)),
-            pick(condition),
-            pick(margin),
-            str(attitude_name),
-            direction=None if direction is None else pick(direction),
-            labels=labels,
-        )
-
-    message = failure_report(code, describe)
-    if message is not None:
-        raise SimulationError(message)
-
-
 class Failure(enum.IntEnum):
     """How a run ended: ``Solution.failure`` / ``HybridSolution.failure`` hold these codes (0 is
     success). The names, lower-cased, are the kinds result files and campaigns record."""
@@ -105,6 +43,7 @@ class Failure(enum.IntEnum):
 
 # the failure kinds by code - 1 (the codes' names as result files and campaigns spell them)
 KINDS = tuple(f.kind for f in Failure if f is not Failure.NONE)
+
 
 MESSAGES = {
     "max_steps": "the maximum number of solver steps was reached (increase max_steps, or the motion became singular)",
@@ -204,3 +143,66 @@ def result_code(result, singular: bool | jax.Array = False):
             jnp.where(singular, int(Failure.SINGULAR_ATTITUDE), int(Failure.OTHER)),
         ),
     )
+
+
+# ----------------------------------------------------------------------------- Eq. (1)'s report
+def condition_at(model: Model, state: State, t):
+    """Condition number and near-null direction of the Eq. (1) matrix at a state
+    (:func:`jaxtree._src.equations.dynamics.matrix_condition`)."""
+    return matrix_condition(model, rotational_equations(model, state, t)[0])
+
+
+condition_jit = eqx.filter_jit(condition_at)
+
+
+def attitude_margin(problem, y):
+    m = problem.attitude.margin(problem.unpack(y)[0])
+    return jnp.asarray(jnp.nan, y.dtype) if m is None else m
+
+
+def format_failure(
+    kind, t, state: State, condition, margin, attitude_name, result_message="", direction=None, labels=None
+):
+    np.set_printoptions(precision=6, suppress=False, linewidth=120)
+    lines = [f"jaxtree.simulate: {MESSAGES[kind]}."]
+    if result_message:
+        lines.append(f"  diffrax: {result_message}")
+    lines.append(f"  stopped at t = {float(t):.9g}")
+    lines.append(f"  omega0 = {np.asarray(state.omega0)}")
+    lines.append(f"  gamma = {np.asarray(state.gamma)}")
+    lines.append(f"  gamma_dot = {np.asarray(state.gamma_dot)}")
+    lines.append(f"  C = {np.asarray(state.dcm).tolist()}")
+    finite = all(np.all(np.isfinite(np.asarray(x))) for x in state)
+    if not finite:
+        lines.append("  diagnosis: the state is not finite")
+    c = float(condition)
+    if np.isnan(c):
+        pass
+    elif not np.isfinite(c) or c > SINGULAR_CONDITION:
+        where = (
+            null_direction_text(direction, labels)
+            if direction is not None and labels is not None and np.all(np.isfinite(np.asarray(direction)))
+            else "for a gimbal this is gimbal lock"
+        )
+        lines.append(f"  diagnosis: the Eq. (1) matrix is singular or nearly so (condition number {c:.3g}); {where}")
+    if attitude_name == "euler123" and np.isfinite(float(margin)):
+        lines.append(f"  attitude ({attitude_name}) singularity margin |cos theta_2| - tol = {float(margin):.3g}")
+    return "\n".join(lines)
+
+
+def raise_failures(code, t, state, condition, margin, attitude_name, direction=None, labels=None):
+    def describe(kind, pick):
+        return format_failure(
+            kind,
+            pick(t),
+            State(*(pick(x) for x in state)),
+            pick(condition),
+            pick(margin),
+            str(attitude_name),
+            direction=None if direction is None else pick(direction),
+            labels=labels,
+        )
+
+    message = failure_report(code, describe)
+    if message is not None:
+        raise SimulationError(message)
