@@ -747,3 +747,26 @@ def test_op4_matrices_make_the_same_appendage(tmp_path, kane_beam):
     binary.write_bytes(bytes(range(128, 256)) * 4)
     with pytest.raises(jaxtree.SceneError, match="binary"):
         jaxtree.read_op4(binary)
+
+
+def test_the_nominal_spin_is_about_the_vehicles_mass_center(spin_beam):
+    """A light hub (1 kg) carrying the beam (12 kg) at its center spins about the vehicle's mass
+    center, 12 / 13 of the way to the beam's own center (d = 4.62 m out along the beam): the
+    centrifugal tension is ``rho A Omega^2 [(L^2 - x^2) / 2 - d (L - x)]``, and the held-base modes
+    of the hybrid model stiffen by its Rayleigh quotient (by quadrature of the analytic mode), out
+    of the plane by K and in it by K - 1, not by the hub-centered Southwell coefficients."""
+    Om = 0.05
+    ap = appendage(spin_beam, "hub", n_modes=12)
+    m = float(ap.mass)
+    d = m * LENGTH / 2 / (1.0 + m)
+    phi, dphi = _mode(_beta_l(1))
+    den = quad(lambda x: phi(x) ** 2, 0, 1, epsabs=1e-13)[0]
+    offset = quad(lambda x: (1 - x) * dphi(x) ** 2, 0, 1, epsabs=1e-13)[0] / den
+    K = _southwell(1) - d / LENGTH * offset
+    assert K < 0.8  # well away from the hub-centered 1.193
+    hub = jaxtree.Body("hub", 1.0, np.diag([0.1, 0.1, 0.1]))
+    vehicle = jaxtree.build_model([hub], {"omega0": [0.0, 0.0, Om]})
+    hm = jaxtree.hybrid_model(vehicle, (), 2, appendages=[ap], omega0=jnp.asarray([0.0, 0.0, Om]))
+    w1 = float(ap.frequencies[0])
+    slopes = (np.sort(np.asarray(hm.frequencies))[:2] ** 2 - w1**2) / Om**2
+    np.testing.assert_allclose(slopes, [K - 1.0, K], rtol=5e-3)

@@ -530,16 +530,26 @@ def _basis_and_precompute(model: Model, S, groups, basis: str | None, precompute
 
 
 @build_jit
-def _nominal_frames(model: Model, g_nom, w_nom, bases: tuple, small: tuple):
+def _nominal_frames(model: Model, g_nom, w_nom, bases: tuple, small: tuple, carriers: tuple = (), added=None):
     """The nominal vehicle at angles `g_nom` spinning at `w_nom` about its mass center, large and
     prescribed hinges held: each base's spatial velocity ``(p, 6)`` in its frame about its mass
     center (:func:`.precomputed._large_frame`'s convention), and ``a_bar`` of the small hinges
-    (Eq. 36d, the small rows and columns of Eq. 1's matrix), in one compilation for the build."""
+    (Eq. 36d, the small rows and columns of Eq. 1's matrix), in one compilation for the build.
+
+    The vehicle's mass center includes the finite-element appendages fixed to the bodies
+    `carriers`: `added` ``(mass (a,), first moment (a, 3))``, each about its body's mass center in
+    the body's frame (the rigid appendage, modes at rest)."""
     cfg = configuration(model, g_nom)
     b = np.asarray(bases, np.int64)
     r = cfg.rho[b] - cfg.rho[0]  # the bases' mass centers from b_0's, {b^0}
     E = jnp.swapaxes(cfg.R[b], -1, -2)  # {b^0} -> the base's frame
-    u0 = cross(-cfg.rho[0], w_nom)  # b_0's mass center in the spin about the system's
+    center = jnp.zeros(3, cfg.rho.dtype)  # the vehicle's mass center from the tree's, {b^0}
+    if carriers:
+        c = np.asarray(carriers, np.int64)
+        mass, first = added
+        moment = jnp.sum(mass[:, None] * cfg.rho[c] + mv(cfg.R[c], first), 0)
+        center = moment / (jnp.sum(model.mass.astype(mass.dtype)) + jnp.sum(mass))
+    u0 = cross(center - cfg.rho[0], w_nom)  # b_0's mass center in the spin about the vehicle's
     vb = jnp.concatenate([mv(E, w_nom), mv(E, u0 + cross(w_nom, r))], -1)
     S = np.asarray(small, np.int64) + 2
     return vb, mass_matrix(model, g_nom)[np.ix_(S, S)], cfg.R[b]
@@ -550,7 +560,13 @@ def _substructure_systems(model: Model, S, groups, tms, g_nom, w_nom, apps=()) -
     center: ``(rows in A, I, J, K, coordinate names)`` per substructure, then per finite-element
     appendage (its rows after the small hinges', its modal stiffness and damping)."""
     bases = tuple(g.base for g in groups) + tuple(_body(model, ap) for ap in apps)
-    vb, _, _ = _nominal_frames(model, g_nom, w_nom, bases, tuple(S))
+    carriers = tuple(_body(model, ap) for ap in apps)
+    added = (
+        (jnp.stack([ap.mass for ap in apps]), jnp.stack([ap.first_moment + ap.mass * ap.point for ap in apps]))
+        if apps
+        else None
+    )
+    vb, _, _ = _nominal_frames(model, g_nom, w_nom, bases, tuple(S), carriers, added)
     # numpy for a concrete model; jnp where a parameter is traced (a differentiable build)
     xp = jnp if is_traced((model, tms, vb, apps)) else np
     vb = xp.asarray(vb)
