@@ -545,6 +545,7 @@ def _nominal_frames(model: Model, g_nom, w_nom, bases: tuple, small: tuple, carr
     E = jnp.swapaxes(cfg.R[b], -1, -2)  # {b^0} -> the base's frame
     center = jnp.zeros(3, cfg.rho.dtype)  # the vehicle's mass center from the tree's, {b^0}
     if carriers:
+        assert added is not None, "carriers come with their masses and first moments"
         c = np.asarray(carriers, np.int64)
         mass, first = added
         moment = jnp.sum(mass[:, None] * cfg.rho[c] + mv(cfg.R[c], first), 0)
