@@ -38,7 +38,7 @@ from ..values import as_float, as_int
 from ..vehicle.model import Model
 from . import substructure as _sub
 from .basis import base_loads, modal_matrices, put, retained_like, retained_modes, truncation_terms
-from .model import PAIRS, HybridModel, Precomputed, with_inverse
+from .model import PAIRS, HybridModel, Precomputed, appendage_body, with_inverse
 
 # the features psi of :class:`~.model.Precomputed`: the 21 products v_b v_c (b <= c), v, c and 1
 _FEATURES = len(PAIRS[0]) + 6 + 6 + 1
@@ -184,14 +184,9 @@ def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u,
         ww0=jnp.asarray(ww0, dtype),
         mcols=pad_idx(mmaps, m, ms),
         ucols=pad_idx(umaps, u, us),
-        bases=tuple(g.base for g in groups) + tuple(_body(model, ap) for ap in apps),
+        bases=tuple(g.base for g in groups) + tuple(appendage_body(model, ap) for ap in apps),
         added_mass=jnp.asarray(sum(xp.asarray(ap.mass) for ap in apps), dtype) if apps else None,
     )
-
-
-def _body(model, ap) -> int:
-    """The index of the body an appendage is fixed to (checked by :func:`_appendage_args`)."""
-    return model.names.index(ap.body) if isinstance(ap.body, str) else int(ap.body)
 
 
 def _appendage_args(model, appendages) -> tuple:
@@ -560,8 +555,8 @@ def _substructure_systems(model: Model, S, groups, tms, g_nom, w_nom, apps=()) -
     """Eq. (42) of each substructure on its held base in the nominal spin about the system mass
     center: ``(rows in A, I, J, K, coordinate names)`` per substructure, then per finite-element
     appendage (its rows after the small hinges', its modal stiffness and damping)."""
-    bases = tuple(g.base for g in groups) + tuple(_body(model, ap) for ap in apps)
-    carriers = tuple(_body(model, ap) for ap in apps)
+    bases = tuple(g.base for g in groups) + tuple(appendage_body(model, ap) for ap in apps)
+    carriers = tuple(appendage_body(model, ap) for ap in apps)
     added = (
         (jnp.stack([ap.mass for ap in apps]), jnp.stack([ap.first_moment + ap.mass * ap.point for ap in apps]))
         if apps
@@ -587,7 +582,7 @@ def _substructure_systems(model: Model, S, groups, tms, g_nom, w_nom, apps=()) -
         I, J, K = _sub.held_base(
             ap.terms, vg, xp.zeros(6), xp.asarray(ap.stiffness), xp.asarray(ap.modal_damping), xp=xp
         )
-        name = f"{model.names[_body(model, ap)]}.appendage{i}"
+        name = f"{model.names[appendage_body(model, ap)]}.appendage{i}"
         systems.append((tuple(range(o, o + k)), I, J, K, tuple(f"{name}.q{j + 1}" for j in range(k))))
         o += k
     return systems
@@ -640,7 +635,7 @@ def _assemble_model(
         if precompute
         else None
     )
-    bases = tuple(g.base for g in groups) + tuple(_body(model, ap) for ap in apps)
+    bases = tuple(g.base for g in groups) + tuple(appendage_body(model, ap) for ap in apps)
     one_base = len(set(bases)) == 1
     _, inertia, R_bases = _nominal_frames(model, g_nom, w_nom, bases, tuple(S))
     if apps:

@@ -388,3 +388,9 @@ def _held_prescription(hm: HybridModel) -> HybridModel:
     values = hm.gamma_nominal[np.asarray(model.prescribed, np.int64) - 1]
     held = eqx.tree_at(lambda m: m.prescription, model, _HeldPrescription(model.prescribed, values))
     return eqx.tree_at(lambda h: h.model, hm, held)
+
+
+def appendage_body(model, ap) -> int:
+    """The index of the body that the finite-element appendage `ap` is fixed to (its name or index;
+    checked by :func:`jaxtree.hybrid_model`)."""
+    return model.names.index(ap.body) if isinstance(ap.body, str) else int(ap.body)

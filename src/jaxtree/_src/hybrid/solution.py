@@ -43,7 +43,7 @@ from ..integration.failures import MESSAGES, Failure, SimulationError, failure_r
 from ..integration.radau import Radau5
 from ..numerics import is_traced
 from ..vehicle.model import State
-from .model import HybridModel
+from .model import HybridModel, appendage_body
 from .rhs import hybrid_jacobian, hybrid_rhs, solve
 
 
@@ -177,7 +177,7 @@ def _energy_and_momentum(hm: HybridModel, state, coords=()):
     S = jnp.zeros((3,), dtype)
     M = jnp.sum(model.mass.astype(dtype))
     for ap, (q, qd) in zip(hm.appendages, coords, strict=True):
-        b = model.names.index(ap.body) if isinstance(ap.body, str) else int(ap.body)
+        b = appendage_body(model, ap)
         R = cfg.R[b]
         z = jnp.concatenate([R.T @ omega[b], R.T @ vel[b], qd])
         A = ap.terms.A0 + ap.terms.A1 @ q
