@@ -192,6 +192,12 @@ from ._src.hybrid import (
     simulate_hybrid as simulate_hybrid,
 )
 from ._src.hybrid import substructures as substructures
+from ._src.hybrid.linear import (
+    linearize as linearize,
+)
+from ._src.hybrid.linear import (
+    linearize_vehicle as linearize_vehicle,
+)
 from ._src.integration.autosolver import (
     SolverChoice as SolverChoice,
 )
@@ -270,12 +276,6 @@ from ._src.linear.linearize import (
 )
 from ._src.linear.linearize import (
     Structure as Structure,
-)
-from ._src.linear.linearize import (
-    linearize as linearize,
-)
-from ._src.linear.linearize import (
-    linearize_vehicle as linearize_vehicle,
 )
 from ._src.linear.linearize import (
     linearized_equations as linearized_equations,

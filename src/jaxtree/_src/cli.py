@@ -47,14 +47,16 @@ import jaxtree
 from ..bench import CASES as BENCH_CASES
 from ..bench import SOLVERS as BENCH_SOLVERS
 from ..bench import BenchReport, bench_case, work_precision
+from .appendage.files import scene_appendages
 from .campaigns.chunked import ChunkedRunError, chunked_config, parse_hinges, simulate_to_file
 from .campaigns.chunked import solver_named as solver_named
+from .hybrid.linear import linearize
 from .integration.autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
 from .integration.simulate import simulate
 from .io import output, plots
 from .io.results import command_line, load_result, modes_dataset, save_result, to_solution, versions, write_netcdf
 from .io.results import model_of as result_model
-from .linear.linearize import linearize, structure
+from .linear.linearize import structure
 from .linear.modes import ModalError, modes
 from .scene.check import check_scene
 from .scene.scene import SceneError, list_scenes, load_scene
@@ -390,7 +392,7 @@ def _modes_parser(sub):
         default="all",
         metavar="HINGES",
         help="the small hinges: indices, names, ranges a-b, or 'all' (default: every hinge that is not "
-        "prescribed or inert)",
+        "prescribed or inert), or 'none'; a scene's finite-element appendages join with their modal coordinates",
     )
     _nominal_options(
         m,
@@ -871,7 +873,8 @@ def cmd_modes(args) -> int:
     small = _hinges(model, args.small, "--small")
     spin = np.zeros(3) if args.spin is None else np.asarray(args.spin, float)
     dtype = jnp.result_type(model.mass)
-    lin = linearize(model, small, omega0=jnp.asarray(spin, dtype))
+    apps = scene_appendages(model) if getattr(model, "appendages", ()) else ()
+    lin = linearize(model, small, omega0=jnp.asarray(spin, dtype), appendages=apps)
     st = structure(lin.I, lin.J, lin.K)
     if args.damping is not None and args.damping < 0:
         raise UserError(f"--damping must be >= 0, got {args.damping}")
@@ -884,6 +887,7 @@ def cmd_modes(args) -> int:
         model,
         md,
         small=small,
+        hinges=lin.hinges,
         omega0=spin,
         attrs={"command": command_line(), "damping": args.damping, "structure": st.describe()},
     )
@@ -891,11 +895,15 @@ def cmd_modes(args) -> int:
     write_netcdf(ds, out)
     f = np.asarray(md.frequencies)
     z = np.asarray(md.damping_ratios)
-    print(
-        f"scene {model.name!r}: modes of the small hinges {list(small)} "
-        f"({', '.join(model.names[k] for k in small[:6])}{', ...' if len(small) > 6 else ''}), "
-        f"nominal omega0 = {spin.tolist()} rad/s"
+    what = (
+        f"the small hinges {list(small)} ({', '.join(model.names[k] for k in small[:6])}{', ...' if len(small) > 6 else ''})"
+        if small
+        else "no hinge"
     )
+    print(f"scene {model.name!r}: modes of {what}, nominal omega0 = {spin.tolist()} rad/s")
+    if apps:
+        names = ", ".join(f"{ap.name or i} ({ap.n_modes})" for i, ap in enumerate(apps))
+        print(f"  and the finite-element appendages' held-interface modal coordinates: {names}")
     print(f"  {st.describe()}")
     print(f"{'mode':>5} {'sigma (rad/s)':>14} {'f (Hz)':>11} {'period (s)':>11} {'zeta':>8}  dominated by")
     for j in range(md.nu):

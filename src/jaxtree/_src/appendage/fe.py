@@ -33,12 +33,74 @@ from ..numerics import is_traced
 class Elements(eqx.Module):
     """Two-node beam elements, for the geometric stiffness of an axial load: `nodes` (static,
     pairs of node indices), `frame` (ne, 3, 3: rows the element's local axes x, y, z in the
-    appendage's frame), `length` (ne,), `axial` (ne,: EA / L)."""
+    appendage's frame), `length` (ne,), `axial` (ne,: EA / L); and, for the inertia of the
+    interpolated fields (:meth:`samples`), `line_mass` (ne,: rho A) and `polar_mass` (ne,: the
+    torsional rotary inertia per length, rho (Iy + Iz)), or None when unknown (a file of an older
+    version: the appendage then weights the nodes by the mass matrix)."""
 
     frame: jax.Array
     length: jax.Array
     axial: jax.Array
     nodes: tuple = eqx.field(static=True)
+    line_mass: jax.Array | None = None
+    polar_mass: jax.Array | None = None
+
+    def samples(self, positions) -> Samples | None:
+        """The elements' mass as points and sections at four Gauss points per element
+        (:class:`Samples`), whose weighted sums reproduce the consistent mass matrix exactly
+        (tests/test_appendage.py); None without `line_mass`. `positions` (n_nodes, 3): the nodes."""
+        if self.line_mass is None or self.polar_mass is None:
+            return None
+        xi, wq = np.polynomial.legendre.leggauss(4)
+        xi, wq = (xi + 1.0) / 2.0, wq / 2.0  # on [0, 1], weights summing to 1
+        dtype = self.length.dtype
+        ne, ng = len(self.nodes), xi.size
+        L = self.length[:, None]  # (ne, 1)
+        x = jnp.asarray(xi, dtype)[None, :]
+        H = [1 - 3 * x**2 + 2 * x**3, (x - 2 * x**2 + x**3) * L, 3 * x**2 - 2 * x**3, (-(x**2) + x**3) * L]
+        dH = [(-6 * x + 6 * x**2) / L, 1 - 4 * x + 3 * x**2, (6 * x - 6 * x**2) / L, -2 * x + 3 * x**2]
+        z = jnp.zeros((ne, ng), dtype)
+        lin = [1 - x, x]
+
+        def local(rows):  # rows[c][d]: (ne, ng) coefficient of local dof d in component c -> (ne, ng, 3, 12)
+            return jnp.stack(
+                [jnp.stack([jnp.broadcast_to(rows[c].get(d, z), (ne, ng)) for d in range(12)], -1) for c in range(3)],
+                -2,
+            )
+
+        # translations (u, v, w) and the section's rotation: torsion linear, slopes of the Hermite fields
+        # (v' = th_z, w' = -th_y: the element's sign convention)
+        Nt = local(
+            [
+                {0: lin[0], 6: lin[1]},
+                {1: H[0], 5: H[1], 7: H[2], 11: H[3]},
+                {2: H[0], 4: -H[1], 8: H[2], 10: -H[3]},
+            ]
+        )
+        Nr = local(
+            [
+                {3: lin[0], 9: lin[1]},
+                {2: -dH[0], 4: dH[1], 8: -dH[2], 10: dH[3]},
+                {1: dH[0], 5: dH[1], 7: dH[2], 11: dH[3]},
+            ]
+        )
+        T = jax.vmap(element_rotation)(self.frame)  # (ne, 12, 12): structure -> local dofs
+        F = self.frame  # (ne, 3, 3): rows the local axes
+        glob = lambda Nl: jnp.einsum("eac,egad,edf->egcf", F, Nl, T)  # to the structure's frame
+        a = np.asarray([p[0] for p in self.nodes], np.int64)
+        X = positions[a][:, None, :] + (x[..., None] * L[..., None]) * F[:, None, 0, :]
+        w = jnp.asarray(wq, dtype)[None, :] * self.length[:, None]  # (ne, ng): lengths
+        Jl = jnp.zeros((3, 3), dtype).at[0, 0].set(1.0)
+        J = jnp.einsum("eac,ab,ebd->ecd", F, Jl, F)  # the axis' projector, structure frame
+        dofs = np.repeat(np.asarray(element_dofs(self.nodes), np.int64), ng, axis=0)
+        return Samples(
+            dofs=tuple(tuple(int(i) for i in row) for row in dofs),
+            translation=glob(Nt).reshape(ne * ng, 3, 12),
+            rotation=glob(Nr).reshape(ne * ng, 3, 12),
+            positions=X.reshape(ne * ng, 3),
+            mass=(self.line_mass[:, None] * w).reshape(-1),
+            inertia=((self.polar_mass[:, None] * w)[..., None, None] * J[:, None]).reshape(ne * ng, 3, 3),
+        )
 
     def stresses(self, u):
         """The preload's stress resultants (one per element: the axial force) in the static
@@ -51,6 +113,37 @@ class Elements(eqx.Module):
         Gl = jax.vmap(geometric_element)(self.length, jnp.ones_like(self.length))
         T = jax.vmap(element_rotation)(self.frame)
         return element_dofs(self.nodes), jnp.einsum("eba,ebc,ecd->ead", T, Gl, T)
+
+
+class Samples(eqx.Module):
+    """A structure's mass as particles and rigid sections at sample points (Gauss points of its
+    elements): point ``p`` translates by ``translation[p] @ u[dofs[p]]`` and its section turns by
+    ``rotation[p] @ u[dofs[p]]`` (u the degrees of freedom), at `positions` (P, 3), with `mass`
+    (P,) and the section's `inertia` (P, 3, 3) about the point, in the structure's frame. The
+    consistent mass matrix is ``sum_p mass_p T_p^T T_p + R_p^T inertia_p R_p``; unlike the mass
+    matrix, these are the inertia of the interpolated fields in any rotating frame (the
+    appendage's Gauss function, :mod:`.model`)."""
+
+    dofs: tuple = eqx.field(static=True)
+    translation: jax.Array
+    rotation: jax.Array
+    positions: jax.Array
+    mass: jax.Array
+    inertia: jax.Array
+
+    @property
+    def dof_array(self) -> np.ndarray:
+        """(P, d): `dofs` as an integer array."""
+        return np.asarray(self.dofs, np.int64)
+
+    def matrix(self, N: int, which: str = "translation"):
+        """``(N, 3 P)``: the degrees of freedom's loads per unit force on each point (the transpose
+        of the points' `translation` maps), or of `which` ("rotation")."""
+        S = getattr(self, which)  # (P, 3, d)
+        P, d = S.shape[0], S.shape[2]
+        cols = np.repeat(np.arange(3 * P).reshape(P, 3, 1), d, axis=2)
+        rows = np.repeat(self.dof_array[:, None, :], 3, axis=1)
+        return jnp.zeros((N, 3 * P), S.dtype).at[rows.ravel(), cols.ravel()].add(S.reshape(-1))
 
 
 class PlateElements(eqx.Module):
@@ -275,6 +368,8 @@ def beam(
         length=jnp.broadcast_to(L, (n,)),
         axial=jnp.broadcast_to(E * area / L, (n,)),
         nodes=pairs,
+        line_mass=jnp.broadcast_to(rho * area, (n,)),
+        polar_mass=jnp.broadcast_to(rho * (Iy + Iz), (n,)),
     )
     return FEModel(mass=M, stiffness=K, nodes=nodes, elements=elements, dofs=6)
 

@@ -13,7 +13,10 @@ finite-element tools export in MatrixMarket form (Abaqus, ANSYS; read by scipy).
   small rotations, node by node) or 3;
 - optional, for the geometric stiffness of two-node beam elements: ``element_nodes`` (ne, 2),
   ``element_frame`` (ne, 3, 3; rows the local x, y, z axes), ``element_length`` (ne,),
-  ``element_axial`` (ne,: EA / L); or of a flat plate's four-node elements (:func:`jaxtree.plate`):
+  ``element_axial`` (ne,: EA / L), with ``element_line_mass`` (ne,: rho A) and
+  ``element_polar_mass`` (ne,: rho (Iy + Iz)) for the exact inertia of the beam's interpolated
+  fields in the rotating frame (:class:`~jaxtree._src.appendage.fe.Samples`; without them the
+  nodes are weighted by the mass matrix); or of a flat plate's four-node elements (:func:`jaxtree.plate`):
   ``plate_nodes`` (ne, 4), ``plate_normal`` (3,), ``plate_axes`` (2, 3), ``plate_dN`` (ng, 2, 4),
   ``plate_weights`` (ng,), ``plate_membrane`` (3, 3) (:class:`~jaxtree._src.appendage.fe.PlateElements`).
 
@@ -104,6 +107,8 @@ def save_fe(path, fe: FEModel) -> None:
             element_length=np.asarray(el.length),
             element_axial=np.asarray(el.axial),
         )
+        if el.line_mass is not None and el.polar_mass is not None:
+            arrays.update(element_line_mass=np.asarray(el.line_mass), element_polar_mass=np.asarray(el.polar_mass))
     _write(path, arrays)
 
 
@@ -159,11 +164,19 @@ def load_fe(path) -> FEModel:
         parts = {k: np.asarray(data[f"element_{k}"], float) for k in ("frame", "length", "axial")}
         if parts["frame"].shape != (ne, 3, 3) or parts["length"].shape != (ne,) or parts["axial"].shape != (ne,):
             raise SceneError(f"{path}: element_frame (ne, 3, 3), element_length and element_axial (ne,) are needed")
+        inertia = {}
+        if "element_line_mass" in data or "element_polar_mass" in data:
+            for k in ("line_mass", "polar_mass"):
+                v = np.asarray(data.get(f"element_{k}", np.zeros(0)), float)
+                if v.shape != (ne,):
+                    raise SceneError(f"{path}: element_line_mass and element_polar_mass must both be (ne,) = ({ne},)")
+                inertia[k] = jnp.asarray(v)
         elements = Elements(
             frame=jnp.asarray(parts["frame"]),
             length=jnp.asarray(parts["length"]),
             axial=jnp.asarray(parts["axial"]),
             nodes=tuple((int(a), int(b)) for a, b in en),
+            **inertia,
         )
     if "plate_nodes" in data:
         pn = np.asarray(data["plate_nodes"], np.int64)

@@ -20,6 +20,23 @@ coefficients ``A0, A1, G0, G1, G2`` (:class:`~jaxtree._src.hybrid.substructure.T
 slots a rigid-chain substructure fills, with the modal stiffness ``omega_j^2`` and damping
 ``2 zeta_j omega_j`` in place of the hinge springs.
 
+**Nodes or sample points.** ``1/2 acc^T M acc`` over the nodes is exact only for a mass matrix
+that turns with the frame (a lumped mass, or the plate's, whose blocks are multiples of the unit
+matrix). A consistent beam mass couples a node's translations with its neighbours' slopes and
+is not invariant under the frame's rotation: the Gauss function over the nodes then lacks the
+slopes of the rigid field's velocity products, and its linearization about a spin comes out
+neither symmetric nor skew by the elements' length squared (a circulatory stiffness and a
+damping-like Coriolis part, which make a spinning vehicle "general" for :func:`jaxtree.modes`).
+A structure whose elements carry their mass (:meth:`.fe.Elements.samples`: the beams of
+:func:`jaxtree.beam`) is taken instead as particles and rigid sections at four Gauss points per
+element, the interpolated fields' own inertia (:func:`_sample_gauss`), whose sums reproduce the
+consistent mass matrix exactly: a system of particles and rigid bodies, symmetric, skew and
+conservative to round-off. A structure of matrices alone (a file, OP4, MatrixMarket) keeps the
+nodes, with the rigid body's velocity products in the base rows
+(:func:`_rigid_velocity_products`), the deformation's momentum (:func:`_momentum_slopes`) and
+the symmetric and skew parts of the modal rows' velocity products
+(:func:`_modal_velocity_products`).
+
 **Geometric stiffness.** Linear kinematics (nodes move along straight lines) leave out the
 shortening of a bent structure, which a chain of rigid panels has. Under the inertial preload of
 the base's motion, ``f = -M acc_rigid`` (``acc_rigid`` the nodes' acceleration at ``q = 0``, linear
@@ -44,7 +61,7 @@ from ..equations.kinematics import tilde
 from ..errors import SceneError
 from ..hybrid.substructure import Terms, taylor_terms
 from ..numerics import build_jit, is_traced
-from .fe import FEModel
+from .fe import Elements, FEModel, Samples
 
 
 class Appendage(eqx.Module):
@@ -220,15 +237,125 @@ def _gauss(X, Phi, M, W, P, KgA, dofs: int, geometric: bool):
     return gauss
 
 
+def _sample_gauss(X, T, m, R, J, W, P, KgA, geometric: bool):
+    """Gauss's function of the appendage as particles and rigid sections (:class:`Samples`):
+    ``gauss(q, q', v) -> (A, b)``. Point ``p`` at ``x = X_p + T_p q`` (from the base's mass center,
+    base's frame) of mass ``m_p`` accelerates as a node of the module docstring; its section,
+    turned by ``phi = R_p q`` with inertia ``J_p`` (turned with it to first order), is a rigid
+    body: ``1/2 alpha^T J alpha + alpha^T (Omega x J Omega)`` with ``Omega = w + phi'``,
+    ``alpha = w' + w x phi' + phi''``. A system of particles and rigid bodies: its linearization
+    about a steady spin is symmetric (stiffness) and skew (Coriolis) exactly, and it keeps energy
+    and momentum."""
+    n = X.shape[0]
+    dtype = T.dtype
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=dtype), (n, 3, 3))
+    zero = jnp.zeros((n, 3, 3), dtype)
+    Br = jnp.concatenate([eye, zero, R], -1)  # (n, 3, 6 + k): the sections' angular accelerations
+
+    def gauss(q, qd, v):
+        w, vo = v[:3], v[3:]
+        x = X + T @ q
+        xd = T @ qd
+        Bt = jnp.concatenate([-tilde(x), eye, T], -1)  # (n, 3, 6 + k)
+        ct = jnp.cross(w, vo)[None] + jnp.cross(w[None], jnp.cross(w[None], x)) + 2.0 * jnp.cross(w[None], xd)
+        A = jnp.einsum("p,pai,paj->ij", m, Bt, Bt)
+        b = jnp.einsum("p,pai,pa->i", m, Bt, ct)
+        phi, phid = R @ q, R @ qd
+        Jc = J + tilde(phi) @ J - J @ tilde(phi)
+        Om = w[None] + phid
+        hr = jnp.einsum("pab,pb->pa", Jc, jnp.cross(w[None], phid)) + jnp.cross(Om, jnp.einsum("pab,pb->pa", Jc, Om))
+        A = A + jnp.einsum("pai,pab,pbj->ij", Br, Jc, Br)
+        b = b + jnp.einsum("pai,pa->i", Br, hr)
+        if geometric:
+            A = A.at[6:, :6].add(jnp.einsum("aij,j->ia", KgA, q))
+            c0 = jnp.cross(w, vo)[None] + jnp.cross(w[None], jnp.cross(w[None], X))
+            b = b.at[6:].add(jnp.einsum("e,eij,j->i", W @ c0.reshape(-1), P, q))
+        return A, b
+
+    return gauss
+
+
+def _sample_terms(samples: Samples, fe: FEModel, iface, Phi_s, Wneg, P, frame, point, geometric: bool, mass) -> Terms:
+    """The appendage's :class:`Terms` from its sample points (:func:`_sample_gauss`), in the body's
+    frame about its mass center (`point`: the interface point from it, `frame`: the structure's
+    axes)."""
+    idx = samples.dof_array
+    to_body = lambda S: jnp.einsum("ab,pbk->pak", frame, jnp.einsum("pcd,pdk->pck", S, Phi_s[idx]))
+    T, R = to_body(samples.translation), to_body(samples.rotation)
+    X = (samples.positions - fe.nodes[iface[0]][None, :]) @ frame.T + point[None, :]
+    J = jnp.einsum("ab,pbc,dc->pad", frame, samples.inertia, frame)
+    # the preload per unit acceleration of each point (body's axes): forces -m_p on the points
+    n = X.shape[0]
+    W = Wneg @ (samples.matrix(fe.mass.shape[0]) * jnp.repeat(samples.mass, 3)[None, :])
+    W = W @ jnp.kron(jnp.eye(n, dtype=W.dtype), frame).T
+    return _sample_taylor(X, T, samples.mass, R, J, W, P, geometric, mass)
+
+
+@build_jit
+def _sample_taylor(X, T, m, R, J, W, P, geometric: bool, mass):
+    n = X.shape[0]
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=X.dtype), (n, 3, 3))
+    R0 = jnp.concatenate([-tilde(X), eye], -1).reshape(3 * n, 6)  # the points' rigid accelerations
+    KgA = jnp.einsum("ea,eij->aij", W @ R0, P)
+    return taylor_terms(_sample_gauss(X, T, m, R, J, W, P, KgA, geometric), T.shape[2], T.dtype, True, mass)
+
+
 @build_jit
 def _appendage_terms(X, Phi, M, W, P, R0, dofs: int, geometric: bool, mass):
     k = Phi.shape[1]
     KgA = jnp.einsum("ea,eij->aij", W @ R0, P)  # (6, k, k): the preload of each unit base acceleration
     gauss = _gauss(X, Phi, M, W, P, KgA, dofs, geometric)
     terms = taylor_terms(gauss, k, Phi.dtype, True, mass)
+    A1, G2 = _momentum_slopes(terms)
     G0 = terms.G0.at[:6].set(_rigid_velocity_products(terms.A0[:6, :6]))
-    G1 = terms.G1.at[:6].set(jnp.moveaxis(jax.vmap(_rigid_velocity_products, 2, 0)(terms.A1[:6, :6]), 0, -1))
-    return eqx.tree_at(lambda tm: (tm.G0, tm.G1), terms, (G0, G1))
+    G1 = terms.G1.at[:6].set(jnp.moveaxis(jax.vmap(_rigid_velocity_products, 2, 0)(A1[:6, :6]), 0, -1))
+    G1, G2 = _modal_velocity_products(G1, G2)
+    return eqx.tree_at(lambda tm: (tm.A1, tm.G0, tm.G1, tm.G2), terms, (A1, G0, G1, G2))
+
+
+def _momentum_slopes(terms: Terms):
+    """``A1`` and ``G2`` with the deformation's translational momentum exact: the slope of the
+    rigid first moment in ``q_j`` (the coupling blocks ``-+[L_j x]`` of ``A1[:6, :6, j]``) and
+    the Coriolis force ``2 w x L_j q_j'`` on the base's translation (``G2[3:6, :3, j]``), both with
+    the participation ``L_j = T^T M phi_j`` of ``A0[3:6, 6:]``.
+
+    The Gauss function moves the rigid rotation columns with the translations ``x = X + phi_t q``
+    and leaves the nodes' rotations alone, so its slopes carry ``sum M_tt phi_t`` where the
+    momentum is ``T^T M phi = M_tt phi_t + M_tr phi_r``: with a consistent mass the rotations'
+    share is missing (2e-3 of ``L`` with 20 beam elements, as the elements' length squared). The
+    modal rows' coupling to the base's translation is ``L`` itself, so the two disagreed: the
+    linearized stiffness of a free spinning vehicle came out unsymmetric (its modal block by 1e-3
+    of the first modal stiffness, 20 elements), a circulatory force. With ``L`` in both places it is
+    symmetric to round-off (tests/test_appendage.py)."""
+    L = terms.A0[3:6, 6:]  # (3, k)
+    Lx = jax.vmap(tilde, 1, -1)(L)  # (3, 3, k): [L_j x]
+    A1 = terms.A1.at[3:6, 0:3].set(-Lx).at[0:3, 3:6].set(Lx)
+    G2 = terms.G2.at[3:6, 0:3].set(-2.0 * Lx)  # column a: 2 e_a x L_j
+    return A1, G2
+
+
+def _modal_velocity_products(G1, G2):
+    """The modal rows' velocity products made conservative: the centripetal stiffness
+    ``1/2 G1[6+i, a, b, j] v_a v_b`` symmetric in ``(i, j)``, the Coriolis coefficients
+    ``G2[6+i, a, j] v_a`` skew in ``(i, j)`` (their symmetric and skew parts kept).
+
+    The nodes' accelerations carry ``w x (w x x)`` and ``2 w x x'`` at the translational degrees of
+    freedom (and ``w x theta'`` at the rotational ones), weighted by the mass matrix. A lumped mass
+    makes these blocks exactly symmetric and skew; a consistent one, which couples a node's
+    translations with the slopes of its neighbours, does not: it is not invariant under the
+    frame's rotation, and the slopes of the rotating field are missing (see
+    :func:`_rigid_velocity_products`). The defect is of the order of the elements' length squared
+    (10-element beam: 8e-3 of the Coriolis block symmetric and 4e-4 of the centripetal block skew;
+    40 elements: 5e-4 and 3e-5) but of the wrong kind: a symmetric Coriolis part damps or drives
+    the modes of a spinning appendage, and a skew centripetal part is a circulatory force; either
+    makes a spinning vehicle's linearization "general" (jaxtree.modes) instead of gyroscopic. The
+    parts kept are those of the continuum (no work by Coriolis forces, a potential for the
+    centripetal ones); the part removed is discretization error."""
+    m1 = G1[6:]  # (k, 6, 6, k)
+    m2 = G2[6:]  # (k, 6, k)
+    G1 = G1.at[6:].set(0.5 * (m1 + jnp.transpose(m1, (3, 1, 2, 0))))
+    G2 = G2.at[6:].set(0.5 * (m2 - jnp.transpose(m2, (2, 1, 0))))
+    return G1, G2
 
 
 def _rigid_velocity_products(inertia):
@@ -252,9 +379,10 @@ def _rigid_velocity_products(inertia):
 
 
 def _preload_maps(fe: FEModel, interface, Phi):
-    """``W (E, N)``: the elements' stress resultants per unit acceleration of each degree of
-    freedom (the static response of the held structure to ``f = -M acc``), and ``P (E, k, k)``: the
-    geometric stiffness of each unit resultant, projected on the modes."""
+    """``W (E, N)``: the elements' stress resultants per unit *negative* force on each degree of
+    freedom (the static response of the held structure to ``f = -1``; times the mass matrix, or
+    the sample points' masses, it is the response to the inertial preload ``-M acc``), and
+    ``P (E, k, k)``: the geometric stiffness of each unit resultant, projected on the modes."""
     el = fe.elements
     assert el is not None, "checked by appendage()"
     N = fe.mass.shape[0]
@@ -262,8 +390,7 @@ def _preload_maps(fe: FEModel, interface, Phi):
     free = np.setdiff1d(np.arange(N), held)
     Kff = fe.stiffness[np.ix_(free, free)]
     comp = jnp.zeros((N, N), fe.mass.dtype).at[np.ix_(free, free)].set(jnp.linalg.inv(Kff))
-    U = -(comp @ fe.mass)  # (N, N): static displacement per unit acceleration of each dof
-    W = jax.vmap(el.stresses, in_axes=1, out_axes=1)(U)  # (E, N)
+    W = jax.vmap(el.stresses, in_axes=1, out_axes=1)(-comp)  # (E, N)
     dofs, G = el.blocks()
     Pe = Phi[dofs]  # (E, d, k)
     P = jnp.einsum("eak,eab,ebl->ekl", Pe, G, Pe)
@@ -354,15 +481,18 @@ def appendage(
     first = jnp.stack([Mr[2, 4], Mr[0, 5], Mr[1, 3]])  # m c from the coupling block -[m c x]
     inertia = Mr[:3, :3]
     L = Phi.T @ M @ R
-    if geometric:
-        W, P = _preload_maps(fe, iface, Phi_s)
-        W = W @ Cbig.T  # per unit acceleration in the body's axes
-    else:
-        W = jnp.zeros((0, M.shape[0]), dtype)
-        P = jnp.zeros((0, k, k), dtype)
+    samples = fe.elements.samples(fe.nodes) if isinstance(fe.elements, Elements) else None
     Xo = X + point[None, :]  # from the body's mass center
-    Ro = _rigid_modes(Xo, fe.dofs, dtype)
-    terms = _appendage_terms(Xo, Phi, M, W, P, Ro, fe.dofs, bool(geometric), mass)
+    if geometric:
+        Wneg, P = _preload_maps(fe, iface, Phi_s)
+    else:
+        Wneg, P = jnp.zeros((0, M.shape[0]), dtype), jnp.zeros((0, k, k), dtype)
+    if samples is None:
+        W = Wneg @ fe.mass @ Cbig.T  # per unit acceleration of each degree of freedom, body's axes
+        Ro = _rigid_modes(Xo, fe.dofs, dtype)
+        terms = _appendage_terms(Xo, Phi, M, W, P, Ro, fe.dofs, bool(geometric), mass)
+    else:
+        terms = _sample_terms(samples, fe, iface, Phi_s, Wneg, P, frame, point, bool(geometric), mass)
     return Appendage(
         point=point,
         frame=frame,

@@ -23,6 +23,8 @@ truncation removes the modes left out.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -189,19 +191,20 @@ def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u,
     )
 
 
-def _appendage_args(model, appendages) -> tuple:
-    """`appendages` of :func:`hybrid_model` as a tuple, each fixed to a body of `model`."""
+def _appendage_args(model, appendages, name: str = "hybrid_model") -> tuple:
+    """`appendages` of :func:`hybrid_model` (or of the function `name`) as a tuple, each fixed to a
+    body of `model`."""
     # (duck-typed: the appendage package builds on this one, not the other way round)
     apps = tuple(appendages or ())
     for i, ap in enumerate(apps):
         if not all(hasattr(ap, a) for a in ("terms", "frequencies", "modal_damping", "body", "mass")):
-            raise SceneTypeError(f"hybrid_model: appendages[{i}] must be a jaxtree.Appendage, got {type(ap).__name__}")
+            raise SceneTypeError(f"{name}: appendages[{i}] must be a jaxtree.Appendage, got {type(ap).__name__}")
         b = ap.body
         if isinstance(b, str):
             if b not in model.names:
-                raise SceneError(f"hybrid_model: appendages[{i}] is fixed to {b!r}, which is not a body: {model.names}")
+                raise SceneError(f"{name}: appendages[{i}] is fixed to {b!r}, which is not a body: {model.names}")
         elif not (isinstance(b, (int, np.integer)) and 0 <= int(b) <= model.n):
-            raise SceneError(f"hybrid_model: appendages[{i}] is fixed to body {short(b)}, not in 0..{model.n}")
+            raise SceneError(f"{name}: appendages[{i}] is fixed to body {short(b)}, not in 0..{model.n}")
     return apps
 
 
@@ -357,7 +360,7 @@ def hybrid_model(
       and ``"auto"`` apply to it as to a substructure). `small` may then be empty (``()``). Needs
       the substructure basis and the precomputed terms. The truncation estimate covers the small
       hinges' substructures; `energy` and `angular_momentum` of :func:`simulate_hybrid` are the
-      tree's, without the appendages. A model whose scene declares appendages needs the argument
+      vehicle's, the appendages included. A model whose scene declares appendages needs the argument
       (``appendages=jaxtree.scene_appendages(model)``, or ``()`` to leave them out).
 
     Rigid (zero-frequency) modes have no first-order eigenvectors (Sec. III E, all-small case):
@@ -607,10 +610,12 @@ def _assemble_model(
     mds,
     order=None,
     apps=(),
+    truncation: bool = True,
 ):
     """The :class:`HybridModel` of the retained modes: their modal matrices assembled over the set
     A in ascending frequency (or in `order`, ``(_, block, local index)``, that of a reference
-    build), the modal damping `zeta` (in that order), the precomputed terms."""
+    build), the modal damping `zeta` (in that order), the precomputed terms, and the truncation
+    terms unless `truncation` is False."""
     nu = len(S) + sum(ap.n_modes for ap in apps)
     dtype = jnp.result_type(model.mass)
     xp = jnp if is_traced((blocks, apps)) else np
@@ -674,10 +679,63 @@ def _assemble_model(
             {key: q for key, q in owners.items() if key[0] < n_hinge_systems},
             len(S),
             dtype,
-        ),
+        )
+        if truncation
+        else None,
         appendages=tuple(apps),
     )
     return with_inverse(hm)
+
+
+class _Identity(NamedTuple):
+    """The "modes" of a system in its own coordinates (:func:`physical_model`): unit shapes."""
+
+    frequencies: np.ndarray
+    shapes: np.ndarray
+
+
+def physical_model(model: Model, S: tuple[int, ...], apps, w_nom, g_nom) -> HybridModel:
+    """Eq. (30) of the set A and the appendages' held-interface coordinates in those coordinates
+    themselves: a :class:`HybridModel` in the real form whose "modal" matrices are unit matrices
+    (every coordinate retained, none transformed), from the precomputed substructure terms. Its
+    modal coordinates are the small coordinates in substructure order (``positions`` is that
+    permutation). For the linearization of a vehicle with finite-element appendages
+    (:mod:`.linear`), which Eq. (1) cannot carry. Needs every substructure terminal and no
+    external load on a small body (ValueError otherwise)."""
+    groups = _sub.substructures(model, S) if S else ()
+    _basis_and_precompute(model, S, groups, "substructure", True)
+    tms = [_sub.terms(model, g, g_nom) for g in groups] + [ap.terms for ap in apps]
+    systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom, apps)
+    blocks, picked, order = [], [], []
+    for gi, (rows, I, _J, K, _labels) in enumerate(systems):
+        k = len(rows)
+        md = _Identity(np.zeros(k), np.eye(k))
+        blocks.append((rows, md.frequencies, list(range(k)), md, I, K))
+        picked.append((gi, list(range(k))))
+        order.extend((0.0, gi, j) for j in range(k))
+    zeta = np.zeros(len(order))
+    hm = _assemble_model(
+        model,
+        S,
+        groups,
+        tms,
+        w_nom,
+        g_nom,
+        blocks,
+        picked,
+        zeta,
+        "real",
+        "real",
+        True,
+        "substructure",
+        "quaternion",
+        systems,
+        None,
+        order,
+        tuple(apps),
+        truncation=False,
+    )
+    return hm
 
 
 def _with_appendages(model, S, groups, tms, apps, a_bar, R_bases, xp):

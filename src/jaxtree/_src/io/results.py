@@ -364,9 +364,11 @@ def solution_to_dataset(sol, attrs: dict | None = None):
     )
 
 
-def modes_dataset(model: Model, md, *, small=(), omega0=None, gamma=None, attrs: dict | None = None):
+def modes_dataset(model: Model, md, *, small=(), omega0=None, gamma=None, attrs: dict | None = None, hinges=None):
     """The dataset of a modal analysis (:class:`jaxtree.Modes` of the hinges `small` of `model`,
-    linearized about the spin `omega0` and the angles `gamma`).
+    linearized about the spin `omega0` and the angles `gamma`; `hinges`: the hinge index of each
+    coordinate when they are not the hinges `small` alone, as :attr:`jaxtree.LinearSystem.hinges`
+    gives them: 0 for an attitude angle, -1 for a finite-element appendage's modal coordinate).
 
     Dimensions: ``mode`` (nu, ascending frequency), ``coordinate`` (the small hinges), ``hinge``
     (all n), ``state``/``state_mode``/``state_2`` (2 nu, the first-order form of Eq. 70).
@@ -380,9 +382,10 @@ def modes_dataset(model: Model, md, *, small=(), omega0=None, gamma=None, attrs:
     big = np.argmax(np.abs(shapes), axis=0)
     phase = shapes[big, np.arange(nu)]
     turned = shapes * (np.abs(phase) / np.where(phase == 0, 1.0, phase))[None, :]
+    codes = np.asarray(hinges if hinges is not None else (small if small else [0] * nu), np.int64)
     full = np.zeros((n, nu))
-    if small:
-        full[np.asarray(small) - 1] = np.real(turned)
+    rows = np.nonzero(codes > 0)[0]
+    full[codes[rows] - 1] = np.real(turned[rows])
     w = np.zeros(3) if omega0 is None else np.asarray(omega0, float)
     g = np.zeros(n) if gamma is None else np.asarray(gamma, float)
     c = lambda x: np.asarray(x, np.complex128)
@@ -396,8 +399,8 @@ def modes_dataset(model: Model, md, *, small=(), omega0=None, gamma=None, attrs:
         ),
         "coordinate_hinge": (
             "coordinate",
-            np.asarray(small if small else [0] * nu),
-            {"long_name": "hinge index of the small coordinate"},
+            codes,
+            {"long_name": "hinge index of the small coordinate (-1: a finite-element appendage's modal coordinate)"},
         ),
         "hinge": ("hinge", np.arange(1, n + 1), {"long_name": "hinge index k"}),
         "hinge_name": ("hinge", np.asarray(model.names[1:], dtype=object), {"long_name": "name of the body outboard"}),
