@@ -548,6 +548,16 @@ def test_command_line_runs_a_scene_with_an_appendage(tmp_path, capsys):
     assert np.abs(want[:, 1]).max() > 1e-3  # the hub's torque bends the boom
     np.testing.assert_allclose(got, want, atol=1e-8)  # two runs at 1e-10 (in two parts, and in one)
     # `jaxtree modes`: the boom's held-interface coordinates on the hub spinning at 0.2 rad/s (held)
+    # `jaxtree animate`: the output node drawn on the hub at 10 times its displacement
+    page = tmp_path / "a.html"
+    assert cli.main(["animate", str(out), "-o", str(page), "--scale", "10"]) == 0
+    data = _page_data(page.read_text())
+    (drawn,) = data["appendages"]
+    assert drawn["name"] == "boom:10" and drawn["body"] == 0 and drawn["n"] == 1 and drawn["edges"] == []
+    points = _f32(drawn["points"]).reshape(len(data["times"]), 1, 3)
+    tip = np.array([1.0 + LENGTH, 0.0, 0.0])  # node 10 of the 10 m beam clamped 1 m out
+    np.testing.assert_allclose(points[:, 0], tip + 10 * want[:, :3], atol=1e-5 * LENGTH)  # float32 on the page
+    assert data["radius"] > 0.5 * LENGTH  # the view holds the boom
     capsys.readouterr()
     mout = tmp_path / "m.nc"
     assert cli.main(["modes", str(path), "--small", "none", "--spin", "0.2", "--out", str(mout), "--no-plot"]) == 0
@@ -722,7 +732,7 @@ def test_op4_matrices_make_the_same_appendage(tmp_path, kane_beam):
     (tests/data/tridiagonal.op4, a symmetric 3 x 3 of form 6) gives its matrix; the beam's mass and
     stiffness written as OP4 (double precision, and single precision's 5E16.9 fields) and read back
     make the appendage of the arrays (frequencies to 1e-12, and to the single-precision fields'
-    rounding); sparse, complex, binary and broken files are refused with the reason."""
+    rounding), and in the binary form; sparse, complex and broken files are refused with the reason."""
     read = jaxtree.read_op4(DATA / "tridiagonal.op4")
     np.testing.assert_array_equal(read["KAA"], [[2.0, -1.0, 0.0], [-1.0, 2.0, -1.0], [0.0, -1.0, 2.0]])
 
@@ -753,10 +763,56 @@ def test_op4_matrices_make_the_same_appendage(tmp_path, kane_beam):
             match={"sparse": "BIGMAT", "complex": "complex", "header": "header", "short": "before its closing"}[what],
         ):
             jaxtree.read_op4(path)
-    binary = tmp_path / "binary.op4"
-    binary.write_bytes(bytes(range(128, 256)) * 4)
-    with pytest.raises(jaxtree.SceneError, match="binary"):
-        jaxtree.read_op4(binary)
+    # the binary form (Fortran records), both byte orders, double and single precision: the same
+    # matrices as the text form that pyNastran wrote, and the beam's
+    kaa = jaxtree.read_op4(DATA / "tridiagonal.op4")["KAA"]
+    for order in "<>":
+        for ntype, tol in ((2, 0.0), (1, 1e-7)):
+            path = tmp_path / f"beam{order == '<'}{ntype}.op4"
+            path.write_bytes(_op4_binary({"KAA": (6, kaa), "MAA": (6, M)}, order, ntype))
+            mats = jaxtree.read_op4(path)
+            np.testing.assert_array_equal(mats["KAA"], kaa)
+            np.testing.assert_allclose(mats["MAA"], M, rtol=tol, atol=tol * np.abs(M).max())
+    broken = _op4_binary({"KAA": (6, kaa)}, "<", 2)
+    for what, raw, message in (
+        ("cut", broken[:-30], "ends inside|broken record"),
+        ("noise", bytes(range(128, 256)) * 4, "neither a text"),
+        ("sparse", _op4_binary({"KAA": (6, kaa)}, "<", 2, sparse=True), "sparse"),
+    ):
+        path = tmp_path / f"{what}.op4"
+        path.write_bytes(raw)
+        with pytest.raises(jaxtree.SceneError, match=message):
+            jaxtree.read_op4(path)
+
+
+def _op4_binary(matrices, order, ntype, sparse=False):
+    """A binary OP4 file written here from the format's description (MSC Nastran's OUTPUT4): per
+    matrix a Fortran record of the header ``NCOL NROW NF NTYPE`` and the 8-byte NAME, then one
+    record per column with a nonzero, ``ICOL IROW NW`` (NW four-byte words) and the values from
+    IROW to the last nonzero, and a closing record ``NCOL + 1, 1, per`` with one value; every
+    record between four-byte lengths. `sparse`: the first column as a sparse string (IROW = 0)."""
+    import struct
+
+    kind, per = ("f", 1) if ntype == 1 else ("d", 2)
+
+    def rec(body):
+        return struct.pack(f"{order}i", len(body)) + body + struct.pack(f"{order}i", len(body))
+
+    out = b""
+    for name, (form, A) in matrices.items():
+        nrow, ncol = A.shape
+        out += rec(struct.pack(f"{order}4i", ncol, nrow, form, ntype) + name.ljust(8).encode())
+        for j in range(ncol):
+            nz = np.nonzero(A[:, j])[0]
+            if nz.size == 0:
+                continue
+            vals = A[nz[0] : nz[-1] + 1, j]
+            row = 0 if (sparse and j == 0) else nz[0] + 1
+            out += rec(
+                struct.pack(f"{order}3i", j + 1, row, per * vals.size) + struct.pack(f"{order}{vals.size}{kind}", *vals)
+            )
+        out += rec(struct.pack(f"{order}3i", ncol + 1, 1, per) + struct.pack(f"{order}{kind}", 1.0))
+    return out
 
 
 def test_the_nominal_spin_is_about_the_vehicles_mass_center(spin_beam):
@@ -878,3 +934,48 @@ def test_spinning_vehicle_modes_with_a_beam_match_the_chain():
     flex = np.asarray([1, 3, 4, 5, 6])  # the nutation and two coupled pairs of bending modes
     np.testing.assert_allclose(fe[flex], chain[flex], rtol=1e-4)
     assert np.max(np.abs(freqs[32][flex] / chain[flex] - 1)) > 5e-4  # the chain's own error, above the tolerance
+
+
+def _page_data(text):
+    """The data block of a viewer page (tests/test_viewer.py reads it the same way)."""
+    import json
+    import re
+
+    m = re.search(r'<script type="application/json" class="jt-data">(.*?)</script>', text, re.S)
+    assert m is not None
+    return json.loads(m.group(1))
+
+
+def _f32(b64):
+    import base64
+
+    return np.frombuffer(base64.b64decode(b64), dtype="<f4").astype(float)
+
+
+def test_the_viewer_draws_the_deformed_appendage():
+    """HybridSolution.appendage_motion: every node of the beam on the hub, displaced by the mode
+    shapes times the modal coordinates (times a scale), its output node's displacement that of
+    HybridModel.appendage_displacement; write_animation embeds the nodes and the elements' sides."""
+    from jaxtree._src.io.viewer import animation_html
+
+    hub = jaxtree.Body("hub", 100.0, np.diag([HUB_INERTIA] * 3))
+    torque = jaxtree.BodyTorque(0, [0.0, 0.0, 200.0])
+    ap = appendage(_wide_beam(10), "hub", point=(HUB_POINT, 0, 0), n_modes=4, outputs=(10,), name="boom")
+    hm = jaxtree.hybrid_model(jaxtree.build_model([hub]).with_loads(torque), (), 3, appendages=[ap])
+    sol = jaxtree.simulate_hybrid(hm, 2.0, saveat=9, truncation_error=False)
+    (motion,) = sol.appendage_motion(scale=5.0)
+    assert motion["body"] == 0 and motion["edges"] == tuple((i, i + 1) for i in range(10))
+    np.testing.assert_allclose(motion["nodes"][10], [HUB_POINT + LENGTH, 0.0, 0.0], atol=1e-12)
+    tip = np.asarray(jax.vmap(lambda y: hm.appendage_displacement(y))(sol.ys))[:, :3]
+    assert np.abs(tip[:, 1]).max() > 1e-3  # the torque bends the beam
+    np.testing.assert_allclose(motion["displacement"][:, 10], 5.0 * tip, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(motion["displacement"][:, 0], 0.0, atol=1e-15)  # the clamped node
+    data = _page_data(animation_html(hm.model, sol.ts, sol.dcm, sol.gamma, appendages=[motion]))
+    (drawn,) = data["appendages"]
+    assert drawn["n"] == 11 and drawn["edges"] == [[i, i + 1] for i in range(10)]
+    points = _f32(drawn["points"]).reshape(9, 11, 3)
+    np.testing.assert_allclose(points, motion["nodes"][None] + motion["displacement"], atol=1e-5 * LENGTH)
+    with pytest.raises(ValueError, match="displacement"):
+        animation_html(
+            hm.model, sol.ts, sol.dcm, sol.gamma, appendages=[{**motion, "displacement": np.zeros((3, 11, 3))}]
+        )

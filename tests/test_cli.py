@@ -299,7 +299,8 @@ def test_modes_command_matches_the_closed_form(modes_run, capsys):
 def _stand_in_viewer(monkeypatch):
     calls = []
 
-    def write_animation(path, model, ts, dcm, gamma, *, title=None):
+    def write_animation(path, model, ts, dcm, gamma, *, title=None, appendages=None):
+        assert not appendages  # the wings run has no finite-element appendage
         calls.append(("trajectory", path, model, ts, dcm, gamma, title))
 
     def write_mode_animation(path, model, shape, frequency, *, gamma=None, amplitude=None, title=None):

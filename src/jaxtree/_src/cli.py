@@ -415,6 +415,13 @@ def _animate_parser(sub):
     )
     a.add_argument("--amplitude", type=_positive(), help="with --mode: largest hinge angle of the oscillation (rad)")
     a.add_argument("--title", help="page title")
+    a.add_argument(
+        "--scale",
+        type=_positive(),
+        default=1.0,
+        metavar="FACTOR",
+        help="finite-element appendages' output nodes drawn at FACTOR times their displacement (default 1)",
+    )
 
 
 def _check_parser(sub):
@@ -979,9 +986,30 @@ def cmd_animate(args) -> int:
             np.asarray(ds["dcm"].values),
             np.asarray(ds["gamma"].values),
             title=title,
+            appendages=_output_nodes(ds, args.scale),
         )
     print(_wrote([args.out], existed))
     return 0
+
+
+def _output_nodes(ds, scale: float) -> list[dict]:
+    """The finite-element appendages' output nodes of a simulation result, for the viewer: each a
+    point on its body, displaced by `scale` times its translation."""
+    if "appendage_displacement" not in ds or "appendage_output_position" not in ds:
+        return []
+    disp = np.asarray(ds["appendage_displacement"].values, float)[..., :3]
+    places = np.asarray(ds["appendage_output_position"].values, float)
+    bodies = np.asarray(ds["appendage_output_body"].values)
+    names = [str(x) for x in ds["appendage_output"].values]
+    return [
+        {
+            "name": names[p],
+            "body": int(bodies[p]),
+            "nodes": places[p][None],
+            "displacement": scale * disp[:, p][:, None],
+        }
+        for p in range(len(names))
+    ]
 
 
 def cmd_plot(args) -> int:

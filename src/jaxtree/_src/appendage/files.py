@@ -219,25 +219,33 @@ def read_matrix_market(mass_path, stiffness_path, nodes, dofs: int = 6) -> FEMod
 
 
 def read_op4(path) -> dict[str, np.ndarray]:
-    """The matrices of a NASTRAN OP4 file in its text form (``OUTPUT4 ... FORMATTED``), by name.
+    """The matrices of a NASTRAN OP4 file (``OUTPUT4``), by name: its text form (FORMATTED) or
+    its binary form (the default: Fortran unformatted records, either byte order).
 
-    The format (MSC Nastran DMAP guide, OUTPUT4): for each matrix a header line ``NCOL NROW NF
-    NTYPE NAME FMT`` (the form NF: 1 square, 2 rectangular, 6 symmetric, ...; NTYPE 1 or 2: real
-    single or double precision; FMT a Fortran format such as ``1P,3E23.16``), then columns as
-    records ``ICOL IROW NW`` followed by NW values from row IROW, in fields of FMT's width, and a
-    closing record with ``ICOL = NCOL + 1``. Every column holds its rows in full (symmetric
-    matrices too). Sparse (BIGMAT, ``NROW < 0``), complex and binary files are refused with the
-    reason. pyNastran reads the same files, but its releases require numpy < 2, which jaxtree's
-    JAX cannot import beside; this reader is the format's dense text case, written here.
+    The format (MSC Nastran DMAP guide, OUTPUT4): for each matrix a header ``NCOL NROW NF NTYPE
+    NAME`` (the form NF: 1 square, 2 rectangular, 6 symmetric, ...; NTYPE 1 or 2: real single or
+    double precision; the text form adds a Fortran format such as ``1P,3E23.16``), then columns as
+    records ``ICOL IROW NW`` followed by the values from row IROW (NW values in the text form, NW
+    four-byte words in the binary one), and a closing record with ``ICOL = NCOL + 1``. Every
+    column holds its rows in full (symmetric matrices too). Sparse columns (``IROW = 0``, or
+    BIGMAT, ``NROW < 0``) and complex matrices are refused with the reason. pyNastran reads the
+    same files, but its releases require numpy < 2, which jaxtree's JAX cannot import beside; this
+    reader is the format's dense real case, written here.
     """
     import re
 
     try:
-        lines = pathlib.Path(path).read_text().splitlines()
-    except UnicodeDecodeError:
-        raise SceneError(f"{path}: a binary OP4 file; write it with FORMATTED (text) output") from None
+        raw = pathlib.Path(path).read_bytes()
     except OSError as exc:
         raise SceneError(f"{path}: cannot read ({exc})") from None
+    if len(raw) >= 4 and 24 in (int.from_bytes(raw[:4], "little"), int.from_bytes(raw[:4], "big")):
+        return _op4_binary(path, raw)
+    try:
+        lines = raw.decode().splitlines()
+    except UnicodeDecodeError:
+        raise SceneError(
+            f"{path}: neither a text OP4 file nor a binary one (its first record is not a header)"
+        ) from None
     out: dict[str, np.ndarray] = {}
     i = 0
     while i < len(lines):
@@ -285,6 +293,59 @@ def read_op4(path) -> dict[str, np.ndarray]:
     return out
 
 
+def _op4_binary(path, raw: bytes) -> dict[str, np.ndarray]:
+    """:func:`read_op4` of a binary file: Fortran sequential records (a four-byte length before
+    and after each), the first of each matrix its 24-byte header, whose length gives the byte
+    order."""
+    order = "<" if int.from_bytes(raw[:4], "little") == 24 else ">"
+    pos = 0
+
+    def record(what: str) -> bytes:
+        nonlocal pos
+        if pos + 4 > len(raw):
+            raise SceneError(f"{path}: the file ends inside {what}")
+        n = int(np.frombuffer(raw, f"{order}i4", 1, pos)[0])
+        end = pos + 4 + n
+        if n < 0 or end + 4 > len(raw) or int(np.frombuffer(raw, f"{order}i4", 1, end)[0]) != n:
+            raise SceneError(f"{path}: a broken record in {what} at byte {pos}")
+        body = raw[pos + 4 : end]
+        pos = end + 4
+        return body
+
+    out: dict[str, np.ndarray] = {}
+    while pos < len(raw):
+        head = record("a matrix header")
+        if len(head) != 24:
+            raise SceneError(f"{path}: not an OP4 matrix header at byte {pos - len(head) - 8} ({len(head)} bytes)")
+        ncol, nrow, form, ntype = (int(x) for x in np.frombuffer(head, f"{order}i4", 4))
+        name = head[16:24].decode("ascii", "replace").strip() or f"matrix{len(out) + 1}"
+        if nrow < 0:
+            raise SceneError(f"{path}: {name} is stored sparse (BIGMAT); write it dense")
+        if ntype not in (1, 2):
+            raise SceneError(f"{path}: {name} has NTYPE {ntype} (complex); jaxtree reads real matrices")
+        kind, per = (f"{order}f4", 1) if ntype == 1 else (f"{order}f8", 2)
+        A = np.zeros((nrow, ncol))
+        while True:
+            rec = record(f"{name}'s columns")
+            if len(rec) < 12:
+                raise SceneError(f"{path}: {name}: a column record of {len(rec)} bytes")
+            col, row, nw = (int(x) for x in np.frombuffer(rec, f"{order}i4", 3))
+            if col > ncol:  # the closing record
+                break
+            if row == 0:
+                raise SceneError(f"{path}: {name} is stored sparse (IROW = 0 strings); write it dense")
+            count = nw // per
+            if row < 1 or row - 1 + count > nrow or not 1 <= col <= ncol or len(rec) < 12 + 4 * nw:
+                raise SceneError(
+                    f"{path}: {name}: column {col} from row {row} ({count} values) outside {nrow} x {ncol}"
+                )
+            A[row - 1 : row - 1 + count, col - 1] = np.frombuffer(rec, kind, count, 12)
+        if form == 6 and nrow == ncol and not np.allclose(A, A.T, rtol=1e-12, atol=0.0):
+            raise SceneError(f"{path}: {name} is declared symmetric (form 6) but is not")
+        out[name] = A
+    return out
+
+
 def save_appendage(path, ap: Appendage) -> None:
     """Write `ap`'s modes and invariants (``jaxtree-appendage/1``), atomically."""
     arrays = {k: np.asarray(getattr(ap, k)) for k in _ARRAYS}
@@ -297,6 +358,7 @@ def save_appendage(path, ap: Appendage) -> None:
         geometric=np.asarray(ap.geometric),
         body=np.asarray(ap.body),
         name=np.asarray(ap.name),
+        edges=np.asarray(ap.edges, np.int64).reshape(-1, 2),
     )
     _write(path, arrays)
 
@@ -319,6 +381,9 @@ def load_appendage(path) -> Appendage:
         dofs=int(data["dofs"]),
         geometric=bool(data.get("geometric", True)),
         name=str(data.get("name", "")),
+        edges=tuple(
+            (int(a), int(b)) for a, b in np.asarray(data.get("edges", np.zeros((0, 2))), np.int64).reshape(-1, 2)
+        ),
     )
 
 

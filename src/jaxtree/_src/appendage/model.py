@@ -84,7 +84,9 @@ class Appendage(eqx.Module):
     - `terms`: its share of Eq. (30) (:class:`Terms`, about the body's mass center), geometric
       stiffness included when `geometric` is True;
     - `outputs` (static): node indices whose motion results report; `all_frequencies`: every
-      held-interface mode's frequency (retained or not), for the truncation estimate.
+      held-interface mode's frequency (retained or not), for the truncation estimate;
+    - `edges` (static): node pairs that the 3D viewer joins (the elements' sides; empty for a
+      structure of matrices alone, whose nodes it draws as points).
     """
 
     point: jax.Array
@@ -105,6 +107,7 @@ class Appendage(eqx.Module):
     dofs: int = eqx.field(static=True)
     geometric: bool = eqx.field(static=True)
     name: str = eqx.field(static=True, default="")
+    edges: tuple = eqx.field(static=True, default=())
 
     @property
     def n_modes(self) -> int:
@@ -512,4 +515,21 @@ def appendage(
         dofs=fe.dofs,
         geometric=bool(geometric),
         name=str(name),
+        edges=_edges(fe),
     )
+
+
+def _edges(fe: FEModel) -> tuple:
+    """The node pairs joined by the structure's elements (beam elements, the plate's quadrilateral
+    sides once each), for drawing."""
+    el = fe.elements
+    if el is None:
+        return ()
+    if isinstance(el, Elements):
+        return tuple((int(a), int(b)) for a, b in el.nodes)
+    sides = set()
+    for quad in el.nodes:
+        for i in range(len(quad)):
+            a, b = int(quad[i]), int(quad[(i + 1) % len(quad)])
+            sides.add((min(a, b), max(a, b)))
+    return tuple(sorted(sides))

@@ -33,6 +33,7 @@ from jax.flatten_util import ravel_pytree
 from ..appendage.files import scene_appendages
 from ..errors import SceneError
 from ..hybrid import hybrid_model, simulate_hybrid
+from ..hybrid.model import appendage_body
 from ..integration.autosolver import choose_solver, save_points
 from ..integration.core import default_tolerance
 from ..integration.failures import KINDS, MESSAGES, SimulationError, failure_kind
@@ -601,7 +602,14 @@ def _appendage_rows(hybrid, ys, count) -> dict:
         1,
     )
     names = [f"{hybrid.appendages[i].name or f'appendage{i}'}:{node}" for i, node in outs]
-    return {"appendage_output": rows, "appendage_output_name": names}
+    aps = hybrid.appendages
+    bodies = [appendage_body(hybrid.model, aps[i]) for i, _ in outs]
+    places = [np.asarray(aps[i].nodes[node] + aps[i].point) for i, node in outs]
+    return {
+        "appendage_output": rows,
+        "appendage_output_name": names,
+        "appendage_output_site": {"body": bodies, "position": places},
+    }
 
 
 def _part_dataset(runner, part, count, skip_first, attrs):

@@ -105,6 +105,31 @@ class HybridSolution(eqx.Module):
         the neglected modes over the run (per run of a batch)."""
         return jnp.max(jnp.asarray(self.truncation_error), -1)
 
+    def appendage_motion(self, scale: float = 1.0) -> list[dict]:
+        """The finite-element appendages' nodes at the saved times, for
+        :func:`jaxtree.write_animation` (its `appendages`): per appendage a dict with ``name``,
+        ``body`` (the index of the body it is fixed to), ``nodes`` (n, 3: undeformed, from the
+        body's mass center, its frame), ``edges`` (the elements' sides) and ``displacement``
+        (T, n, 3): the held-interface mode shapes times the modal coordinates (the translations,
+        body's frame), times `scale` (a deformation too small to see at 1)."""
+        hm = self.hybrid
+        ys = jnp.asarray(self.ys)
+        out = []
+        for i, ap in enumerate(hm.appendages):
+            q = jax.vmap(lambda y, i=i: hm.appendage_coordinates(y)[i][0])(ys)  # (T, k)
+            n = ap.nodes.shape[0]
+            shapes = jnp.reshape(ap.shapes, (n, ap.dofs, -1))[:, :3]  # (n, 3, k)
+            out.append(
+                {
+                    "name": ap.name or f"appendage{i}",
+                    "body": appendage_body(hm.model, ap),
+                    "nodes": np.asarray(ap.nodes + ap.point[None, :]),
+                    "edges": ap.edges,
+                    "displacement": float(scale) * np.asarray(jnp.einsum("nck,tk->tnc", shapes, q)),
+                }
+            )
+        return out
+
     def energy_drift(self):
         """``max |E - E_0| / |E_0|`` over the saved times."""
         e = jnp.asarray(self.energy)

@@ -218,6 +218,7 @@ def simulation_dataset(
     modal=None,
     appendage_output=None,
     appendage_output_name=None,
+    appendage_output_site=None,
     positions: bool | tuple[ArrayLike, ArrayLike] = True,
     attrs: dict | None = None,
 ):
@@ -229,7 +230,9 @@ def simulation_dataset(
     coordinates, `appendage_output` (T, P, 6) (the variable ``appendage_displacement`` over the
     dimension ``appendage_output``) the displacements (translations, small rotations; the
     body's frame) of the finite-element appendages' output nodes, named by `appendage_output_name`
-    (P,: ``"appendage:node"``); `positions` adds the mass centers and hinge points of every body
+    (P,: ``"appendage:node"``), at `appendage_output_site` ``{"body": (P,), "position": (P, 3)}``:
+    the body each is fixed to and its undeformed place from that body's mass center (body's
+    frame), for the 3D viewer; `positions` adds the mass centers and hinge points of every body
     (:func:`body_positions`, or given as that function's pair of arrays); `attrs`
     are stored as global attributes (with the format, the scene JSON and :func:`versions`).
     """
@@ -296,6 +299,19 @@ def simulation_dataset(
             np.asarray(list(appendage_output_name or ()), dtype=object),
             {"long_name": "appendage name and output node"},
         )
+        if appendage_output_site is not None:
+            bodies, places = appendage_output_site["body"], appendage_output_site["position"]
+            coords["appendage_output_body"] = (
+                "appendage_output",
+                np.asarray(bodies, np.int64),
+                {"long_name": "index of the body the appendage is fixed to"},
+            )
+            v["appendage_output_position"] = _var(
+                ("appendage_output", "axis"),
+                np.asarray(places, float),
+                "m",
+                "undeformed place of the output node from its body's mass center, the body's frame",
+            )
     if histories["hold_torque"] is not None:
         coords["prescribed_hinge"] = (
             "prescribed_hinge",

@@ -188,8 +188,9 @@ def _b64(x):
     return base64.b64encode(np.ascontiguousarray(x, dtype="<f4").tobytes()).decode("ascii")
 
 
-def _scene_geometry(model, positions):
-    """Static drawing data: one box per body, one hinge point and axis per hinge (body frames)."""
+def _scene_geometry(model, positions, extra=None):
+    """Static drawing data: one box per body, one hinge point and axis per hinge (body frames);
+    the view's center and radius hold the bodies and the points `extra` (T, p, 3) as well."""
     n = model.n
     mass = np.asarray(model.mass, dtype=float)
     half, axes = inertia_box(mass, np.asarray(model.inertia, dtype=float))
@@ -239,14 +240,51 @@ def _scene_geometry(model, positions):
     # The view: the middle of the box that holds every body in every frame, and the radius of
     # the sphere about it that does.
     reach = np.linalg.norm(half, axis=-1)[None, :, None]
+    if extra is not None and extra.size:
+        positions = np.concatenate([positions, extra], 1)
+        reach = np.concatenate([reach, np.zeros((1, extra.shape[1], 1))], 1)
     center = 0.5 * ((positions - reach).min((0, 1)) + (positions + reach).max((0, 1)))
     radius = float(np.max(np.linalg.norm(positions - center, axis=-1) + reach[..., 0]))
     return bodies, hinges, center, radius or 1.0
 
 
-def _page(model, times, dcm, gamma, *, title, subtitle, speed, period, kind):
+def _appendage_args(name: str, model, appendages, T: int) -> list[dict]:
+    """The drawings of finite-element appendages (:func:`write_animation`), checked: each a dict
+    with ``body`` (index), ``nodes`` (n, 3), ``displacement`` (T, n, 3), optional ``edges`` (node
+    pairs) and ``name``."""
+    out = []
+    for i, a in enumerate(appendages or ()):
+        if not isinstance(a, dict) or not {"body", "nodes", "displacement"} <= set(a):
+            raise ValueError(f"{name}: appendages[{i}] must be a dict with body, nodes and displacement")
+        body = int(a["body"])
+        if not 0 <= body <= model.n:
+            raise ValueError(f"{name}: appendages[{i}] is fixed to body {body}, not in 0..{model.n}")
+        nodes = np.asarray(a["nodes"], float)
+        disp = np.asarray(a["displacement"], float)
+        if nodes.ndim != 2 or nodes.shape[1] != 3 or disp.shape != (T, nodes.shape[0], 3):
+            raise ValueError(
+                f"{name}: appendages[{i}]: nodes must be (n, 3) and displacement (T, n, 3) = ({T}, n, 3), "
+                f"got {nodes.shape} and {disp.shape}"
+            )
+        if not (np.isfinite(nodes).all() and np.isfinite(disp).all()):
+            raise ValueError(f"{name}: appendages[{i}] has non-finite nodes or displacements")
+        edges = np.asarray(a.get("edges", ()), np.int64).reshape(-1, 2)
+        if edges.size and (edges.min() < 0 or edges.max() >= nodes.shape[0]):
+            raise ValueError(f"{name}: appendages[{i}] has an edge outside its {nodes.shape[0]} nodes")
+        out.append(
+            {"name": str(a.get("name", f"appendage{i}")), "body": body, "points": nodes[None] + disp, "edges": edges}
+        )
+    return out
+
+
+def _page(model, times, dcm, gamma, *, title, subtitle, speed, period, kind, appendages=()):
     positions, rotations = poses(model, dcm, gamma)
-    bodies, hinges, center, radius = _scene_geometry(model, positions)
+    # the appendages' points in every frame, in the view's bounds
+    world = [
+        positions[:, a["body"], None, :] + np.einsum("tij,tnj->tni", rotations[:, a["body"]], a["points"])
+        for a in appendages
+    ]
+    bodies, hinges, center, radius = _scene_geometry(model, positions, np.concatenate(world, 1) if world else None)
     data = {
         "format": "jaxtree-animation/1",
         "kind": kind,
@@ -261,6 +299,16 @@ def _page(model, times, dcm, gamma, *, title, subtitle, speed, period, kind):
         "radius": radius,
         "speed": float(speed),
         "period": None if period is None else float(period),
+        "appendages": [
+            {
+                "name": a["name"],
+                "body": a["body"],
+                "n": int(a["points"].shape[1]),
+                "edges": a["edges"].tolist(),
+                "points": _b64(a["points"]),
+            }
+            for a in appendages
+        ],
     }
     text = json.dumps(data, separators=(",", ":"), allow_nan=False)
     root = "jaxtree-" + hashlib.sha1(text.encode()).hexdigest()[:12]
@@ -306,12 +354,17 @@ def _default_speed(duration):
 
 
 # ----------------------------------------------------------------------------- results
-def animation_html(model: Model, ts, dcm, gamma, *, title=None, max_frames: int = MAX_FRAMES) -> str:
+def animation_html(model: Model, ts, dcm, gamma, *, title=None, max_frames: int = MAX_FRAMES, appendages=None) -> str:
     """The HTML page of :func:`write_animation` as a string (e.g. for ``IPython.display.HTML``)."""
+    every = np.asarray(ts, dtype=float)
     ts, dcm, gamma = _finite_rows("animation_html", ts, dcm, gamma, model.n)
+    apps = _appendage_args("animation_html", model, appendages, every.shape[0])
+    keep = np.isfinite(every)
     saved = ts.shape[0]
-    idx = _decimate(saved, model.n + 1, max_frames)
+    idx = _decimate(saved, model.n + 1 + sum(a["points"].shape[1] for a in apps) // 4, max_frames)
     ts, dcm, gamma = ts[idx], dcm[idx], gamma[idx]
+    for a in apps:
+        a["points"] = a["points"][keep][idx]
     title = (model.name or "jaxtree") if title is None else str(title)
     duration = float(ts[-1] - ts[0])
     subtitle = f"{model.n + 1} bodies, t = {ts[0]:.6g} .. {ts[-1]:.6g} s, {ts.size} frames" + (
@@ -327,10 +380,13 @@ def animation_html(model: Model, ts, dcm, gamma, *, title=None, max_frames: int 
         speed=_default_speed(duration),
         period=None,
         kind="result",
+        appendages=apps,
     )
 
 
-def write_animation(path, model: Model, ts, dcm, gamma, *, title=None, max_frames: int = MAX_FRAMES) -> None:
+def write_animation(
+    path, model: Model, ts, dcm, gamma, *, title=None, max_frames: int = MAX_FRAMES, appendages=None
+) -> None:
     """Write an HTML page (atomically) animating a trajectory of `model`.
 
     **Arguments:**
@@ -340,12 +396,17 @@ def write_animation(path, model: Model, ts, dcm, gamma, *, title=None, max_frame
     - `gamma` (T, n): all hinge angles, e.g. ``sol.gamma``;
     - `title`: shown on the page (default: the model's name);
     - `max_frames`: at most this many evenly spread frames are embedded (and at most
-      ``MAX_BODY_FRAMES / (n + 1)``), the first and last included.
+      ``MAX_BODY_FRAMES / (n + 1)``), the first and last included;
+    - `appendages`: finite-element appendages drawn on their bodies, each a dict with ``body``
+      (index), ``nodes`` (n, 3: undeformed, from the body's mass center, its frame),
+      ``displacement`` (T, n, 3: the nodes' translations at each time, body's frame, scaled as
+      they are to be drawn), optional ``edges`` (node pairs joined by lines; points otherwise)
+      and ``name``: :meth:`jaxtree.HybridSolution.appendage_motion` gives them.
 
     The page plays in real time for runs of 1 s to a minute, else at a speed that plays the run
     in about 10 s; its speed control spans a factor of 1000 either way.
     """
-    text = animation_html(model, ts, dcm, gamma, title=title, max_frames=max_frames)
+    text = animation_html(model, ts, dcm, gamma, title=title, max_frames=max_frames, appendages=appendages)
     with atomic_write(path, "w") as fh:
         fh.write(text)
 
