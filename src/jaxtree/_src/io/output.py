@@ -13,6 +13,7 @@ import jax
 import numpy as np
 
 from ..integration.solution import Solution
+from .drift import change_text, drift_causes
 from .files import atomic_write as atomic_write
 from .plots import plot_histories
 
@@ -97,21 +98,8 @@ def save_plot(path, runs: dict[str, Solution], title: str = "") -> bool:
     return True
 
 
-def _change(values, initial, unit: str) -> str:
-    """``max change <abs> <unit>`` and, where the initial value is not near zero (a run from
-    rest starts near zero: a relative figure would be huge and mean nothing), ``(<rel> of it)``."""
-    values = np.asarray(values, float)
-    change = (
-        float(np.nanmax(np.abs(values - initial)))
-        if values.ndim == 1
-        else float(np.nanmax(np.linalg.norm(values - initial, axis=-1)))
-    )
-    size = float(np.linalg.norm(initial))
-    peak = float(np.nanmax(np.abs(values))) if values.ndim == 1 else float(np.nanmax(np.linalg.norm(values, axis=-1)))
-    text = f"max change {change:.3e} {unit}"
-    if size > 1e-6 * peak and size > 0:
-        text += f" ({change / size:.3e} of the initial value)"
-    return text
+def _causes(why: list[str]) -> str:
+    return f" (not conserved: {', '.join(why)})" if why else ""
 
 
 def summary(
@@ -133,10 +121,11 @@ def summary(
         f"  gamma_dot = {fmt(np.asarray(f.gamma_dot))} rad/s",
         f"  omega0    = {fmt(np.asarray(f.omega0))} rad/s (in {{b0}})",
         f"  C         = {fmt(np.asarray(f.dcm).ravel())} (row-major)",
-        f"  energy: E0 = {float(sol.energy[0]):.9g} J, {_change(sol.energy, float(sol.energy[0]), 'J')}"
-        + (" (prescribed hinges do work)" if sol.problem.model.prescribed else ""),
+        f"  energy: E0 = {float(sol.energy[0]):.9g} J, {change_text(sol.energy, float(sol.energy[0]), 'J')}"
+        + _causes(drift_causes(sol.problem.model)[0]),
         f"  angular momentum: |H0| = {float(np.linalg.norm(np.asarray(sol.angular_momentum[0]))):.9g} N m s, "
-        f"{_change(sol.angular_momentum, np.asarray(sol.angular_momentum[0], float), 'N m s')}",
+        f"{change_text(sol.angular_momentum, np.asarray(sol.angular_momentum[0], float), 'N m s')}"
+        + _causes(drift_causes(sol.problem.model)[1]),
         f"  steps: {st['num_accepted_steps']} accepted, {st['num_rejected_steps']} rejected, "
         f"{st['rhs_evaluations']} right-hand sides",
     ]

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..equations.dynamics import configuration
 from ..vehicle.model import Model
+from .drift import drift_causes, near_zero
 from .files import atomic_write
 from .results import model_of
 
@@ -29,6 +30,9 @@ LEGEND_MAX = 12
 # dissipated: its size is the point); below it, |drift| on a log axis (conservation to round-off:
 # its order of magnitude is the point).
 DRIFT_LINEAR = 1e-6
+# a history of more oscillations than this is drawn as its amplitude over this many time spans
+ENVELOPE_CYCLES = 100
+ENVELOPE_BINS = 100
 # One line style per run (one colour per quantity).
 STYLES = ("-", "--", ":", "-.")
 _RC = {
@@ -209,20 +213,50 @@ def _legend(ax, runs, handles=None):
         )
 
 
+def _cycles(y) -> float:
+    """The most oscillation cycles of any column of `y` (T, m): half its crossings of its mean."""
+    if y.shape[0] < 3:
+        return 0.0
+    z = y - np.mean(y, axis=0)
+    return float(np.max(np.sum(z[1:] * z[:-1] < 0, axis=0), initial=0)) / 2.0
+
+
+def _amplitude(t, y, bins: int):
+    """Per time bin (`bins` equal spans of `t`): the bins' centers, and each column's half range in
+    it, its oscillation's amplitude (``(B,), (B, m)``)."""
+    edges = np.linspace(t[0], t[-1], bins + 1)
+    idx = np.unique(np.clip(np.searchsorted(t, edges[:-1], side="left"), 0, len(t) - 1))
+    lo = np.minimum.reduceat(y, idx, axis=0)
+    hi = np.maximum.reduceat(y, idx, axis=0)
+    ends = np.append(idx[1:], len(t)) - 1
+    return 0.5 * (t[idx] + t[ends]), 0.5 * (hi - lo)
+
+
 def _curves(ax, runs, values, labels):
-    """`values(series)` (T, m) against time, one colour per column and one style per run."""
+    """`values(series)` (T, m) against time, one colour per column and one style per run. A history
+    of more than :data:`ENVELOPE_CYCLES` oscillations (many fast hinges over a long run: a solid
+    band as curves) is drawn as its amplitude, the half range in each of :data:`ENVELOPE_BINS`
+    time spans, and the panel says so."""
     colors = _colors(len(labels))
+    dense = max(_cycles(np.asarray(values(s), float)) for s in runs.values()) > ENVELOPE_CYCLES
     for r, (run, s) in enumerate(runs.items()):
-        y = values(s)
+        y = np.asarray(values(s), float)
+        t = np.asarray(s["t"], float)
+        if dense:
+            t, y = _amplitude(t, y, ENVELOPE_BINS)
         for j, lab in enumerate(labels):
-            ax.plot(
-                s["t"],
-                y[:, j],
-                ls=STYLES[r % len(STYLES)],
-                color=colors[j],
-                lw=1.1,
-                label=lab if r == 0 else f"_{lab} ({run})",
-            )
+            label = lab if r == 0 else f"_{lab} ({run})"
+            ax.plot(t, y[:, j], ls=STYLES[r % len(STYLES)], color=colors[j], lw=1.1, label=label)
+    if dense:
+        ax.text(
+            0.01,
+            0.98,
+            f"amplitude: half the range in each {ENVELOPE_BINS}th of the run",
+            transform=ax.transAxes,
+            va="top",
+            fontsize=8,
+            color="0.3",
+        )
     ax.ticklabel_format(axis="y", useOffset=False)
     _legend(ax, runs)
 
@@ -260,44 +294,61 @@ def _heat_map(fig, ax, s, hinges, chains, labels):
     fig.colorbar(im, ax=ax, label="$\\gamma_k$ (rad)", pad=0.01)
 
 
-def _energy_note(s) -> str:
-    """Why the energy may change: prescribed hinges work, dampers dissipate."""
-    note = (["prescribed hinges do work"] if s["prescribed"] else []) + (["dampers dissipate"] if s["damped"] else [])
-    return f" ({', '.join(note)})" if note else ""
+def _causes(s, which) -> str:
+    """Why the energy (or the angular momentum) may change, from the run's model
+    (:func:`jaxtree._src.io.output.drift_causes`)."""
+    if s["model"] is None:  # a result without its scene: what the result itself tells
+        why = ["prescribed hinges do work"] if (which == "energy" and s["prescribed"]) else []
+        why += ["dampers dissipate"] if (which == "energy" and s["damped"]) else []
+    else:
+        why = drift_causes(s["model"])[0 if which == "energy" else 1]
+    return f"not conserved: {', '.join(why)}" if why else ""
 
 
-def _relative_change(s, which):
+def _change(s, which):
+    """``(change (T,), initial value's size, history for the near-zero test, unit)``: ``E - E0``
+    (J) or ``|H - H0|`` (N m s)."""
     if which == "energy":
-        E = s["energy"]
-        return (E - E[0]) / (abs(E[0]) if E[0] else 1.0)
-    H = s["H"]
-    return np.linalg.norm(H - H[0], axis=1) / (np.linalg.norm(H[0]) or 1.0)
+        E = np.asarray(s["energy"], float)
+        return E - E[0], abs(E[0]), E, E[0], "J"
+    H = np.asarray(s["H"], float)
+    return np.linalg.norm(H - H[0], axis=1), float(np.linalg.norm(H[0])), H, H[0], "N m s"
 
 
-def _drift_panel(ax, runs, which, note=""):
-    """Energy or angular-momentum change of every run, on a scale that shows its size: linear
-    where it exceeds :data:`DRIFT_LINEAR` (relative, in percent), else ``|change|`` on a log axis."""
-    from matplotlib.ticker import PercentFormatter
+def _drift_panel(ax, runs, which):
+    """Energy or angular-momentum change of every run, absolute (J, N m s) on a scale that shows its
+    size: linear where it is large (beyond :data:`DRIFT_LINEAR` of the initial value, or the
+    initial value is near zero: a run from rest), else ``|change|`` on a log axis. The title gives
+    the change relative to the initial value where that is not near zero, and on a line of its
+    own what may change it (laws, loads, prescribed hinges, dampers)."""
+    import textwrap
 
-    rel = {run: _relative_change(s, which) for run, s in runs.items()}
-    big = max(float(np.nanmax(np.abs(v), initial=0.0)) for v in rel.values())
-    linear = big > DRIFT_LINEAR or big == 0.0
+    ch = {run: _change(s, which) for run, s in runs.items()}
+    first = next(iter(ch.values()))
+    change, size, history, initial, unit = first
+    big = max(float(np.nanmax(np.abs(c[0]), initial=0.0)) for c in ch.values())
+    rel = None if near_zero(history, initial) else big / size
+    linear = big == 0.0 or rel is None or rel > DRIFT_LINEAR
     color = "C0" if which == "energy" else "C3"
-    for r, (run, v) in enumerate(rel.items()):
-        y = v if linear else np.where(np.abs(v) > 0, np.abs(v), np.nan)
+    for r, (run, c) in enumerate(ch.items()):
+        y = c[0] if linear else np.where(np.abs(c[0]) > 0, np.abs(c[0]), np.nan)
         label = run if len(runs) > 1 else f"_{run}"
         ax.plot(runs[run]["t"], y, ls=STYLES[r % len(STYLES)], color=color, lw=1.1, label=label)
-    first = next(iter(rel.values()))
-    sym = "(E - E_0)/|E_0|" if which == "energy" else "|H - H_0|/|H_0|"
+    sym = "E - E_0" if which == "energy" else "|H - H_0|"
     name = "energy" if which == "energy" else "angular momentum"
+    share = f" ({100 * rel:.3g} % of {'$|E_0|$' if which == 'energy' else '$|H_0|$'})" if rel is not None else ""
     if linear:
-        ax.yaxis.set_major_formatter(PercentFormatter(xmax=1.0, decimals=None))
-        ax.set_ylabel(f"${sym}$ (%)")
-        ax.set_title(f"{name} change: {100 * float(first[-1]):+.3g} % at the end, {100 * big:.3g} % at most{note}")
+        ax.set_ylabel(f"${sym}$ ({unit})")
+        end = float(change[-1])
+        head = f"{name} change: {end:+.3g} {unit} at the end, {big:.3g} {unit} at most{share}"
+        if rel is None:
+            head += f", from {float(np.linalg.norm(initial)):.3g} {unit} (near zero)"
     else:
         ax.set_yscale("log")
-        ax.set_ylabel(f"${'|E - E_0|/|E_0|' if which == 'energy' else sym}$ (log axis)")
-        ax.set_title(f"{name} conserved: relative change at most {big:.1e}{note}")
+        ax.set_ylabel(f"$|{sym.strip('|')}|$ ({unit}, log axis)")
+        head = f"{name} conserved: change at most {big:.1e} {unit}{share}"
+    note = _causes(runs[next(iter(runs))], which)
+    ax.set_title("\n".join(textwrap.wrap(head, 58) + textwrap.wrap(note, 58)), fontsize="medium")
     ax.grid(alpha=0.3)
     if len(runs) > 1:
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, borderaxespad=0.0)
@@ -375,8 +426,7 @@ def plot_histories(result, path=None, *, title: str | None = None, drift: bool =
         )
     )
     if drift:
-        note = _energy_note(s0)
-        panels.append((None, lambda ax: _drift_panel(ax, runs, "energy", note)))
+        panels.append((None, lambda ax: _drift_panel(ax, runs, "energy")))
         panels.append((None, lambda ax: _drift_panel(ax, runs, "momentum")))
     rows = (len(panels) + 1) // 2
     with _style():
@@ -406,23 +456,22 @@ def _heading(runs):
 
 
 def plot_drift(result, path=None, *, title: str | None = None):
-    """Energy and angular-momentum change, ``(E - E0) / |E0|`` and ``|H - H0| / |H0|``, over time.
+    """Energy and angular-momentum change, ``E - E0`` (J) and ``|H - H0|`` (N m s), over time.
 
-    Each on the scale that shows its size: a change beyond :data:`DRIFT_LINEAR` (dissipation,
-    work of prescribed hinges) in percent on a linear axis, a conserved quantity's round-off drift
-    as ``|change|`` on a log axis; the panel's title says which and how large. `result` as in
-    :func:`plot_histories` (several runs: one line style each). Without external loads the
-    angular momentum about the mass center is conserved; the energy is too unless prescribed
-    hinges do work or dampers dissipate (the figure's title says so)."""
+    Each on the scale that shows its size: a change beyond :data:`DRIFT_LINEAR` of the initial
+    value (dissipation, work of prescribed hinges), or any change from an initial value near zero
+    (a run from rest), on a linear axis, a conserved quantity's round-off drift as ``|change|`` on
+    a log axis; the panel's title says which, how large, relative to the initial value where that
+    is not near zero, and what may change it (prescribed hinges, control laws, external loads,
+    dampers). `result` as in :func:`plot_histories` (several runs: one line style each)."""
     runs = _runs(result)
     for s in runs.values():
         if s["energy"] is None or s["H"] is None:
             raise ValueError("plot_drift: the result has no energy or angular momentum")
-    s0 = next(iter(runs.values()))
     with _style():
         fig = _figure(figsize=(13, 3.6), layout="constrained")
         axes = fig.subplots(1, 2, sharex=True)
-        _drift_panel(axes[0], runs, "energy", _energy_note(s0))
+        _drift_panel(axes[0], runs, "energy")
         _drift_panel(axes[1], runs, "momentum")
         for ax in axes:
             ax.set_xlabel("t (s)")
@@ -455,7 +504,7 @@ def _equal_box(ax, pts):
     ax.set_xlim(mid[0] - half, mid[0] + half)
     ax.set_ylim(mid[1] - half, mid[1] + half)
     ax.set_zlim(mid[2] - half, mid[2] + half)
-    ax.set_box_aspect((1, 1, 1))
+    ax.set_box_aspect((1, 1, 1), zoom=0.82)  # room inside the axes for the tick and axis labels
 
 
 def plot_mode_shapes(
@@ -497,14 +546,17 @@ def plot_mode_shapes(
     cols = min(3, len(modes))
     rows = (len(modes) + cols - 1) // cols
     with _style():
-        fig = _figure(figsize=(4.6 * cols, 4.4 * rows))
+        fig = _figure(figsize=(4.6 * cols, 4.6 * rows + 0.5))
         _draw_modes(fig, model, shapes, g0, modes, rows, cols, amplitude, frequencies, labels)
         fig.suptitle(
             title
             if title is not None
             else f"{model.name}: mode shapes (grey: nominal; blue/red: +/- {amplitude:g} rad at the largest hinge)"
         )
-        fig.tight_layout()
+        # tight_layout does not measure 3D axes' labels: the margins by hand, the drawings shrunk
+        # inside their axes (_equal_box), a row's titles clear of the row above
+        top = 1.0 - 1.0 / (4.6 * rows + 0.5)
+        fig.subplots_adjust(left=0.01, right=0.97, bottom=0.02, top=top, wspace=0.05, hspace=0.12)
     _save(fig, path)
     return fig
 
