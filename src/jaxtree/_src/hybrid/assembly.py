@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
@@ -439,7 +440,7 @@ def hybrid_model(
         sum(len(b[1]) for b in blocks),
         kinds[0] if len(set(kinds)) == 1 else "general" if "general" in kinds else kinds[0],
     )
-    return _assemble_model(
+    hm = _assemble_model(
         model,
         S,
         groups,
@@ -459,6 +460,10 @@ def hybrid_model(
         order,
         apps,
     )
+    if apps:  # the appendages' unbalanced force, for their truncation estimate
+        physical = eqx.tree_at(lambda h: h.attitude, physical_model(model, S, apps, w_nom, g_nom), hm.attitude)
+        hm = eqx.tree_at(lambda h: h.physical, hm, physical, is_leaf=lambda x: x is None)
+    return hm
 
 
 def _system_modes(systems, like: HybridModel | None, rtol) -> list:
@@ -683,6 +688,16 @@ def _assemble_model(
         if truncation
         else None,
         appendages=tuple(apps),
+        appendage_truncation=truncation_terms(
+            systems[n_hinge_systems:],
+            mds[n_hinge_systems:],
+            form,
+            {(key[0] - n_hinge_systems, key[1]): q for key, q in owners.items() if key[0] >= n_hinge_systems},
+            nu - len(S),
+            dtype,
+        )
+        if (truncation and apps)
+        else None,
     )
     return with_inverse(hm)
 

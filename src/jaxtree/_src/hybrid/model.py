@@ -133,7 +133,11 @@ class HybridModel(eqx.Module):
       unknowns only;
     - `pre`: the precomputed substructure terms (:class:`Precomputed`), or None (general path);
     - `truncation`: every flexible mode of the substructures (retained or not) as a decoupled
-      coordinate, for the truncation estimate of :func:`simulate_hybrid` (:class:`Truncation`).
+      coordinate, for the truncation estimate of :func:`simulate_hybrid` (:class:`Truncation`);
+    - with finite-element appendages, `appendage_truncation`: the same for every flexible mode of
+      the appendages' held-base systems (over their held-interface coordinates), and `physical`:
+      Eq. (30) in the small coordinates themselves (:func:`.assembly.physical_model`), whose rows
+      give the appendages' unbalanced force that drives their neglected modes.
 
     Static: `small` (the set A), `large` (the large hinges in the state), `form`
     (``"real"``: Eq. 121; ``"first_order"``: Eq. 118), `kind` (of :func:`jaxtree.modes`; of the
@@ -170,6 +174,8 @@ class HybridModel(eqx.Module):
     basis: str = eqx.field(static=True, default="set")
     truncation: Truncation | None = None
     appendages: tuple = ()
+    appendage_truncation: Truncation | None = None
+    physical: HybridModel | None = None
 
     # ------------------------------------------------------------------ sizes
     @property

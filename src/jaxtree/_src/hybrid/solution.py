@@ -44,7 +44,7 @@ from ..integration.radau import Radau5
 from ..numerics import is_traced
 from ..vehicle.model import State
 from .model import HybridModel, appendage_body
-from .rhs import hybrid_jacobian, hybrid_rhs, solve
+from .rhs import _equations, hybrid_jacobian, hybrid_rhs, solve
 
 
 class HybridSolution(eqx.Module):
@@ -72,6 +72,10 @@ class HybridSolution(eqx.Module):
     largest entry of `truncation` in magnitude per save time (rad); `truncation_state` (N, 2):
     the neglected modes' coordinates at the last save time (real and imaginary parts), to
     continue the estimate in a next run (``simulate_hybrid(..., truncation_start=...)``).
+    With finite-element appendages, `appendage_truncation` (T, sum of their held-interface
+    coordinates): the neglected held-base modes' contribution to those coordinates, the same
+    estimate driven by the appendages' unbalanced force (:func:`_appendage_unbalanced`; from rest);
+    :meth:`appendage_truncation_at` turns it into a node's displacement.
     """
 
     ts: jax.Array
@@ -95,6 +99,7 @@ class HybridSolution(eqx.Module):
     truncation_static: jax.Array | None = None
     truncation_error: jax.Array | None = None
     truncation_state: jax.Array | None = None
+    appendage_truncation: jax.Array | None = None
 
     @property
     def ok(self) -> bool:
@@ -104,6 +109,23 @@ class HybridSolution(eqx.Module):
         """``max_t truncation_error``: the estimated largest error of the small angles (rad) from
         the neglected modes over the run (per run of a batch)."""
         return jnp.max(jnp.asarray(self.truncation_error), -1)
+
+    def appendage_truncation_at(self, index: int = 0, node: int | None = None):
+        """(T, 6): the estimated displacement of `node` (default: the first output node) of
+        appendage `index` from its neglected modes (translations, then small rotations; body's
+        frame): the mode shapes times :attr:`appendage_truncation`'s coordinates."""
+        hm = self.hybrid
+        if self.appendage_truncation is None:
+            raise ValueError("appendage_truncation_at: no estimate (truncation_error=False, or no appendage)")
+        ap = hm.appendages[index]
+        if node is None:
+            if not ap.outputs:
+                raise ValueError("appendage_truncation_at: the appendage has no output nodes; pass node=")
+            node = ap.outputs[0]
+        o = sum(a.n_modes for a in hm.appendages[:index])
+        q = jnp.asarray(self.appendage_truncation)[..., o : o + ap.n_modes]
+        d = ap.dofs
+        return q @ ap.shapes[d * node : d * node + d].T
 
     def appendage_motion(self, scale: float = 1.0) -> list[dict]:
         """The finite-element appendages' nodes at the saved times, for
@@ -240,17 +262,43 @@ def _small_unbalanced(hm: HybridModel, t, y):
     return f[np.asarray(hm.small, np.int64) + 2]
 
 
-def _truncation_estimate(hm: HybridModel, t0, ts, ys, q_start):
+def _appendage_unbalanced(hm: HybridModel, t, y):
+    """The unbalanced generalized force ``rhs - A x`` of Eq. (30) on the appendages' held-interface
+    coordinates at ``(t, y)``, the accelerations those of the hybrid model: the rows of its
+    :attr:`HybridModel.physical` model (Eq. 30 in the small coordinates themselves) at the small
+    motion that the retained modes make (zero when every mode is retained)."""
+    ph = hm.physical
+    assert ph is not None, "built by hybrid_model for a model with appendages"
+    parts = hm.unpack(y)
+    att, w, gL, gdL, s = parts
+    dtype = w.dtype
+    wd, gddL, acc = solve(hm, t, parts)
+    km = hm.keep_m().astype(dtype)
+    s_in = s * km
+    if hm.form == "real":
+        ds = jnp.concatenate([s_in[hm.n_modes :], acc * hm.keep.astype(dtype)])
+    else:
+        ds = acc * km
+    ns = hm.n_small
+    P = ph.positions[:, :ns]  # the physical model's coordinates: a permutation of the small ones
+    y_, yd_, ydd_ = (P.T @ (m @ v) for m, v in ((hm.positions, s_in), (hm.rates, s_in), (hm.rates, ds)))
+    mat, rhs = _equations(ph, t, (att, w, gL, gdL, jnp.concatenate([y_, yd_])))
+    r = mat @ jnp.concatenate([wd, gddL, ydd_]) - rhs
+    return -(P @ r[3 + len(hm.large) :])[hm.nu :]
+
+
+def _truncation_estimate(hm: HybridModel, t0, ts, ys, q_start, appendages: bool = False):
     """``(dynamic (T, nu), static (T, nu), q at the last save time (N, 2))``: the neglected modes'
     contribution to the small angles at the save times, driven by :func:`_small_unbalanced` (see
     :func:`simulate_hybrid`). The force is interpolated linearly between save times (held at its
     first value from `t0` to the first save time) and each neglected mode's equation solved
     exactly on that interpolation, from `q_start` (N, 2) (real and imaginary parts: the
     start's content of each mode, :func:`_truncation_start`, or a previous run's end)."""
-    tr = hm.truncation
+    tr = hm.appendage_truncation if appendages else hm.truncation
     assert tr is not None, "called for a model built by hybrid_model"
     dtype = ys.dtype
-    f = jax.vmap(lambda t, y: _small_unbalanced(hm, t, y))(ts, ys)  # (T, nu)
+    force = _appendage_unbalanced if appendages else _small_unbalanced
+    f = jax.vmap(lambda t, y: force(hm, t, y))(ts, ys)  # (T, nu)
     w = tr.weights(hm.keep.astype(dtype))
     lam = tr.lam
     g = f.astype(lam.dtype) @ tr.d.T  # (T, N) modal forces
@@ -329,9 +377,12 @@ def _solve_hybrid(
     energy, momentum = jax.vmap(lambda st, y: _energy_and_momentum(hybrid, st, hybrid.appendage_coordinates(y)))(
         states, ys_h
     )
-    dyn = stat = q_end = None
+    dyn = stat = q_end = app = None
     if truncation and hybrid.truncation is not None:
         dyn, stat, q_end = _truncation_estimate(hybrid, t0, ts_h, ys_h, q_start)
+    if truncation and hybrid.appendage_truncation is not None:
+        n_app = hybrid.appendage_truncation.lam_parts.shape[0]
+        app, _, _ = _truncation_estimate(hybrid, t0, ts_h, ys_h, jnp.zeros((n_app, 2), dtype), appendages=True)
     out = HybridSolution(
         ts=ts_h,
         omega0=states.omega0,
@@ -354,6 +405,7 @@ def _solve_hybrid(
         truncation_static=stat,
         truncation_error=None if dyn is None else jnp.max(jnp.abs(dyn), -1, initial=0.0),
         truncation_state=q_end,
+        appendage_truncation=app,
     )
     if report:
         # Under a caller's jit/vmap: report failures from one host callback (for a whole batch).
