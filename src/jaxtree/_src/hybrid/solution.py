@@ -419,7 +419,6 @@ def _solve_hybrid(
 
 
 @eqx.filter_jit
-@eqx.filter_jit
 def _jacobian(t, y, args: HybridModel):
     """:func:`.rhs.hybrid_jacobian`, jitted so that the solver's several traces share one jaxpr."""
     return hybrid_jacobian(t, y, args)
