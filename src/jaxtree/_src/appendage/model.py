@@ -325,9 +325,10 @@ def _momentum_slopes(terms: Terms):
     The Gauss function moves the rigid rotation columns with the translations ``x = X + phi_t q``
     and leaves the nodes' rotations alone, so its slopes carry ``sum M_tt phi_t`` where the
     momentum is ``T^T M phi = M_tt phi_t + M_tr phi_r``: with a consistent mass the rotations'
-    share is missing (2e-3 of ``L`` with 20 beam elements, as the elements' length squared). The
+    share is missing (7e-4 of ``L_1`` and 1.3e-2 of ``L_3`` with 20 beam elements, as the elements'
+    length squared). The
     modal rows' coupling to the base's translation is ``L`` itself, so the two disagreed: the
-    linearized stiffness of a free spinning vehicle came out unsymmetric (its modal block by 1e-3
+    linearized stiffness of a free spinning vehicle came out unsymmetric (its modal block by 7e-5
     of the first modal stiffness, 20 elements), a circulatory force. With ``L`` in both places it is
     symmetric to round-off (tests/test_appendage.py)."""
     L = terms.A0[3:6, 6:]  # (3, k)
