@@ -461,7 +461,8 @@ def hybrid_model(
         apps,
     )
     if apps:  # the appendages' unbalanced force, for their truncation estimate
-        physical = eqx.tree_at(lambda h: h.attitude, physical_model(model, S, apps, w_nom, g_nom), hm.attitude)
+        physical = physical_model(model, S, apps, w_nom, g_nom, (groups, tms, systems))
+        physical = eqx.tree_at(lambda h: h.attitude, physical, hm.attitude)
         hm = eqx.tree_at(lambda h: h.physical, hm, physical, is_leaf=lambda x: x is None)
     return hm
 
@@ -709,18 +710,22 @@ class _Identity(NamedTuple):
     shapes: np.ndarray
 
 
-def physical_model(model: Model, S: tuple[int, ...], apps, w_nom, g_nom) -> HybridModel:
+def physical_model(model: Model, S: tuple[int, ...], apps, w_nom, g_nom, built=None) -> HybridModel:
     """Eq. (30) of the set A and the appendages' held-interface coordinates in those coordinates
     themselves: a :class:`HybridModel` in the real form whose "modal" matrices are unit matrices
     (every coordinate retained, none transformed), from the precomputed substructure terms. Its
     modal coordinates are the small coordinates in substructure order (``positions`` is that
     permutation). For the linearization of a vehicle with finite-element appendages
     (:mod:`.linear`), which Eq. (1) cannot carry. Needs every substructure terminal and no
-    external load on a small body (ValueError otherwise)."""
-    groups = _sub.substructures(model, S) if S else ()
-    _basis_and_precompute(model, S, groups, "substructure", True)
-    tms = [_sub.terms(model, g, g_nom) for g in groups] + [ap.terms for ap in apps]
-    systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom, apps)
+    external load on a small body (ValueError otherwise). `built`: ``(groups, terms, systems)`` of a
+    hybrid model of the same set and appendages, to reuse."""
+    if built is None:
+        groups = _sub.substructures(model, S) if S else ()
+        _basis_and_precompute(model, S, groups, "substructure", True)
+        tms = [_sub.terms(model, g, g_nom) for g in groups] + [ap.terms for ap in apps]
+        systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom, apps)
+    else:
+        groups, tms, systems = built
     blocks, picked, order = [], [], []
     for gi, (rows, I, _J, K, _labels) in enumerate(systems):
         k = len(rows)
