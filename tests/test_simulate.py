@@ -702,7 +702,7 @@ def test_command_line_runs_the_sample_problem(tmp_path, monkeypatch, capsys):
 def test_drift_is_absolute_and_relative_only_away_from_zero():
     """The summary's drift: absolute always; relative only where the initial value is not near
     zero (a run from rest would read as a change of millions of percent)."""
-    from jaxtree._src.io.output import _change
+    from jaxtree._src.io.drift import change_text as _change
 
     assert _change([10.0, 10.1, 9.95], 10.0, "J") == "max change 1.000e-01 J (1.000e-02 of the initial value)"
     assert _change([0.0, 2e-3, 1e-3], 0.0, "J") == "max change 2.000e-03 J"
