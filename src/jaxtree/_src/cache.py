@@ -20,6 +20,7 @@ Only XLA's compilation is cached: tracing a function (running its Python) happen
 
 from __future__ import annotations
 
+import contextlib
 import os
 
 import jax
@@ -55,3 +56,48 @@ def enable() -> str | None:
     if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:  # else the user's
         jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
     return path
+
+
+# ----------------------------------------------------------------------------- host callbacks
+# JAX never writes a program with host callbacks to the persistent cache ("Not writing persistent
+# cache entry ... because it uses host callbacks"). equinox's runtime checks (`eqx.error_if`) are
+# host callbacks: diffrax checks saveat's times and dt0's sign with them inside every solve, so
+# `simulate`'s program was compiled again in every process. jaxtree checks those inputs before
+# tracing (check_times, the dt0 check) and reports non-finite states and failed runs itself, so
+# inside its own programs the checks may return NaN instead (equinox's on_error="nan", no
+# callback). The switch is scoped: only programs traced inside `checks_without_callbacks()` get
+# it, and the checks it makes carry on_error="nan" explicitly, so the compiled checks that
+# equinox caches for everyone else (keyed on on_error="default") are not the ones changed here.
+# JAXTREE_EQX_CHECKS=raise (or EQX_ON_ERROR set to anything but "raise") keeps equinox's own.
+
+_DEPTH = [0]
+
+
+@contextlib.contextmanager
+def checks_without_callbacks():
+    """Within: equinox runtime checks traced with ``on_error="nan"`` (see above)."""
+    try:
+        import equinox._errors as errors
+    except ImportError:  # another equinox layout: leave its checks alone
+        yield
+        return
+    original = getattr(errors, "branched_error_if", None)
+    keep = os.environ.get("JAXTREE_EQX_CHECKS", "").strip().lower() == "raise"
+    if original is None or keep or getattr(errors, "EQX_ON_ERROR", "raise") != "raise" or _DEPTH[0]:
+        _DEPTH[0] += 1
+        try:
+            yield
+        finally:
+            _DEPTH[0] -= 1
+        return
+
+    def without_callbacks(x, pred, index, msgs, *, on_error="default"):
+        return original(x, pred, index, msgs, on_error="nan" if on_error == "default" else on_error)
+
+    errors.branched_error_if = without_callbacks
+    _DEPTH[0] += 1
+    try:
+        yield
+    finally:
+        _DEPTH[0] -= 1
+        errors.branched_error_if = original

@@ -311,8 +311,9 @@ def _simulate_parser(sub):
         default="auto",
         type=str.lower,
         choices=sorted(SOLVERS),
-        help="solver (default auto: dopri8, or radau5 when the linearized equations at the start are "
-        "stiff; radau5, kvaerno3/4/5 and kencarp4 are implicit)",
+        help="solver (default auto: dopri8 or radau5, whichever is predicted to reach the tolerance in "
+        "less run time from the linearized equations at the start; radau5, kvaerno3/4/5 and kencarp4 "
+        "are implicit)",
     )
     s.add_argument(
         "--attitude",

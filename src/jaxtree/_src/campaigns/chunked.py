@@ -34,7 +34,8 @@ from ..appendage.files import scene_appendages
 from ..errors import SceneError
 from ..hybrid import hybrid_model, simulate_hybrid
 from ..hybrid.model import appendage_body
-from ..integration.autosolver import choose_solver, save_points
+from ..hybrid.rhs import hybrid_rhs
+from ..integration.autosolver import choose_for_field, choose_solver, save_points
 from ..integration.core import default_tolerance
 from ..integration.failures import KINDS, MESSAGES, SimulationError, failure_kind
 from ..integration.radau import Radau5
@@ -158,8 +159,8 @@ def chunked_config(
     tol = default_tolerance(jnp.result_type(model.mass))
     rtol, atol = rtol or tol, atol or tol
     why = "given"
-    if solver == "auto":
-        _, choice = choose_solver(model, t1, t0=t0, rtol=rtol)
+    if solver == "auto" and hybrid_small is None:  # a hybrid run chooses on its own equations (_Runner)
+        _, choice = choose_solver(model, t1, t0=t0, rtol=rtol, atol=atol)
         solver, why = choice.name, f"auto: {choice.reason}"
     cfg: dict[str, Any] = {
         "t0": float(t0),
@@ -387,9 +388,17 @@ class _Runner:
 
     def __init__(self, model, cfg):
         self.model, self.cfg = model, cfg
-        self.solver = solver_named(cfg["solver"])
         self.dtype = jnp.result_type(model.mass)
         self.hybrid = None if "hybrid_small" not in cfg else _hybrid_of(model, cfg, self.dtype)
+        # a hybrid run's "auto": the rule on the hybrid equations at the start
+        if cfg["solver"] == "auto" and self.hybrid is not None:
+            y = self.hybrid.pack(model.initial)
+            _, choice = choose_for_field(
+                hybrid_rhs, self.hybrid, y, cfg["t0"], cfg["t1"], rtol=cfg["rtol"], atol=cfg["atol"],
+                what="the hybrid equations linearized at the start",
+            )  # fmt: skip
+            cfg["solver"], cfg["solver_choice"] = choice.name, f"auto: {choice.reason}"
+        self.solver = solver_named(cfg["solver"])
         self.truncation_state = None  # the neglected modes' state where the last hybrid part ended
 
         # a scene's controller (internal states) continues from part to part: its states where

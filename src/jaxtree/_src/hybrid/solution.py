@@ -27,8 +27,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import ArrayLike
 
+from ..cache import checks_without_callbacks
 from ..equations.dynamics import configuration_and_rates, energy_and_momentum, mass_center_velocities, unbalanced
 from ..equations.kinematics import cross, full_precision
+from ..integration.autosolver import choose_for_field, given
 from ..integration.core import (
     DEFAULT_MAX_STEPS,
     check_state,
@@ -460,7 +462,7 @@ def simulate_hybrid(
     t0: float | jax.Array = 0.0,
     y0: State | jax.Array | None = None,
     saveat: int | ArrayLike = 101,
-    solver: dfx.AbstractSolver | None = None,
+    solver: dfx.AbstractSolver | str | None = "auto",
     stepsize_controller: dfx.AbstractStepSizeController | None = None,
     rtol: float | None = None,
     atol: float | None = None,
@@ -476,8 +478,12 @@ def simulate_hybrid(
     - `y0`: a physical :class:`~jaxtree.State` (default ``hybrid.model.initial``), projected on
       the retained modes by :meth:`HybridModel.pack`, or a flat hybrid state;
     - `saveat`: a number of evenly spaced save times (default 101) or an array of times;
-    - `solver`: default :class:`diffrax.Dopri8` (a :class:`jaxtree.Radau5` without a Jacobian of
-      its own gets :func:`jaxtree.hybrid_jacobian`); `stepsize_controller`: default a PID controller
+    - `solver`: a diffrax solver (a :class:`jaxtree.Radau5` without a Jacobian of its own gets
+      :func:`jaxtree.hybrid_jacobian`), or ``"auto"`` (the default; None too): Dopri8 or
+      Radau5, whichever :func:`jaxtree.choose_solver`'s rule predicts to reach the tolerance in
+      less run time, from the hybrid right side's Jacobian and its values over the run
+      (``sol.stats["solver"]`` says which and why; Dopri8 when the inputs are traced);
+      `stepsize_controller`: default a PID controller
       with `rtol`, `atol` (as :func:`jaxtree.simulate`: default :func:`jaxtree.default_tolerance`
       of the model's dtype); `dt0`: default ``1e-3 |t1 - t0|``;
     - `progress`: diffrax's progress meter, as in :func:`jaxtree.simulate`;
@@ -529,26 +535,36 @@ def simulate_hybrid(
     check_times("simulate_hybrid", t0, t1, ts)
     t0a, t1a = jnp.asarray(t0, dtype), jnp.asarray(t1, dtype)
     dt0 = 1e-3 * (t1a - t0a) if dt0 is None else jnp.asarray(dt0, dtype)
-    solver = _with_jacobian(dfx.Dopri8() if solver is None else solver)
+    if solver is None or isinstance(solver, str):
+        if solver not in (None, "auto"):
+            raise ValueError(f"simulate_hybrid: solver must be a diffrax solver or 'auto', got {solver!r}")
+        solver, choice = choose_for_field(
+            hybrid_rhs, hybrid, y, t0a, t1a, rtol=rtol, atol=atol, what="the hybrid equations linearized at the start"
+        )
+    else:
+        choice = given(solver)
+    solver = _with_jacobian(solver)
     traced = is_traced((hybrid, y, t0a, t1a, ts, rtol, atol, dt0, solver, stepsize_controller))
-    sol = _solve_hybrid(
-        hybrid,
-        y,
-        t0a,
-        t1a,
-        ts,
-        jnp.asarray(rtol, dtype),
-        jnp.asarray(atol, dtype),
-        dt0,
-        solver,
-        stepsize_controller,
-        int(max_steps),
-        bool(throw and traced),
-        residual,
-        progress_meter(progress),
-        bool(truncation_error),
-        q_start,
-    )
+    with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
+        sol = _solve_hybrid(
+            hybrid,
+            y,
+            t0a,
+            t1a,
+            ts,
+            jnp.asarray(rtol, dtype),
+            jnp.asarray(atol, dtype),
+            dt0,
+            solver,
+            stepsize_controller,
+            int(max_steps),
+            bool(throw and traced),
+            residual,
+            progress_meter(progress),
+            bool(truncation_error),
+            q_start,
+        )
+    sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
     if throw and not traced:
         message = _hybrid_failure_message(sol.failure, sol.t_final, sol.final, sol.final_modal)
         if message is not None:

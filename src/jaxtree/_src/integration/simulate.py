@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..cache import checks_without_callbacks
 from ..equations.attitude import AbstractAttitude, get_attitude
 from ..equations.control import AbstractController, with_model_laws
 from ..equations.dynamics import (
@@ -385,7 +386,10 @@ def simulate(
         X0, Xd0 = model.orbit.position(jnp.asarray(t0, dtype)), model.orbit.velocity(jnp.asarray(t0, dtype))
     problem = make_problem(model, att, law, controller, params, bool(translation))
     if solver is None or isinstance(solver, str):
-        solver, choice = choose_checked(model, t1, t0=t0, y0=y0, rtol=rtol, law=law, params=params)
+        y_flat = problem.pack(y0, None, X0, Xd0)
+        solver, choice = choose_checked(
+            model, t1, t0=t0, y0=y0, rtol=rtol, atol=atol, law=law, params=params, problem=problem, y=y_flat
+        )
     else:
         choice = given(solver)
     if adjoint is None:
@@ -397,7 +401,8 @@ def simulate(
     opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced))
     as_array = lambda x: None if x is None else jnp.asarray(x, dtype)
     arrays = (as_array(X0), as_array(Xd0), as_array(t0), as_array(t1), as_array(rtol), as_array(atol), as_array(dt0))
-    sol = _solve(problem, y0, _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter), opts)
+    with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
+        sol = _solve(problem, y0, _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter), opts)
     sol = _with_diagnostics(sol, model, law, controller, params)
     sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
     if throw and not traced:
