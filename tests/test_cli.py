@@ -16,6 +16,7 @@ import time
 import types
 import warnings
 
+import jax
 import numpy as np
 import pytest
 
@@ -467,6 +468,53 @@ def test_persistent_compilation_cache(tmp_path):
     assert run(JAXTREE_CACHE_DIR=where, JAX_COMPILATION_CACHE_DIR=mine)[0] == mine
     base = str(tmp_path / "xdg")
     assert run(XDG_CACHE_HOME=base)[0] == os.path.join(base, "jaxtree", "xla")
+
+
+def test_equinox_checks_inside_jaxtrees_solves_have_no_host_callback():
+    """Inside `checks_without_callbacks` an `eqx.error_if` traces to a select (NaN on error), not
+    a host callback, so JAX may cache the program; outside, and after, equinox's own check (a
+    callback that raises) is back. (Each trace its own function: JAX keeps a function's trace.)"""
+    import equinox as eqx
+
+    from jaxtree._src.cache import checks_without_callbacks
+
+    def check():
+        return lambda x: eqx.error_if(x, x < 0, "negative")
+
+    def callbacks(fn):
+        return str(jax.make_jaxpr(fn)(1.0)).count("callback")
+
+    before = callbacks(check())
+    with checks_without_callbacks():
+        inside = callbacks(check())
+        assert np.isnan(float(jax.jit(check())(-1.0)))
+    assert before > 0 and inside == 0 and callbacks(check()) == before
+    with pytest.raises(Exception, match="negative"):
+        jax.block_until_ready(jax.jit(check())(-1.0))
+
+
+def test_the_simulation_program_is_written_to_the_persistent_cache(tmp_path):
+    """A second process reads `simulate`'s program back from the cache instead of compiling it
+    (it used to be compiled in every process: equinox's checks inside diffrax were host
+    callbacks). Fresh interpreters; a 0.2 s run of appendix_c."""
+    probe = (
+        "import jax, jaxtree; hits = []; "
+        "jax.monitoring.register_event_listener(lambda e, **k: hits.append(e) if 'cache_hits' in e else None); "
+        "jaxtree.simulate(jaxtree.load_scene('appendix_c'), 0.2, saveat=3, rtol=1e-6, atol=1e-6); "
+        "print(len(hits))"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("JAXTREE_CACHE", "JAX_COMPILATION_CACHE"))}
+    env.update(JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0", JAXTREE_CACHE_DIR=str(tmp_path / "cache"))
+
+    def run():
+        out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr
+        return int(out.stdout.split()[-1])
+
+    assert run() == 0
+    solve = [p for p in (tmp_path / "cache").iterdir() if "_solve" in p.name]
+    assert solve, sorted(p.name for p in (tmp_path / "cache").iterdir())
+    assert run() >= len(solve)
 
 
 def test_solver_lists_agree_with_the_code(capsys):

@@ -68,6 +68,8 @@ def enable() -> str | None:
 # callback). The switch is scoped: only programs traced inside `checks_without_callbacks()` get
 # it, and the checks it makes carry on_error="nan" explicitly, so the compiled checks that
 # equinox caches for everyone else (keyed on on_error="default") are not the ones changed here.
+# One reach beyond: a function of yours that you jit yourself and that jaxtree's solve traces (a hinge
+# law under jax.jit) is traced there with these checks, and JAX keeps that trace for its later calls.
 # JAXTREE_EQX_CHECKS=raise (or EQX_ON_ERROR set to anything but "raise") keeps equinox's own.
 
 _DEPTH = [0]
