@@ -8,9 +8,26 @@ import os
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
-# The tests compile from scratch and leave no files behind: the persistent compilation cache
-# that `import jaxtree` turns on is off here (tests/test_cli.py checks it in fresh interpreters).
-os.environ.setdefault("JAXTREE_CACHE_DIR", "0")
+# The tests compile from scratch and leave no files behind, but a program is compiled once per
+# run: the persistent compilation cache that `import jaxtree` turns on lives in a directory of
+# this run alone, made by the first process (pytest's, before its xdist workers start: they
+# inherit it) and removed at its end. The two workers then share what either compiled, and a
+# program compiled again after its worker cleared JAX's caches (below) is read back.
+# JAXTREE_TEST_CACHE=0 runs without it (each worker compiles all it needs); a JAXTREE_CACHE_DIR
+# of yours wins. tests/test_cli.py checks the cache itself in fresh interpreters.
+_RUN_CACHE = None
+if "JAXTREE_CACHE_DIR" not in os.environ:
+    if os.environ.get("JAXTREE_TEST_CACHE", "").strip().lower() in ("0", "off", "no", "false"):
+        os.environ["JAXTREE_CACHE_DIR"] = "0"
+    elif "JAXTREE_TEST_RUN_CACHE" in os.environ:  # an xdist worker: the controller's directory
+        os.environ["JAXTREE_CACHE_DIR"] = os.environ["JAXTREE_TEST_RUN_CACHE"]
+    else:
+        import tempfile
+
+        _RUN_CACHE = tempfile.mkdtemp(prefix="jaxtree-test-cache-")
+        os.environ["JAXTREE_TEST_RUN_CACHE"] = os.environ["JAXTREE_CACHE_DIR"] = _RUN_CACHE
+    # every program that took a tenth of a second to compile (jaxtree's default: half a second)
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.1")
 
 import jax
 import pytest
@@ -77,6 +94,13 @@ def _peak_bytes():
 
 _PEAKS = {}
 _WORKER_MAPS = {}
+
+
+def pytest_unconfigure(config):
+    if _RUN_CACHE is not None:  # the process that made the run's cache directory removes it
+        import shutil
+
+        shutil.rmtree(_RUN_CACHE, ignore_errors=True)
 
 
 def pytest_sessionfinish(session):

@@ -519,7 +519,7 @@ def test_the_simulation_program_is_written_to_the_persistent_cache(tmp_path):
 
 def test_solver_lists_agree_with_the_code(capsys):
     """`--solver`'s choices, its help and the guide's list name the same solvers, and both say
-    what "auto" picks for a stiff start (the class autosolver returns)."""
+    what "auto" picks between (the classes autosolver returns: Dopri8 or Radau5)."""
     import pathlib
 
     from jaxtree._src.integration import autosolver
@@ -530,9 +530,10 @@ def test_solver_lists_agree_with_the_code(capsys):
     guide = (pathlib.Path(__file__).parents[1] / "docs" / "guide.md").read_text()
     sentence = " ".join(guide[guide.index("`--solver` (") :].split(")")[0].split())
     stiff = autosolver.Radau5.__name__.lower()
+    explicit = type(autosolver.choose_solver(jaxtree.load_scene("appendix_c"), 1.0)[0]).__name__.lower()
     for name in sorted(cli.SOLVERS):
         assert name in sentence, name
-    assert f"or {stiff} when" in help_text and f"or {stiff} where" in sentence
+    assert f"auto: {explicit} or {stiff}, whichever" in help_text and f"{explicit} or {stiff}, whichever" in sentence
     assert "kvaerno3/4/5" in help_text and "kencarp4" in help_text and "radau5," in help_text
 
 

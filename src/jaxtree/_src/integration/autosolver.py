@@ -256,7 +256,7 @@ def modal_amplitudes(A, F, ts, y0, rtol: float, atol: float):
     A = np.asarray(A, float)
     F = np.atleast_2d(np.asarray(F, float))
     ts = np.asarray(ts, float)
-    lam, V = np.linalg.eig(A)
+    lam, V = np.linalg.eig(A)  # finite A (the callers check)
     try:
         g = np.linalg.solve(V, F.T.astype(complex)).T
     except np.linalg.LinAlgError:  # defective A: its least-squares modal content
@@ -344,6 +344,14 @@ def predict_steps(A, F, ts, y0, rtol: float, atol: float, span: float) -> Predic
 def least_implicit_steps(rtol: float) -> float:
     """The fewest steps :func:`predict_steps` can give Radau5: one slow radian at the tolerance."""
     return SLOW_FACTOR * C_IMPLICIT * (1.0 / rtol) ** (1 / ORDER_IMPLICIT)
+
+
+def _unusable(A, F) -> SolverChoice | None:
+    """The explicit default when the start gives no spectrum (a non-finite state or right side:
+    the run then fails at its start, where jaxtree reports it), else None."""
+    if np.all(np.isfinite(A)) and np.all(np.isfinite(F)):
+        return None
+    return SolverChoice("Dopri8", True, "the right side at the start is not finite: the explicit default")
 
 
 def pick(prediction: Prediction, cost_ratio: float, linearized: str) -> tuple[dfx.AbstractSolver, SolverChoice]:
@@ -544,7 +552,13 @@ def _choose(model: Model, t1, t0, y0, rtol, atol, law, params, problem=None, y=N
         problem = make_problem(model, get_attitude("quaternion"), law, controller, params, False)
     y = problem.pack(y0) if y is None else y
     ts = sample_times(float(t0), float(t1), dtype)
-    A, F = equation_jacobian_and_samples(problem, float(t0), y, ts)
+    try:
+        A, F = equation_jacobian_and_samples(problem, float(t0), y, ts)
+    except np.linalg.LinAlgError:  # Eq. (1)'s matrix singular at the start: simulate reports it
+        return dfx.Dopri8(), SolverChoice("Dopri8", True, "Eq. (1) is singular at the start: the explicit default")
+    unusable = _unusable(A, F)
+    if unusable is not None:
+        return dfx.Dopri8(), unusable
     prediction = predict_steps(A, F, ts, y, rtol, atol, span)
     return pick(prediction, rho(np.shape(y)[0]), "linearized at the initial state")
 
@@ -564,6 +578,9 @@ def choose_for_field(field, args, y, t0, t1, *, rtol, atol, cost_ratio: float = 
     span = abs(float(t1) - float(t0))
     ts = sample_times(float(t0), float(t1), y.dtype)
     A, F = jacobian_and_samples(field, float(t0), y, ts, args)
+    unusable = _unusable(A, F)
+    if unusable is not None:
+        return dfx.Dopri8(), unusable
     return pick(predict_steps(A, F, ts, y, rtol, atol, span), cost_ratio, what)
 
 
