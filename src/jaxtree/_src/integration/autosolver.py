@@ -45,10 +45,12 @@ oscillator (Dopri8 0.17 a^(1/8), Radau5 0.27 a^(1/4) steps per radian, rtol 1e-3
 ``rho`` from the per-step times of both methods on the stiff chains, flex95 and the hybrid
 models; ``SLOW_FACTOR`` from flex95's slew.
 
-A **screen** comes first, since the Jacobian costs a compilation: when even ``SCREEN_MARGIN`` times
-the fastest rate that the scene shows without it (each sprung hinge's spring against its body's
-inertia about the hinge line, each hinge's and the bus's initial rate) holds Dopri8 to fewer
-steps than Radau5's least (one load edge at the tolerance), Dopri8 is chosen unseen.
+A **screen** comes first, since the Jacobian costs a compilation (and its tracing, every
+process): when even ``SCREEN_MARGIN`` times the fastest rate that the scene shows without it (each
+sprung hinge's spring against its body's inertia about the hinge line, each hinge's and the bus's
+initial rate) holds Dopri8 to fewer steps than Radau5's least (one slow radian at the tolerance,
+or the sprung hinges that start away from rest ringing at a third of their own frequency),
+Dopri8 is chosen unseen.
 
 The choice needs concrete values: under ``jax.jit`` / ``jax.vmap`` / ``jax.grad`` (traced
 model, state, times or tolerance) ``"auto"`` is Dopri8. It predicts run time, not compilation
@@ -185,6 +187,32 @@ def _local_rates(model: Model) -> np.ndarray:
     over = np.sqrt(np.maximum(disc, 0.0))
     fast = np.where(disc >= 0, (c + over) / (2 * J), np.sqrt(np.maximum(k, 0.0) / J))
     return np.abs(fast)
+
+
+def _ringing_hinges(model: Model, y0: State, span: float, rtol: float, atol: float) -> float:
+    """A lower bound of Radau5's steps from the scene alone: each sprung hinge that starts away
+    from its spring's rest (an angle, or a rate) rings at its own spring and damper against its
+    body's inertia about the hinge line, ``lambda = -c/(2J) + i sqrt(k/J - (c/2J)^2)``, at an
+    amplitude of ``max(|gamma|, |gamma_dot| / |lambda|)`` in tolerances of the angle; the tree's
+    mode is within a small factor of it, so a third of its frequency is taken. 0 without one."""
+    if not model.sprung:
+        return 0.0
+    i = np.asarray(model.sprung) - 1
+    axis = np.asarray(model.axis, float)[i]
+    r = np.asarray(model.hinge_on_body, float)[i]
+    J = np.einsum("ki,kij,kj->k", axis, np.asarray(model.inertia, float)[i + 1], axis)
+    J = J + np.asarray(model.mass, float)[i + 1] * np.sum(np.cross(axis, r) ** 2, 1)
+    k, c = np.asarray(model.stiffness, float)[i], np.asarray(model.damping, float)[i]
+    ok = (J > 0) & (k > 0)
+    J = np.where(ok, J, 1.0)
+    sigma = c / (2 * J)
+    wd = np.sqrt(np.maximum(k / J - sigma**2, 0.0))
+    lam = -sigma + 1j * wd / 3.0
+    g = np.abs(np.asarray(y0.gamma, float)[i])
+    gd = np.abs(np.asarray(y0.gamma_dot, float)[i])
+    amp = np.maximum(g, gd / np.maximum(np.abs(lam), np.finfo(float).tiny)) / (atol + rtol * g)
+    amp = np.where(ok & (wd > 0), np.minimum(amp, 1.0 / rtol), 0.0)
+    return float(_radians(lam, amp, span, ORDER_IMPLICIT, C_IMPLICIT).max(initial=0.0))
 
 
 # Save points per period of the fastest retained hinge motion: at 4 a curve looks jagged, at 20
@@ -534,7 +562,8 @@ def _choose(model: Model, t1, t0, y0, rtol, atol, law, params, problem=None, y=N
     rate = screen_rate(model, y0)
     laws = law is not None or model.law is not None or model.controller is not None
     size = 2 * len(model.unknown_hinges) + 7
-    if not laws and span * rate / R_STABILITY < rho(size) * least_implicit_steps(rtol):
+    least = max(least_implicit_steps(rtol), _ringing_hinges(model, y0, span, rtol, atol))
+    if not laws and span * rate / R_STABILITY < rho(size) * least:
         why = (
             "nothing in the scene moves or rings fast enough to make the run stiff"
             if rate == 0.0
