@@ -322,10 +322,12 @@ def simulate(
       the save times let the steps land on them, ``stepsize_controller=
       diffrax.PIDController(rtol=..., atol=..., step_ts=ts)``, at 2-3 more steps per save time.
     - `solver`: a diffrax solver, used as is; or ``"auto"`` (the default; None too):
-      :func:`jaxtree.choose_solver` picks Dopri8, or :class:`jaxtree.Radau5` when the linearized
-      equations at `y0` are stiff (fast modes that decay early; a screen of the hinge laws skips
-      the linearization when nothing is close to stiff), and Dopri8 whenever the inputs are
-      traced. ``sol.stats["solver"]`` (a :class:`~jaxtree.SolverChoice`) says what ran and why;
+      :func:`jaxtree.choose_solver` picks Dopri8 or :class:`jaxtree.Radau5`, whichever is
+      predicted to reach `rtol`, `atol` in less run time from the run's own right side linearized
+      at `y0` and sampled over the run (Radau5 where fast modes that hold Dopri8 by stability
+      ring below the tolerance: a stiff latch, a fast rotor's nutation, a preloaded stiff spring;
+      a screen of the scene's hinge laws and rates skips the linearization when nothing is close
+      to stiff), and Dopri8 whenever the inputs are traced. ``sol.stats["solver"]`` (a :class:`~jaxtree.SolverChoice`) says what ran and why;
       with Radau5, ``sol.stats`` also counts its ``jacobians``, ``factorizations`` and
       ``newton_iterations``. IMEX solvers (``diffrax.KenCarp4`` ...) get the whole right side as
       their implicit part.
