@@ -29,14 +29,13 @@ if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
 import diffrax as dfx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 import jaxtree
 from jaxtree.bench.cases import bench_case
 
-from _common import machine, write_json
+from _common import machine, timed, write_json
 
 CASES = ("fig4_free", "wings", "stiff_1e2", "stiff_1e4", "stiff_1e6", "stiff_1e8", "rotor_1000pi", "flex95", "wings4")
 TOLS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
@@ -61,15 +60,7 @@ def errors(omega0, gamma, ref, relative):
 
 
 def run_time(call, repeats=5):
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(call())
-    first = time.perf_counter() - t0
-    walls = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(call())
-        walls.append(time.perf_counter() - t0)
-    return out, first, float(np.min(walls))
+    return timed(call, repeats, least=True)
 
 
 def reference(case, ts):

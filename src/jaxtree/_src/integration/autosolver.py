@@ -169,19 +169,22 @@ class SolverChoice(eqx.Module):
         return f"{self.name} ({'auto' if self.auto else 'given'}): {self.reason}"
 
 
-def _local_rates(model: Model) -> np.ndarray:
-    """Per sprung hinge, the largest |root| of ``J s^2 + c s + k`` with J the inertia of the
-    hinge's own body about the hinge line (parallel axes through the hinge point)."""
-    if not model.sprung:
-        return np.zeros(0)
-    i = np.asarray(model.sprung) - 1
+def _sprung_hinge_laws(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per sprung hinge: its index (0-based), the inertia J of its own body about the hinge line
+    (parallel axes through the hinge point; 0 for a massless body), its stiffness and damping."""
+    i = np.asarray(model.sprung, np.int64) - 1
     axis = np.asarray(model.axis, float)[i]
     r = np.asarray(model.hinge_on_body, float)[i]
-    inertia = np.asarray(model.inertia, float)[i + 1]
-    mass = np.asarray(model.mass, float)[i + 1]
-    J = np.einsum("ki,kij,kj->k", axis, inertia, axis) + mass * np.sum(np.cross(axis, r) ** 2, 1)
-    k = np.asarray(model.stiffness, float)[i]
-    c = np.asarray(model.damping, float)[i]
+    J = np.einsum("ki,kij,kj->k", axis, np.asarray(model.inertia, float)[i + 1], axis)
+    J = J + np.asarray(model.mass, float)[i + 1] * np.sum(np.cross(axis, r) ** 2, 1)
+    return i, J, np.asarray(model.stiffness, float)[i], np.asarray(model.damping, float)[i]
+
+
+def _local_rates(model: Model) -> np.ndarray:
+    """Per sprung hinge, the largest |root| of ``J s^2 + c s + k`` (:func:`_sprung_hinge_laws`)."""
+    if not model.sprung:
+        return np.zeros(0)
+    _, J, k, c = _sprung_hinge_laws(model)
     J = np.where(J > 0, J, np.finfo(float).tiny)  # a massless body: as fast as it gets
     disc = c * c - 4 * J * k
     over = np.sqrt(np.maximum(disc, 0.0))
@@ -197,12 +200,7 @@ def _ringing_hinges(model: Model, y0: State, span: float, rtol: float, atol: flo
     mode is within a small factor of it, so a third of its frequency is taken. 0 without one."""
     if not model.sprung:
         return 0.0
-    i = np.asarray(model.sprung) - 1
-    axis = np.asarray(model.axis, float)[i]
-    r = np.asarray(model.hinge_on_body, float)[i]
-    J = np.einsum("ki,kij,kj->k", axis, np.asarray(model.inertia, float)[i + 1], axis)
-    J = J + np.asarray(model.mass, float)[i + 1] * np.sum(np.cross(axis, r) ** 2, 1)
-    k, c = np.asarray(model.stiffness, float)[i], np.asarray(model.damping, float)[i]
+    i, J, k, c = _sprung_hinge_laws(model)
     ok = (J > 0) & (k > 0)
     J = np.where(ok, J, 1.0)
     sigma = c / (2 * J)
@@ -232,12 +230,7 @@ def fastest_oscillation(model: Model, span: float) -> float:
     of the run (to 1e-3). Zero without such a hinge. No JAX computation: numpy on the scene."""
     if not model.sprung:
         return 0.0
-    i = np.asarray(model.sprung) - 1
-    axis = np.asarray(model.axis, float)[i]
-    r = np.asarray(model.hinge_on_body, float)[i]
-    J = np.einsum("ki,kij,kj->k", axis, np.asarray(model.inertia, float)[i + 1], axis)
-    J = J + np.asarray(model.mass, float)[i + 1] * np.sum(np.cross(axis, r) ** 2, 1)
-    k, c = np.asarray(model.stiffness, float)[i], np.asarray(model.damping, float)[i]
+    _, J, k, c = _sprung_hinge_laws(model)
     ok = J > 0  # a massless body's hinge has no motion of its own
     J = np.where(ok, J, 1.0)
     decay = c / (2 * J)
