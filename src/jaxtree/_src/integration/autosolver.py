@@ -6,12 +6,15 @@ this module. Both candidates are predicted a number of steps; the cheaper wins:
 
 - **Dopri8** (explicit, order 8): ``N_e = max(stability, accuracy)``. Stability bounds its step
   by ``|h lambda| <= r(arg lambda)`` for *every* eigenvalue, whatever the mode's amplitude (r from
-  Dopri8's tableau, 3.7 on the imaginary axis to 5.5): ``span max |lambda| / r`` steps. Accuracy asks ``C_E a^(1/8)`` steps per radian of
-  every mode whose amplitude ``a`` (in units of the tolerance) is above one, and of the slow motion.
+  Dopri8's tableau, 3.7 on the imaginary axis to 5.5): ``span max |lambda| / r`` steps. Accuracy
+  asks ``C_E a^(1/8)`` steps per radian of every mode whose amplitude ``a`` (in units of the
+  tolerance) is above one, and of the slow motion.
 - **Radau5** (:class:`jaxtree.Radau5`, implicit, L-stable, its error estimate of local order 4):
   ``N_i`` = ``C_I a^(1/4)`` steps per radian of the same modes and motion only. An L-stable
   method steps over a fast mode whose amplitude is below the tolerance (it follows the mode's
-  quasi-static part, and damps the rest), which an explicit method can never do.
+  quasi-static part, and damps the rest), which an explicit method can never do. Its error
+  estimate passes a mode through ``(I - h J / GAMMA)^-1``: at a step ``h`` it follows a mode only
+  where ``a > max(1, h |lambda| / GAMMA)`` (a fixed point in ``h = span / N_i``).
 
 A Radau5 step costs ``rho = RHO_BASE + size / RHO_SIZE`` Dopri8 steps for a state of ``size``
 (its Newton iterations, Jacobian and factorizations against Dopri8's 12 right sides: about one
@@ -23,7 +26,11 @@ first-order right side at the initial state (the one :class:`jaxtree.Radau5` use
 variables, rates, the hinge laws and loads included; the hybrid model's for
 :func:`jaxtree.simulate_hybrid`), ``A = V diag(lambda) V^-1``. About the initial state
 ``y0`` the modal coordinates ``z = V^-1 (y - y0)`` obey ``z' = lambda z + g(t)``,
-``g = V^-1 f(t, y0)``, sampled at :data:`SAMPLES` times over the run. A mode that starts at
+``g = V^-1 f(t, y0)``, sampled at :data:`SAMPLES` times over the run. For :func:`jaxtree.simulate`
+``A`` comes from central differences of Eq. (1)'s matrix and right side (one vmapped program, no
+solve), its acceleration rows ``M^-1 d(rhs)/dy`` with Eq. (1)'s accelerations held
+(:func:`equation_jacobian_and_samples`: a preloaded stiff spring would otherwise show real
+eigenvalues of either sign that its snap erases within microseconds). A mode that starts at
 rest under a slowly varying ``g`` follows its quasi-static value ``-g/lambda``; it rings at
 
     |z| ~ |g(t0)| / |lambda| + min(2 max|g(t) - g(t0)| / |lambda|, max|g'| / |lambda|^2),
