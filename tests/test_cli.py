@@ -438,6 +438,33 @@ def test_what_import_changes_and_its_opt_outs():
     assert run(JAX_PLATFORMS="cuda") == ["True", "unset"]
 
 
+def test_own_programs_take_the_cpu_compiler_options():
+    """jaxtree's top-level programs (a solve, its diagnostics) compile on a CPU with XLA's older
+    fusion emitters, set per program: not in a process whose XLA_FLAGS names the option, and not
+    for a call inside the user's trace (JAX takes options only on a top-level jit), where the
+    program is the plain one. The results agree either way. Fresh interpreters (the suite's own
+    XLA_FLAGS name the option)."""
+    probe = (
+        "import jax, jax.numpy as jnp, jaxtree; from jaxtree._src import numerics; "
+        "f = numerics.program_jit(lambda x, k: jnp.sin(x) * k); x = jnp.linspace(0, 1, 4); "
+        "top = f(x, 2.0); inner = jax.jit(lambda x: f(x, 2.0))(x); v = jax.vmap(lambda x: f(x, 2.0))(x); "
+        "g = jax.grad(lambda x: f(x, 2.0).sum())(x); "
+        "print(numerics._program_options(), bool(jnp.allclose(top, inner) & jnp.allclose(top, v) "
+        "& jnp.allclose(g, 2.0 * jnp.cos(x)) & jnp.allclose(top, 2.0 * jnp.sin(x))))"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_PLATFORMS")}
+
+    def run(**extra):
+        out = subprocess.run(
+            [sys.executable, "-c", probe], env={**env, **extra}, capture_output=True, text=True, timeout=120
+        )
+        assert out.returncode == 0, out.stderr
+        return out.stdout.strip()
+
+    assert run() == "{'xla_cpu_use_fusion_emitters': False} True"
+    assert run(XLA_FLAGS="--xla_cpu_use_fusion_emitters=true") == "None True"
+
+
 def test_persistent_compilation_cache(tmp_path):
     """`import jaxtree` turns on JAX's persistent compilation cache: a second process finds there
     what a first compiled. JAXTREE_CACHE_DIR moves it or (0) turns it off; a directory set for

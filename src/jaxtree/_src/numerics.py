@@ -91,6 +91,52 @@ def spd_inverse(A):
     return jax.lax.fori_loop(0, m, step, (A, jnp.zeros((m,), A.dtype)))
 
 
+# ----------------------------------------------------------------------------- jaxtree's own programs
+# XLA:CPU's newer fusion emitters (its default) compile jaxtree's many small fused kernels about
+# 1.5-2x slower and run vmapped batches of Eq. (1) up to 2x slower than the older LLVM emitters
+# (chain50, 256 members: 19.4 against 11.4 us a member; Radau5's first call on flex95: XLA 11.5
+# against 7.0 s; benchmarks/FINDINGS.md). The option is set per program, on the programs jaxtree
+# compiles at the top level (a solve, its diagnostics, a campaign's chunk), so the process's XLA
+# settings and the user's own programs are untouched; an XLA_FLAGS that names the option wins.
+CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+
+
+def _program_options():
+    import inspect
+    import os
+
+    if "xla_cpu_use_fusion_emitters" in os.environ.get("XLA_FLAGS", ""):
+        return None  # the user's choice, process-wide
+    if "compiler_options" not in inspect.signature(jax.jit).parameters or jax.default_backend() != "cpu":
+        return None
+    return CPU_COMPILER_OPTIONS
+
+
+def program_jit(fn):
+    """``equinox.filter_jit`` of one of jaxtree's top-level programs, compiled on a CPU with
+    :data:`CPU_COMPILER_OPTIONS`. Called with traced arguments (inside the user's ``jax.jit``,
+    ``vmap`` or ``grad``) it is the plain ``filter_jit``: it is then part of the caller's program,
+    whose compilation options are the caller's (JAX takes options only on a top-level jit)."""
+    import functools
+
+    import equinox as eqx
+
+    plain = eqx.filter_jit(fn)
+    tuned = []
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        if any(isinstance(x, Tracer) for x in jax.tree_util.tree_leaves((args, kwargs))):
+            return plain(*args, **kwargs)
+        if not tuned:
+            options = _program_options()
+            # (equinox passes jax.jit's keywords through; its typed overloads do not list them)
+            tuned.append(eqx.filter_jit(fn, compiler_options=options) if options else plain)  # pyright: ignore[reportCallIssue]
+        return tuned[0](*args, **kwargs)
+
+    return wrapper
+
+
 # ----------------------------------------------------------------------------- one-time construction
 # XLA options for functions run once while a model is built (substructure terms, the nominal
 # configuration of a hybrid model): the backend's optimization passes dominate their compile

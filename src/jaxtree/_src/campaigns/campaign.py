@@ -56,6 +56,7 @@ from ..integration.core import DEFAULT_MAX_STEPS, default_tolerance
 from ..integration.failures import Failure, condition_jit
 from ..integration.simulate import simulate
 from ..io.files import atomic_write
+from ..numerics import program_jit
 from ..vehicle.model import Model, State
 
 # jaxtree's diagnosis of a failed member ("" for a run that reached t1)
@@ -230,7 +231,7 @@ def _sharded(fn, n_devices, group):
     return run
 
 
-@eqx.filter_jit
+@program_jit
 def _run_chunk_jit(models, ts, t1, rtol, atol, cfg: _Config, n_devices: int, group, pilot: bool):
     return _sharded(_pilot_member if pilot else _member, n_devices, group)(models, ts, t1, rtol, atol, cfg)
 

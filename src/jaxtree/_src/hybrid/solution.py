@@ -43,7 +43,7 @@ from ..integration.core import (
 )
 from ..integration.failures import MESSAGES, Failure, SimulationError, failure_report, report_failures, result_code
 from ..integration.radau import Radau5
-from ..numerics import is_traced
+from ..numerics import is_traced, program_jit
 from ..vehicle.model import State
 from .model import HybridModel, appendage_body
 from .rhs import _equations, hybrid_jacobian, hybrid_rhs, solve
@@ -327,7 +327,7 @@ def _truncation_estimate(hm: HybridModel, t0, ts, ys, q_start, appendages: bool 
     return dynamic, static, jnp.stack([jnp.real(q_end), jnp.imag(q_end)], -1)
 
 
-@eqx.filter_jit
+@program_jit
 def _solve_hybrid(
     hybrid,
     y0,
@@ -420,7 +420,7 @@ def _solve_hybrid(
     return out
 
 
-@eqx.filter_jit
+@program_jit
 def _jacobian(t, y, args: HybridModel):
     """:func:`.rhs.hybrid_jacobian`, jitted so that the solver's several traces share one jaxpr."""
     return hybrid_jacobian(t, y, args)
@@ -434,7 +434,7 @@ def _with_jacobian(solver):
     return solver
 
 
-@eqx.filter_jit
+@program_jit
 def _pack_with_residual(hybrid: HybridModel, y0: State):
     # One compiled call: op by op (eagerly) the projection took ~50 ms of dispatches, more than
     # a whole 10 s run of wings in hybrid coordinates.

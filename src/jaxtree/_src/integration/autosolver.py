@@ -76,7 +76,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from ..numerics import is_traced
+from ..numerics import is_traced, program_jit
 from ..vehicle.model import Model, State
 from .core import default_tolerance
 from .radau import Radau5
@@ -411,7 +411,7 @@ def screen_rate(model: Model, y0: State) -> float:
     return max(rates)
 
 
-@eqx.filter_jit
+@program_jit
 def _field_batch(field, ts, ys, args):
     return jax.vmap(lambda t, y: field(t, y, args))(ts, ys)
 
@@ -465,7 +465,7 @@ def _equation_parts(t, y, problem):
     return problem.attitude.rate(att, w), M[np.ix_(rows, rows)], rhs[rows]
 
 
-@eqx.filter_jit
+@program_jit
 def _parts_batch(ts, ys, problem, base: int):
     kin, M, rhs = jax.vmap(lambda t, y: _equation_parts(t, y, problem))(ts, ys)
     return kin, M[base:], rhs

@@ -30,7 +30,7 @@ from ..equations.dynamics import (
 )
 from ..equations.kinematics import full_precision
 from ..errors import SceneError, SceneTypeError, SceneWarning, short
-from ..numerics import is_traced, regular
+from ..numerics import is_traced, program_jit, regular
 from ..values import as_float
 from ..vehicle.model import Model, State
 from ..vehicle.validate import check_model
@@ -163,7 +163,7 @@ class _Run(NamedTuple):
     progress_meter: Any
 
 
-@eqx.filter_jit
+@program_jit
 def _solve(problem: Problem, y0: State, run: _Run, opts: _Options):
     dtype = jnp.result_type(problem.model.mass)
     y = problem.pack(y0, None, run.X0, run.Xd0)

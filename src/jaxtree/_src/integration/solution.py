@@ -18,6 +18,7 @@ from ..equations.dynamics import (
     solve_accelerations,
     unknown_labels,
 )
+from ..numerics import program_jit
 from ..vehicle.model import Model, State
 from .failures import condition_at, condition_jit, failure_kind, raise_failures, report_failures
 from .problem import Problem
@@ -142,7 +143,7 @@ def histories_of(problem: Problem, ts, ys):
     return jax.vmap(row)(ts, ys)
 
 
-@eqx.filter_jit
+@program_jit
 def run_diagnostics(model: Model, law, controller, params, ts, states: State, zs):
     """Energy, angular momentum and hold torques of the saved states.
 

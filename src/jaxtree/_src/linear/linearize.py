@@ -45,7 +45,7 @@ import numpy as np
 from ..equations.dynamics import rotational_equations
 from ..equations.kinematics import full_precision, tilde
 from ..errors import BUILTIN_ERRORS, SCENE_ERRORS, Errors, SceneTypeError, short
-from ..numerics import is_traced
+from ..numerics import is_traced, program_jit
 from ..values import as_float, rotation
 from ..vehicle.hinges import selector
 from ..vehicle.model import Model, State
@@ -259,7 +259,7 @@ def _jacobian(fun, nu3):
 
 
 # ----------------------------------------------------------------------------- Eq. (30)
-@eqx.filter_jit
+@program_jit
 def _partial(model, hinges, dcm, omega0, gamma, gamma_dot, omega0_dot, gamma_ddot, t):
     n, nu = model.n, len(hinges)
     E = selector(n, hinges, gamma.dtype)
@@ -313,7 +313,7 @@ def linearized_equations(
 
 
 # ----------------------------------------------------------------------------- Eqs. (40)-(44)
-@eqx.filter_jit
+@program_jit
 def _held(model, hinges, dcm, omega0, gamma, t):
     n = model.n
     dtype = gamma.dtype
@@ -352,7 +352,7 @@ def linearize(model: Model, small, *, omega0=None, gamma=None, dcm=None, t=0.0) 
 
 
 # ----------------------------------------------------------------------------- vehicle modes
-@eqx.filter_jit
+@program_jit
 def _vehicle(model, hinges, dcm, omega0, gamma, t):
     n, nu = model.n, len(hinges)
     dtype = gamma.dtype
