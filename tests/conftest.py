@@ -76,9 +76,10 @@ def _maps_and_limit():
 # cache gives a dropped program back without compiling it again. Dropping only the executables
 # and keeping the traces does not do: the traces of these programs are as large. Measured on
 # test_appendage.py + test_batched.py, 2 workers: peak 5.0 / 5.3 GiB without, 2.6 / 3.0 GiB with the
-# thresholds at 1.0 / 2.0 GiB (4 + 3 clears), 465 against 486 s.
+# thresholds at 1.0 / 2.0 GiB (4 + 3 clears), 465 against 486 s; at 1.0 / 1.5 GiB 2.0 / 2.2 GiB
+# (7 + 4 clears), 465 s. The full suite at 1.0 / 1.75 GiB: 2.87 / 2.77 GiB, 27:24 (2026-11-28).
 RELEASE_BETWEEN_MODULES = 1.0 * 2**30
-RELEASE_IN_MODULE = 1.75 * 2**30
+RELEASE_IN_MODULE = 1.5 * 2**30
 
 
 def _trim():
