@@ -94,8 +94,8 @@ def spd_inverse(A):
 # ----------------------------------------------------------------------------- jaxtree's own programs
 # XLA:CPU's newer fusion emitters (its default) compile jaxtree's many small fused kernels about
 # 1.5-2x slower and run vmapped batches of Eq. (1) up to 2x slower than the older LLVM emitters
-# (chain50, 256 members: 19.4 against 11.4 us a member; Radau5's first call on flex95: XLA 11.5
-# against 7.0 s; benchmarks/FINDINGS.md). The option is set per program, on the programs jaxtree
+# (chain50, 256 members: 19.4 against 11.4 us a member; Radau5's first call on flex95: XLA 13.5
+# against 9.0 s; benchmarks/FINDINGS.md). The option is set per program, on the programs jaxtree
 # compiles at the top level (a solve, its diagnostics, a campaign's chunk), so the process's XLA
 # settings and the user's own programs are untouched; an XLA_FLAGS that names the option wins.
 CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
