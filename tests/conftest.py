@@ -33,6 +33,7 @@ import jax
 import pytest
 
 import jaxtree  # first: it sets the float64 and BLAS-thread defaults before JAX loads
+from jaxtree._src import programs
 
 jax.config.update("jax_enable_x64", True)
 
@@ -111,6 +112,7 @@ def _release():
     import gc
 
     jax.clear_caches()
+    programs.clear_memory()  # the kept programs' calls held in the process (their files stay)
     gc.collect()
     _trim()
     _MAPS["clears"] += 1

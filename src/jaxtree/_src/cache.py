@@ -75,6 +75,18 @@ def enable() -> str | None:
 _DEPTH = [0]
 
 
+def checks_state() -> tuple:
+    """What decides how equinox's checks are traced here: inside :func:`checks_without_callbacks`
+    or not, ``JAXTREE_EQX_CHECKS`` and equinox's own mode (a part of the key of a kept program,
+    :mod:`jaxtree._src.programs`)."""
+    try:
+        import equinox._errors as errors
+    except ImportError:
+        return (bool(_DEPTH[0]), None, None)
+    keep = os.environ.get("JAXTREE_EQX_CHECKS", "").strip().lower()
+    return (bool(_DEPTH[0]), keep, str(getattr(errors, "EQX_ON_ERROR", None)))
+
+
 @contextlib.contextmanager
 def checks_without_callbacks():
     """Within: equinox runtime checks traced with ``on_error="nan"`` (see above)."""

@@ -121,6 +121,8 @@ def program_jit(fn):
 
     import equinox as eqx
 
+    from . import programs
+
     plain = eqx.filter_jit(fn)
     tuned = []
 
@@ -131,8 +133,10 @@ def program_jit(fn):
         if not tuned:
             options = _program_options()
             # (equinox passes jax.jit's keywords through; its typed overloads do not list them)
-            tuned.append(eqx.filter_jit(fn, compiler_options=options) if options else plain)  # pyright: ignore[reportCallIssue]
-        return tuned[0](*args, **kwargs)
+            tuned.append((eqx.filter_jit(fn, compiler_options=options) if options else plain, options))  # pyright: ignore[reportCallIssue]
+        jitted, options = tuned[0]
+        # traced once across processes where the program can be kept (jaxtree._src.programs)
+        return programs.call(fn, args, kwargs, options, jitted)
 
     return wrapper
 

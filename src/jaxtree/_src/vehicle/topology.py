@@ -49,6 +49,11 @@ class Topology:
             return True
         return isinstance(other, Topology) and self.parents == other.parents and self.names == other.names
 
+    def __reduce__(self):
+        # the parents and names alone: the cached tables and the hash (randomized per process for
+        # strings) are rebuilt, so equal trees pickle alike (the key of a kept program)
+        return (Topology, (self.parents, self.names))
+
     def __repr__(self):
         return f"Topology(n={self.n}, parents={self.parents})"
 

@@ -1,0 +1,350 @@
+"""jaxtree's traced programs kept on disk, so that a second process skips tracing them.
+
+JAX's persistent compilation cache (:mod:`jaxtree._src.cache`) keeps XLA's compiled programs, but
+a process still traces every program (runs its Python: Eq. (1) under an integrator, its
+Jacobians, the diagnostics) and lowers it before the cache can be asked: on fig4 ~1.4 s for a
+solve and ~1 s for its diagnostics in every process, more on the large vehicles. Here a
+top-level program of jaxtree's (:func:`jaxtree._src.numerics.program_jit`) is traced once,
+exported (``jax.export``: StableHLO, serialized) and written beside the compilation cache; a
+later process with the same key deserializes it and calls it, and XLA's compilation of that call
+is a hit in the compilation cache. The first process calls the exported program too, so that the
+compiled program it leaves in the cache is the one the next process asks for.
+
+The key is the digest of everything the trace depends on, and nothing is read from disk without
+a full match:
+
+- the program (module and qualified name), jaxtree's source (a digest of every ``.py`` file of
+  the installed package) and the versions of Python, jax, jaxlib, equinox, diffrax, lineax,
+  optimistix and numpy;
+- the arguments' static part (pickled: a scene's topology, solver objects, options) and their
+  arrays' shapes and dtypes (weak types too);
+- JAX's trace context (x64, matmul precision, promotion rules ...), the compile options, the
+  backend and device kind, equinox's runtime-check mode and the ``JAXTREE_*`` / ``EQX_*``
+  environment.
+
+A program is not kept (it is traced in every process, as before) when its static part holds a
+function or class of the user's (not of jaxtree, JAX, equinox, diffrax, lineax, optimistix,
+numpy or the standard library): its code is not in the key, so a later edit could not be told
+apart. Nor when the program has host callbacks (a progress meter) or anything else
+``jax.export`` refuses: that is remembered on disk, so later processes do not try again.
+
+Where: ``programs/`` in jaxtree's compilation-cache directory (``JAXTREE_CACHE_DIR``), only when
+jaxtree turned that cache on; ``JAXTREE_PROGRAM_CACHE=0`` turns this cache off alone. Files are
+written atomically (a temporary file renamed), so processes may share the directory; an entry
+that cannot be read is ignored. Beyond :data:`MAX_BYTES` the least recently used entries go.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import functools
+import hashlib
+import io
+import os
+import pickle
+import sys
+import tempfile
+import types
+
+import jax
+
+from . import cache
+
+FORMAT = 1
+SUBDIR = "programs"
+MAX_BYTES = 256 * 1024**2
+MEMO_SIZE = 64
+OFF = cache.OFF
+# Top-level packages whose functions and classes may sit in a kept program's static part: their
+# code is in the key (jaxtree's source digest, the others' versions).
+TRUSTED = frozenset(
+    {
+        "jaxtree",
+        "jax",
+        "jaxlib",
+        "equinox",
+        "diffrax",
+        "lineax",
+        "optimistix",
+        "numpy",
+        "ml_dtypes",
+        "jaxtyping",
+        "builtins",
+        "operator",
+        "_operator",
+        "functools",
+        "_functools",
+        "math",
+        "enum",
+        "types",
+        "typing",
+        "collections",
+        "copyreg",
+        "dataclasses",
+        "abc",
+    }
+)
+
+
+class Unkeyable(Exception):
+    """The static part of a call cannot be keyed safely (a function of the user's, an object
+    that does not pickle)."""
+
+
+def directory() -> str | None:
+    """The directory of kept programs, or None when off (jaxtree's compilation cache off or not
+    jaxtree's, or ``JAXTREE_PROGRAM_CACHE`` off)."""
+    if os.environ.get("JAXTREE_PROGRAM_CACHE", "").strip().lower() in OFF or not _can_serialize():
+        return None
+    base = cache.directory()
+    if base is None or getattr(jax.config, "jax_compilation_cache_dir", None) != base:
+        return None
+    return os.path.join(base, SUBDIR)
+
+
+@functools.cache
+def _can_serialize() -> bool:
+    """jax.export is there and can serialize (it needs the flatbuffers package)."""
+    try:
+        import jax.export  # noqa: F401
+        from jax._src.export import serialization  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+@functools.cache
+def _environment_digest() -> bytes:
+    """jaxtree's source and the versions of what traces it."""
+    import importlib.metadata as md
+    import pathlib
+
+    h = hashlib.sha256()
+    h.update(sys.version.encode())
+    for dist in ("jax", "jaxlib", "equinox", "diffrax", "lineax", "optimistix", "numpy"):
+        try:
+            h.update(f"{dist}={md.version(dist)};".encode())
+        except md.PackageNotFoundError:
+            h.update(f"{dist}=none;".encode())
+    root = pathlib.Path(__file__).resolve().parent.parent  # the jaxtree package
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.digest()
+
+
+class _KeyPickler(pickle.Pickler):
+    def reducer_override(self, obj):  # pyright: ignore[reportIncompatibleMethodOverride]
+        if isinstance(obj, (type, types.FunctionType, types.BuiltinFunctionType, types.MethodType)):
+            module = (getattr(obj, "__module__", None) or "").split(".")[0]
+            name = getattr(obj, "__qualname__", "")
+            if module not in TRUSTED or "<lambda>" in name or "<locals>" in name:
+                raise Unkeyable(f"{module}.{name}")
+        return NotImplemented
+
+
+def _pickle(obj) -> bytes:
+    buf = io.BytesIO()
+    try:
+        _KeyPickler(buf, protocol=pickle.HIGHEST_PROTOCOL).dump(obj)
+    except Unkeyable:
+        raise
+    except Exception as e:  # anything that does not pickle is not keyed
+        raise Unkeyable(type(e).__name__) from None
+    return buf.getvalue()
+
+
+def _aval(x):
+    return (tuple(x.shape), str(x.dtype), bool(getattr(x, "weak_type", False)))
+
+
+def _trace_context() -> str:
+    from jax._src import config as jc
+
+    names = jc.trace_context_names() if hasattr(jc, "trace_context_names") else ()
+    values = jc.trace_context()
+    parts = []
+    for i, v in enumerate(values):
+        text = repr(v)
+        if " at 0x" in text:  # an object (the axis environment, empty at top level): its type only
+            text = type(v).__name__
+        parts.append(f"{names[i] if i < len(names) else i}={text}")
+    return ";".join(parts)
+
+
+def key(fn, dyn, static, options) -> str:
+    """The digest of one call (see the module's text); raises :class:`Unkeyable`."""
+    if not (getattr(fn, "__module__", "") or "").startswith("jaxtree."):
+        raise Unkeyable("not a program of jaxtree's")
+    skeleton = jax.tree_util.tree_map(_aval, dyn)
+    device = jax.devices()[0]
+    env = sorted(
+        (k, v) for k, v in os.environ.items() if k.startswith(("JAXTREE_", "EQX_")) and k != "JAXTREE_CACHE_DIR"
+    )
+    h = hashlib.sha256()
+    h.update(_environment_digest())
+    h.update(
+        _pickle(
+            (
+                FORMAT,
+                fn.__module__,
+                fn.__qualname__,
+                skeleton,
+                static,
+                sorted((options or {}).items()),
+                device.platform,
+                getattr(device, "device_kind", ""),
+                cache.checks_state(),
+                env,
+            )
+        )
+    )
+    h.update(_trace_context().encode())
+    return h.hexdigest()
+
+
+# ----------------------------------------------------------------------------- the entries
+class _Entry:
+    """A program ready to call: the jitted call of the exported program, and how to rebuild the
+    output (its arrays' places, its static part)."""
+
+    def __init__(self, name, exported, places, out_static, options):
+        def program(*leaves):
+            return exported.call(*leaves)
+
+        program.__name__ = program.__qualname__ = name  # the program's name in JAX's logs and cache
+        self.call = jax.jit(program, compiler_options=options) if options else jax.jit(program)
+        self.places = places
+        self.out_static = out_static
+
+    def __call__(self, leaves):
+        import equinox as eqx
+
+        flat = self.call(*leaves)
+        out = jax.tree_util.tree_map(lambda i: flat[i], self.places)
+        return eqx.combine(out, self.out_static)
+
+
+_MEMO: collections.OrderedDict[str, _Entry | None] = collections.OrderedDict()
+
+
+def _remember(k: str, entry: _Entry | None) -> None:
+    _MEMO[k] = entry
+    _MEMO.move_to_end(k)
+    while len(_MEMO) > MEMO_SIZE:
+        _MEMO.popitem(last=False)
+
+
+def _write(path: str, payload: bytes) -> None:
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path), prefix=".tmp-")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(payload)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    _evict(os.path.dirname(path))
+
+
+def _evict(folder: str) -> None:
+    """Remove the least recently used entries beyond :data:`MAX_BYTES`."""
+    try:
+        entries = [e for e in os.scandir(folder) if e.is_file() and not e.name.startswith(".tmp-")]
+    except OSError:
+        return
+    total = sum(e.stat().st_size for e in entries)
+    if total <= MAX_BYTES:
+        return
+    for e in sorted(entries, key=lambda e: e.stat().st_mtime):
+        if total <= MAX_BYTES:
+            break
+        with contextlib.suppress(OSError):
+            size = e.stat().st_size
+            os.unlink(e.path)
+            total -= size
+
+
+def _load(path: str, name: str, options) -> tuple[bool, _Entry | None]:
+    """``(found, entry)`` at `path`: entry None for a program remembered as not exportable;
+    found False when absent or unreadable."""
+    try:
+        with open(path, "rb") as f:
+            payload = f.read()
+    except OSError:
+        return False, None
+    try:
+        kind, blob, places, out_static = pickle.loads(payload)
+        if kind == "refused":
+            return True, None
+        exported = jax.export.deserialize(bytearray(blob))
+        entry = _Entry(name, exported, places, out_static, options)
+    except Exception:  # a damaged or foreign entry: traced again and rewritten
+        return False, None
+    with contextlib.suppress(OSError):
+        os.utime(path)  # recently used
+    return True, entry
+
+
+def _export(fn, dyn, static, in_tree, leaves, options):
+    """Trace `fn` once through ``jax.export``; returns ``(entry, payload)``."""
+    import equinox as eqx
+
+    box = []
+
+    def flat(*lv):
+        args, kwargs = eqx.combine(jax.tree_util.tree_unflatten(in_tree, lv), static)
+        out = fn(*args, **kwargs)
+        out_dyn, out_static = eqx.partition(out, eqx.is_array)
+        out_leaves, out_tree = jax.tree_util.tree_flatten(out_dyn)
+        box.append((jax.tree_util.tree_unflatten(out_tree, list(range(len(out_leaves)))), out_static))
+        return out_leaves
+
+    flat.__name__ = flat.__qualname__ = fn.__name__
+    exported = jax.export.export(jax.jit(flat))(*leaves)
+    places, out_static = box[-1]
+    payload = pickle.dumps(
+        ("program", bytes(exported.serialize()), places, out_static), protocol=pickle.HIGHEST_PROTOCOL
+    )
+    return _Entry(fn.__name__, exported, places, out_static, options), payload
+
+
+def call(fn, args, kwargs, options, fallback):
+    """``fn(*args, **kwargs)`` through a kept program where one is (or can be) kept, else
+    `fallback` ``(*args, **kwargs)`` (the program traced as before)."""
+    import equinox as eqx
+
+    folder = directory()
+    if folder is None:
+        return fallback(*args, **kwargs)
+    dyn, static = eqx.partition((args, kwargs), eqx.is_array)
+    leaves, in_tree = jax.tree_util.tree_flatten(dyn)
+    try:
+        k = key(fn, dyn, static, options)
+    except Unkeyable:
+        return fallback(*args, **kwargs)
+    if k in _MEMO:
+        entry = _MEMO[k]
+        _MEMO.move_to_end(k)
+    else:
+        path = os.path.join(folder, k)
+        found, entry = _load(path, fn.__name__, options)
+        if not found:
+            try:
+                entry, payload = _export(fn, dyn, static, in_tree, leaves, options)
+            except Exception:  # host callbacks, a custom call export refuses ...
+                entry, payload = None, pickle.dumps(("refused", None, None, None))
+            with contextlib.suppress(OSError):
+                _write(path, payload)
+        _remember(k, entry)
+    if entry is None:
+        return fallback(*args, **kwargs)
+    return entry(leaves)
+
+
+def clear_memory() -> None:
+    """Forget the programs held in this process (the files stay)."""
+    _MEMO.clear()

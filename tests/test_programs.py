@@ -1,0 +1,140 @@
+"""Programs kept across processes (jaxtree._src.programs): a second process reads a traced program
+back instead of tracing it, with the same results; the key tells apart what changes the trace;
+what cannot be keyed safely (a user's function) or exported (host callbacks) is traced as before."""
+
+import os
+import subprocess
+import sys
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxtree
+from jaxtree._src import cache, programs
+
+PROBE = """
+import json, sys, numpy as np, jaxtree
+from jaxtree._src import programs
+exports = []
+original = programs._export
+programs._export = lambda *a, **k: exports.append(a[0].__name__) or original(*a, **k)
+sol = jaxtree.simulate(jaxtree.load_scene("appendix_c"), 0.3, saveat=4, rtol=1e-8, atol=1e-8)
+print(json.dumps({"exports": exports, "gamma": np.asarray(sol.gamma).tolist(),
+                  "energy": np.asarray(sol.energy).tolist(), "steps": int(sol.stats["num_accepted_steps"])}))
+"""
+
+
+def _probe(tmp_path, **extra):
+    import json
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("JAXTREE_CACHE", "JAX_COMPILATION_CACHE"))}
+    env.update(JAXTREE_CACHE_DIR=str(tmp_path / "cache"), **extra)
+    out = subprocess.run([sys.executable, "-c", PROBE], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_a_second_process_reads_the_program_back_with_the_same_results(tmp_path):
+    """Fresh interpreters on one cache directory: the first traces and exports the solve and its
+    diagnostics, the second exports nothing and computes the same numbers bit for bit; without
+    the kept programs (JAXTREE_PROGRAM_CACHE=0, the programs traced as before) the numbers agree
+    to round-off."""
+    first = _probe(tmp_path)
+    assert {"_solve", "run_diagnostics"} <= set(first["exports"]), first["exports"]
+    kept = sorted(os.listdir(tmp_path / "cache" / programs.SUBDIR))
+    assert len(kept) >= 2
+    second = _probe(tmp_path)
+    assert second["exports"] == []
+    assert second["gamma"] == first["gamma"] and second["energy"] == first["energy"]
+    assert second["steps"] == first["steps"]
+    plain = _probe(tmp_path, JAXTREE_PROGRAM_CACHE="0")
+    assert plain["exports"] == [] and plain["steps"] == first["steps"]
+    np.testing.assert_allclose(plain["gamma"], first["gamma"], rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(plain["energy"], first["energy"], rtol=1e-12)
+    assert sorted(os.listdir(tmp_path / "cache" / programs.SUBDIR)) == kept  # nothing added
+
+
+def _solve():
+    from jaxtree._src.integration import simulate
+
+    return simulate._solve.__wrapped__
+
+
+def _key(*args, fn=None, options=None):
+    dyn, static = eqx.partition((args, {}), eqx.is_array)
+    return programs.key(fn or _solve(), dyn, static, options)
+
+
+def test_the_key_tells_apart_what_changes_the_trace():
+    """Equal for the same scene loaded twice; different for another scene, another dtype,
+    another shape of the same leaf, other compile options, inside equinox's callback-free checks
+    and with another JAXTREE_EQX_CHECKS; refused for a function or class of the user's."""
+    a, b = jaxtree.load_scene("appendix_c"), jaxtree.load_scene("appendix_c")
+    base = _key(a)
+    assert _key(b) == base
+    assert _key(jaxtree.load_scene("appendix_b")) != base
+    assert _key(a.astype(jnp.float32)) != base
+    assert _key(a, jnp.zeros(3)) != _key(a, jnp.zeros(4)) != _key(a, jnp.zeros(4, jnp.float32))
+    assert _key(a, options={"xla_cpu_use_fusion_emitters": False}) != base
+    with cache.checks_without_callbacks():
+        assert _key(a) != base
+    old = os.environ.get("JAXTREE_EQX_CHECKS")
+    os.environ["JAXTREE_EQX_CHECKS"] = "raise"
+    try:
+        assert _key(a) != base
+    finally:
+        if old is None:
+            del os.environ["JAXTREE_EQX_CHECKS"]
+        else:
+            os.environ["JAXTREE_EQX_CHECKS"] = old
+
+    def law(t, state, params):
+        return state.gamma
+
+    class Mine:
+        pass
+
+    for user in (law, lambda t: t, Mine, Mine(), np.sin):
+        if user is np.sin:  # numpy's: keyed by numpy's version
+            assert _key(a, user) != base
+            continue
+        with pytest.raises(programs.Unkeyable):
+            _key(a, user)
+    with pytest.raises(programs.Unkeyable):  # a program that is not jaxtree's
+        _key(a, fn=lambda m: m)
+
+
+def test_unreadable_entries_and_eviction(tmp_path, monkeypatch):
+    """A damaged entry reads as absent (traced and written again); a write is atomic (no
+    temporary file left); beyond MAX_BYTES the least recently used entries go."""
+    bad = tmp_path / "damaged"
+    bad.write_bytes(b"not a program")
+    assert programs._load(str(bad), "x", None) == (False, None)
+    assert programs._load(str(tmp_path / "absent"), "x", None) == (False, None)
+    monkeypatch.setattr(programs, "MAX_BYTES", 2500)
+    for i in range(4):
+        programs._write(str(tmp_path / "kept" / f"e{i}"), bytes(1000))
+        os.utime(tmp_path / "kept" / f"e{i}", (1000 + i, 1000 + i))
+    assert sorted(os.listdir(tmp_path / "kept")) == ["e2", "e3"]
+
+
+def test_a_program_with_host_callbacks_is_traced_as_before(tmp_path, monkeypatch, capsys):
+    """A solve with a progress meter (host callbacks) cannot be exported: it is remembered as
+    refused (in the process and on disk) and runs as before, with the numbers of the run without
+    the meter. (A folder of its own, so that the suite's other tests do not see the entry.)"""
+    import collections
+    import pickle
+
+    monkeypatch.setattr(programs, "directory", lambda: str(tmp_path / "programs"))
+    monkeypatch.setattr(programs, "_MEMO", collections.OrderedDict())
+    model = jaxtree.load_scene("appendix_c")
+    with_meter = jaxtree.simulate(model, 0.2, saveat=3, progress=True)
+    refused = [k for k, v in programs._MEMO.items() if v is None]
+    assert len(refused) == 1, "the solve with a progress meter was not refused"
+    assert pickle.loads((tmp_path / "programs" / refused[0]).read_bytes())[0] == "refused"
+    plain = jaxtree.simulate(model, 0.2, saveat=3)
+    assert [v is None for v in programs._MEMO.values()].count(False) >= 1  # the plain solve is kept
+    np.testing.assert_allclose(with_meter.gamma, plain.gamma, rtol=1e-12, atol=1e-15)
+    capsys.readouterr()
