@@ -17,11 +17,10 @@ from jaxtree._src import cache, programs
 PROBE = """
 import json, sys, numpy as np, jaxtree
 from jaxtree._src import programs
-exports = []
-original = programs._export
-programs._export = lambda *a, **k: exports.append(a[0].__name__) or original(*a, **k)
 sol = jaxtree.simulate(jaxtree.load_scene("appendix_c"), 0.3, saveat=4, rtol=1e-8, atol=1e-8)
-print(json.dumps({"exports": exports, "gamma": np.asarray(sol.gamma).tolist(),
+exports = sorted(name for name, c in programs.COUNTS.items() if c["exported"])
+loads = sorted(name for name, c in programs.COUNTS.items() if c["loaded"])
+print(json.dumps({"exports": exports, "loads": loads, "gamma": np.asarray(sol.gamma).tolist(),
                   "energy": np.asarray(sol.energy).tolist(), "steps": int(sol.stats["num_accepted_steps"])}))
 """
 
@@ -45,12 +44,13 @@ def test_a_second_process_reads_the_program_back_with_the_same_results(tmp_path)
     assert {"_solve", "run_diagnostics"} <= set(first["exports"]), first["exports"]
     kept = sorted(os.listdir(tmp_path / "cache" / programs.SUBDIR))
     assert len(kept) >= 2
+    assert first["loads"] == []
     second = _probe(tmp_path)
-    assert second["exports"] == []
+    assert second["exports"] == [] and set(second["loads"]) == set(first["exports"])
     assert second["gamma"] == first["gamma"] and second["energy"] == first["energy"]
     assert second["steps"] == first["steps"]
     plain = _probe(tmp_path, JAXTREE_PROGRAM_CACHE="0")
-    assert plain["exports"] == [] and plain["steps"] == first["steps"]
+    assert plain["exports"] == plain["loads"] == [] and plain["steps"] == first["steps"]
     np.testing.assert_allclose(plain["gamma"], first["gamma"], rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(plain["energy"], first["energy"], rtol=1e-12)
     assert sorted(os.listdir(tmp_path / "cache" / programs.SUBDIR)) == kept  # nothing added
@@ -120,21 +120,56 @@ def test_unreadable_entries_and_eviction(tmp_path, monkeypatch):
     assert sorted(os.listdir(tmp_path / "kept")) == ["e2", "e3"]
 
 
-def test_a_program_with_host_callbacks_is_traced_as_before(tmp_path, monkeypatch, capsys):
-    """A solve with a progress meter (host callbacks) cannot be exported: it is remembered as
-    refused (in the process and on disk) and runs as before, with the numbers of the run without
-    the meter. (A folder of its own, so that the suite's other tests do not see the entry.)"""
-    import collections
+METER = """
+import json, numpy as np, jaxtree
+from jaxtree._src import programs
+model = jaxtree.load_scene("appendix_c")
+with_meter = jaxtree.simulate(model, 0.2, saveat=3, progress=True)
+counts = {k: dict(v) for k, v in programs.COUNTS.items()}
+plain = jaxtree.simulate(model, 0.2, saveat=3)
+print(json.dumps({"counts": counts, "difference": float(np.max(np.abs(with_meter.gamma - plain.gamma)))}))
+"""
+
+
+def test_a_program_with_host_callbacks_is_traced_as_before(tmp_path):
+    """A solve with a progress meter (host callbacks) cannot be exported: it is refused, the
+    refusal is remembered on disk (a second process does not try again), and it runs as before,
+    with the numbers of the run without the meter. Fresh interpreters."""
+    import json
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("JAXTREE_CACHE", "JAX_COMPILATION_CACHE"))}
+    env.update(JAXTREE_CACHE_DIR=str(tmp_path / "cache"))
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", METER], env=env, capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr
+        got = json.loads(out.stdout.strip().splitlines()[-1])
+        assert got["counts"]["_solve"] == {"refused": 1}, got["counts"]
+        assert got["difference"] < 1e-12
+    refused = [p for p in (tmp_path / "cache" / programs.SUBDIR).iterdir() if _kind(p) == "refused"]
+    assert len(refused) == 1
+
+
+def _kind(path):
     import pickle
 
-    monkeypatch.setattr(programs, "directory", lambda: str(tmp_path / "programs"))
-    monkeypatch.setattr(programs, "_MEMO", collections.OrderedDict())
-    model = jaxtree.load_scene("appendix_c")
-    with_meter = jaxtree.simulate(model, 0.2, saveat=3, progress=True)
-    refused = [k for k, v in programs._MEMO.items() if v is None]
-    assert len(refused) == 1, "the solve with a progress meter was not refused"
-    assert pickle.loads((tmp_path / "programs" / refused[0]).read_bytes())[0] == "refused"
-    plain = jaxtree.simulate(model, 0.2, saveat=3)
-    assert [v is None for v in programs._MEMO.values()].count(False) >= 1  # the plain solve is kept
-    np.testing.assert_allclose(with_meter.gamma, plain.gamma, rtol=1e-12, atol=1e-15)
-    capsys.readouterr()
+    return pickle.loads(path.read_bytes())[0]
+
+
+def test_a_rebound_name_keeps_the_kept_programs_off(monkeypatch):
+    """A name of jaxtree's rebound at run time (a module constant, a class's method) is reported
+    by `rebound` while it lasts, and a program called meanwhile is traced as before: not read from
+    disk, not written there."""
+    from jaxtree._src.integration import autosolver
+
+    assert programs.rebound() is None
+    with monkeypatch.context() as m:
+        m.setattr(autosolver, "SAMPLES", autosolver.SAMPLES + 1)
+        assert programs.rebound() == "jaxtree._src.integration.autosolver.SAMPLES"
+        calls = []
+        assert programs.call(_solve(), (), {}, None, lambda: calls.append(1) or "traced") == "traced"
+        assert calls == [1]
+    assert programs.rebound() is None
+    with monkeypatch.context() as m:
+        m.setattr(jaxtree.HybridModel, "pack", lambda *a: None)
+        assert programs.rebound() == "jaxtree._src.hybrid.model.HybridModel.pack"
+    assert programs.rebound() is None

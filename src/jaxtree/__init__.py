@@ -15,6 +15,8 @@ Importing jaxtree changes three things in the process (:mod:`jaxtree._src.proces
   ``$XDG_CACHE_HOME/jaxtree/xla`` (``~/.cache/jaxtree/xla``): a second process skips XLA's
   compilation of the programs a first one compiled. ``JAXTREE_CACHE_DIR`` moves it,
   ``JAXTREE_CACHE_DIR=0`` turns it off; a cache directory set for JAX itself is left alone.
+  jaxtree's own top-level programs are kept traced there too (:mod:`jaxtree._src.programs`;
+  ``JAXTREE_PROGRAM_CACHE=0`` turns that part off), so a second process skips their tracing.
 """
 
 from ._src import process as _process
@@ -559,3 +561,10 @@ def __getattr__(name):
 
 def __dir__():
     return sorted([*globals(), *_BENCH])
+
+
+# what `import jaxtree` defined, recorded: a name rebound later (a monkeypatch) keeps the kept
+# programs of jaxtree._src.programs off while it lasts
+from ._src import programs as _programs
+
+_programs.record()

@@ -15,7 +15,8 @@ that cache on at ``import jaxtree``:
 - only programs whose compilation took at least :data:`MIN_COMPILE_SECONDS` are written (unless
   ``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`` says otherwise).
 
-Only XLA's compilation is cached: tracing a function (running its Python) happens in every process.
+Only XLA's compilation is cached here; jaxtree's own top-level programs are also kept traced
+(exported) beside it, so that a later process skips their tracing too (:mod:`jaxtree._src.programs`).
 """
 
 from __future__ import annotations

@@ -29,7 +29,10 @@ apart. Nor when the program has host callbacks (a progress meter) or anything el
 ``jax.export`` refuses: that is remembered on disk, so later processes do not try again.
 
 Where: ``programs/`` in jaxtree's compilation-cache directory (``JAXTREE_CACHE_DIR``), only when
-jaxtree turned that cache on; ``JAXTREE_PROGRAM_CACHE=0`` turns this cache off alone. Files are
+jaxtree turned that cache on and the process has one device (a campaign shards its chunks over
+several, and an exported program is bound to their number); ``JAXTREE_PROGRAM_CACHE=0`` turns
+this cache off alone. A process that rebinds a name of jaxtree's (a monkeypatch) keeps it off
+while the name is rebound (see :func:`rebound`). Files are
 written atomically (a temporary file renamed), so processes may share the directory; an entry
 that cannot be read is ignored. Beyond :data:`MAX_BYTES` the least recently used entries go.
 """
@@ -99,6 +102,8 @@ def directory() -> str | None:
         return None
     base = cache.directory()
     if base is None or getattr(jax.config, "jax_compilation_cache_dir", None) != base:
+        return None
+    if jax.device_count() != 1:  # a program may shard over the devices: exported for their number
         return None
     return os.path.join(base, SUBDIR)
 
@@ -204,6 +209,47 @@ def key(fn, dyn, static, options) -> str:
     return h.hexdigest()
 
 
+# ----------------------------------------------------------------------------- changed at run time
+# The source digest is of the files; a process may rebind what they define (a test's monkeypatch, a
+# user's experiment) and trace a program that the files do not describe. jaxtree's module and class
+# namespaces are recorded when first seen (at `import jaxtree` for the modules it imports, see
+# record()); while a recorded name is bound to another object, nothing is read from or written to
+# disk and the program is traced as before. (An object mutated in place, a dict's items, is not
+# seen; jaxtree's own modules rebind nothing at run time.)
+
+_SEEN: dict[str, list[tuple[object, dict]]] = {}
+
+
+def _namespaces(name: str, module) -> list[tuple[object, dict]]:
+    spaces: list[tuple[object, dict]] = [(module, dict(vars(module)))]
+    for value in list(vars(module).values()):
+        if isinstance(value, type) and value.__module__ == name:
+            spaces.append((value, dict(vars(value))))
+    return spaces
+
+
+def record() -> None:
+    """Record the namespaces of jaxtree's modules not yet seen."""
+    for name, module in list(sys.modules.items()):
+        if module is not None and name not in _SEEN and (name == "jaxtree" or name.startswith("jaxtree.")):
+            _SEEN[name] = _namespaces(name, module)
+
+
+def rebound() -> str | None:
+    """The first recorded name bound to another object now (``module.name`` or
+    ``module.Class.name``), or None."""
+    record()
+    missing = object()
+    for name, spaces in _SEEN.items():
+        for owner, seen in spaces:
+            now = vars(owner)
+            for attr, value in seen.items():
+                if now.get(attr, missing) is not value:
+                    where = name if owner is sys.modules.get(name) else f"{name}.{getattr(owner, '__name__', '?')}"
+                    return f"{where}.{attr}"
+    return None
+
+
 # ----------------------------------------------------------------------------- the entries
 class _Entry:
     """A program ready to call: the jitted call of the exported program, and how to rebuild the
@@ -227,6 +273,9 @@ class _Entry:
 
 
 _MEMO: collections.OrderedDict[str, _Entry | None] = collections.OrderedDict()
+# this process's counts by program name: "exported" (traced and written), "loaded" (read back),
+# "refused" (not exportable: traced as before), "as before" (not keyable, rebound names, devices)
+COUNTS: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
 
 
 def _remember(k: str, entry: _Entry | None) -> None:
@@ -312,6 +361,14 @@ def _export(fn, dyn, static, in_tree, leaves, options):
     return _Entry(fn.__name__, exported, places, out_static, options), payload
 
 
+def _on_the_default_device(x) -> bool:
+    sharding = getattr(x, "sharding", None)
+    if sharding is None:  # numpy
+        return True
+    devices = sharding.device_set
+    return len(devices) == 1 and next(iter(devices)) == jax.devices()[0]
+
+
 def call(fn, args, kwargs, options, fallback):
     """``fn(*args, **kwargs)`` through a kept program where one is (or can be) kept, else
     `fallback` ``(*args, **kwargs)`` (the program traced as before)."""
@@ -320,15 +377,22 @@ def call(fn, args, kwargs, options, fallback):
     folder = directory()
     if folder is None:
         return fallback(*args, **kwargs)
+    counts = COUNTS[getattr(fn, "__name__", "?")]
     dyn, static = eqx.partition((args, kwargs), eqx.is_array)
     leaves, in_tree = jax.tree_util.tree_flatten(dyn)
     try:
+        if not all(_on_the_default_device(x) for x in leaves):
+            raise Unkeyable("sharded or placed by the caller")
         k = key(fn, dyn, static, options)
     except Unkeyable:
+        counts["as before"] += 1
         return fallback(*args, **kwargs)
     if k in _MEMO:
         entry = _MEMO[k]
         _MEMO.move_to_end(k)
+    elif rebound() is not None:
+        counts["as before"] += 1
+        return fallback(*args, **kwargs)
     else:
         path = os.path.join(folder, k)
         found, entry = _load(path, fn.__name__, options)
@@ -339,6 +403,7 @@ def call(fn, args, kwargs, options, fallback):
                 entry, payload = None, pickle.dumps(("refused", None, None, None))
             with contextlib.suppress(OSError):
                 _write(path, payload)
+        counts["refused" if entry is None else "loaded" if found else "exported"] += 1
         _remember(k, entry)
     if entry is None:
         return fallback(*args, **kwargs)

@@ -35,6 +35,7 @@ the user then owns).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -71,17 +72,13 @@ FAILURES = (
     "nonfinite_state",
 )
 
-_RESULT_NAMES = None
 
-
+@functools.cache
 def _result_names() -> tuple[str, ...]:
     """diffrax's result names by index (``RESULTS.max_steps_reached._value`` -> its name)."""
-    global _RESULT_NAMES
-    if _RESULT_NAMES is None:
-        items = dfx.RESULTS._name_to_item
-        names = {int(item._value): name for name, item in items.items()}
-        _RESULT_NAMES = tuple(names.get(i, f"result_{i}") for i in range(max(names) + 1))
-    return _RESULT_NAMES
+    items = dfx.RESULTS._name_to_item
+    names = {int(item._value): name for name, item in items.items()}
+    return tuple(names.get(i, f"result_{i}") for i in range(max(names) + 1))
 
 
 # ----------------------------------------------------------------------------- one chunk
