@@ -421,23 +421,23 @@ FD_STEP = 2.0**-18
 
 
 def _differences(y):
-    import jax.numpy as jnp
-
-    y = jnp.asarray(y)
-    h = FD_STEP * jnp.maximum(jnp.abs(y), 1.0)
-    return jnp.concatenate([y + jnp.diag(h), y - jnp.diag(h)]), np.asarray(h, float)
+    """The states ``y +- h_i e_i`` (2n, n) of the central differences and the steps `h`. numpy
+    on the host (y is concrete here): a handful of JAX operations called one by one would each
+    be compiled, in every process."""
+    y = np.asarray(y)
+    h = FD_STEP * np.maximum(np.abs(y), 1.0)
+    return np.concatenate([y + np.diag(h), y - np.diag(h)]), np.asarray(h, float)
 
 
 def jacobian_and_samples(field, t0, y, ts, args):
     """``d f / d y`` at ``(t0, y)`` by central differences and ``f(t_j, y)`` at the times `ts`,
     all from one vmapped program of the right side `field(t, y, args)` (cheaper to compile than a
     forward-mode Jacobian, and free of host callbacks, so the persistent cache keeps it). numpy."""
-    import jax.numpy as jnp
-
-    n = jnp.shape(y)[0]
+    n = np.shape(y)[0]
     ys, h = _differences(y)
-    ys = jnp.concatenate([ys, jnp.broadcast_to(jnp.asarray(y), (ts.shape[0], n))])
-    tt = jnp.concatenate([jnp.full(2 * n, t0, ts.dtype), ts])
+    ts = np.asarray(ts)
+    ys = np.concatenate([ys, np.broadcast_to(np.asarray(y), (ts.shape[0], n))])
+    tt = np.concatenate([np.full(2 * n, t0, ts.dtype), ts])
     out = np.asarray(_field_batch(field, tt, ys, args), float)
     A = (out[:n] - out[n : 2 * n]).T / (2 * h)[None, :]
     return A, out[2 * n :]
@@ -480,13 +480,12 @@ def equation_jacobian_and_samples(problem, t0, y, ts):
     spring gives real eigenvalues of either sign, which the spring's snap erases within
     microseconds); Eq. (42) leaves it out too. The rows of a controller's states and of Eq. (2)
     are left zero. numpy."""
-    import jax.numpy as jnp
-
-    n = jnp.shape(y)[0]
+    n = np.shape(y)[0]
     m = len(ts)
     ys, h = _differences(y)
-    ys = jnp.concatenate([ys, jnp.broadcast_to(jnp.asarray(y), (m, n))])
-    tt = jnp.concatenate([jnp.full(2 * n, t0, ts.dtype), ts])
+    ts = np.asarray(ts)
+    ys = np.concatenate([ys, np.broadcast_to(np.asarray(y), (m, n))])
+    tt = np.concatenate([np.full(2 * n, t0, ts.dtype), ts])
     kin, M, rhs = (np.asarray(x, float) for x in _parts_batch(tt, ys, problem, 2 * n))
     two_h = (2 * h)[None, :]
     o = problem._offsets()
@@ -509,10 +508,14 @@ def hinges_free_positions(problem) -> np.ndarray:
     return np.asarray([free.index(k) for k in problem.model.unknown_hinges], np.int64)
 
 
-def sample_times(t0: float, t1: float, dtype) -> jax.Array:
-    import jax.numpy as jnp
+def sample_times(t0: float, t1: float, dtype) -> np.ndarray:
+    return np.linspace(t0, t1, SAMPLES).astype(dtype)
 
-    return jnp.linspace(jnp.asarray(t0, dtype), jnp.asarray(t1, dtype), SAMPLES)
+
+@eqx.filter_jit
+def _packed(problem, y0):
+    """The flat state of `y0` (one small program, not a dozen operations compiled one by one)."""
+    return problem.pack(y0)
 
 
 def choose_solver(
@@ -579,7 +582,7 @@ def _choose(model: Model, t1, t0, y0, rtol, atol, law, params, problem=None, y=N
 
         law, controller = with_model_laws(model, law, None)
         problem = make_problem(model, get_attitude("quaternion"), law, controller, params, False)
-    y = problem.pack(y0) if y is None else y
+    y = _packed(problem, y0) if y is None else y
     ts = sample_times(float(t0), float(t1), dtype)
     try:
         A, F = equation_jacobian_and_samples(problem, float(t0), y, ts)

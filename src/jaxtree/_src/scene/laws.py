@@ -19,6 +19,7 @@ traced; an error names the key, its index and the body (``loads[1] (torque on bo
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import numpy as np
 
 from ..equations.attitude import dcm_to_euler123, euler123_to_dcm
@@ -211,7 +212,8 @@ def _attitude_pd(e: dict, where: str, names) -> AttitudePD:
     if "attitude_dcm" in e:
         C = rotation(e["attitude_dcm"], f"{w}: field 'attitude_dcm'")
     elif "euler123" in e:
-        C = np.asarray(euler123_to_dcm(as_float(e["euler123"], f"{w}: field 'euler123'", (3,))))
+        # (one small program, not each operation compiled on its own)
+        C = np.asarray(jax.jit(euler123_to_dcm)(as_float(e["euler123"], f"{w}: field 'euler123'", (3,))))
     else:
         C = np.eye(3)
     return AttitudePD(gains[0], gains[1], C)

@@ -19,6 +19,7 @@ import tempfile
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any, ClassVar, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -654,6 +655,8 @@ def scene_to_dict(model: Model, description: str = "", base_dir=None) -> dict:
     Raises ValueError for what has no JSON form: a prescription, load or law given as a Python
     function (or another class than the scene format's)."""
 
+    # the arrays on the host first: indexing JAX arrays one by one compiles an operation per shape
+    model = jax.tree_util.tree_map(lambda x: np.asarray(x) if isinstance(x, jax.Array) else x, model)
     prescribed = prescribed_joints(model)
     laws = laws_to_dict(model)
     f = lambda a: np.asarray(a, dtype=float).tolist()
