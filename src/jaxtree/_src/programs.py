@@ -34,7 +34,8 @@ several, and an exported program is bound to their number); ``JAXTREE_PROGRAM_CA
 this cache off alone. A process that rebinds a name of jaxtree's (a monkeypatch) keeps it off
 while the name is rebound (see :func:`rebound`). Files are
 written atomically (a temporary file renamed), so processes may share the directory; an entry
-that cannot be read is ignored. Beyond :data:`MAX_BYTES` the least recently used entries go.
+that cannot be read is ignored. Entries are unpickled: the directory is trusted as JAX's
+compilation cache is (both hold code that runs). Beyond :data:`MAX_BYTES` the least recently used entries go.
 """
 
 from __future__ import annotations
