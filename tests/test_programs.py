@@ -17,11 +17,18 @@ from jaxtree._src import cache, programs
 PROBE = """
 import json, sys, numpy as np, jaxtree
 from jaxtree._src import programs
-sol = jaxtree.simulate(jaxtree.load_scene("appendix_c"), 0.3, saveat=4, rtol=1e-8, atol=1e-8)
+model = jaxtree.load_scene("appendix_c")
+with programs.PREPARED.timing():
+    sol = jaxtree.simulate(model, 0.3, saveat=4, rtol=1e-8, atol=1e-8)
+prepared = programs.PREPARED.mark()
+mark = programs.PREPARED.mark()
+jaxtree.simulate(model, 0.3, saveat=4, rtol=1e-7, atol=1e-7)  # the same programs, ready
+again = programs.PREPARED.since(mark)
 exports = sorted(name for name, c in programs.COUNTS.items() if c["exported"])
 loads = sorted(name for name, c in programs.COUNTS.items() if c["loaded"])
 print(json.dumps({"exports": exports, "loads": loads, "gamma": np.asarray(sol.gamma).tolist(),
-                  "energy": np.asarray(sol.energy).tolist(), "steps": int(sol.stats["num_accepted_steps"])}))
+                  "energy": np.asarray(sol.energy).tolist(), "steps": int(sol.stats["num_accepted_steps"]),
+                  "prepared": prepared, "again": again}))
 """
 
 
@@ -42,6 +49,10 @@ def test_a_second_process_reads_the_program_back_with_the_same_results(tmp_path)
     to round-off."""
     first = _probe(tmp_path)
     assert {"_solve", "run_diagnostics"} <= set(first["exports"]), first["exports"]
+    # the stopwatch of the programs' preparation (the main job's compile / run split): every
+    # program of the first call timed, nothing to prepare for the second
+    assert first["prepared"][0] > 0 and first["prepared"][1] == 0
+    assert first["again"] == [0.0, True]
     kept = sorted(os.listdir(tmp_path / "cache" / programs.SUBDIR))
     assert len(kept) >= 2
     assert first["loads"] == []
@@ -49,8 +60,11 @@ def test_a_second_process_reads_the_program_back_with_the_same_results(tmp_path)
     assert second["exports"] == [] and set(second["loads"]) == set(first["exports"])
     assert second["gamma"] == first["gamma"] and second["energy"] == first["energy"]
     assert second["steps"] == first["steps"]
+    assert second["prepared"][0] > 0 and second["prepared"][1] == 0  # loaded and compiled (a cache hit)
     plain = _probe(tmp_path, JAXTREE_PROGRAM_CACHE="0")
     assert plain["exports"] == plain["loads"] == [] and plain["steps"] == first["steps"]
+    # traced as before: compiled inside the calls, so nothing timed and every call counted untimed
+    assert plain["prepared"][0] == 0 and plain["prepared"][1] >= 2 and plain["again"][1] is False
     np.testing.assert_allclose(plain["gamma"], first["gamma"], rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(plain["energy"], first["energy"], rtol=1e-12)
     assert sorted(os.listdir(tmp_path / "cache" / programs.SUBDIR)) == kept  # nothing added

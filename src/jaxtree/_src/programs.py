@@ -49,7 +49,9 @@ import os
 import pickle
 import sys
 import tempfile
+import time
 import types
+from typing import Any
 
 import jax
 
@@ -262,13 +264,21 @@ class _Entry:
 
         program.__name__ = program.__qualname__ = name  # the program's name in JAX's logs and cache
         self.call = jax.jit(program, compiler_options=options) if options else jax.jit(program)
+        self.compiled: Any = None  # compiled ahead of the first call (the key fixes the shapes)
         self.places = places
         self.out_static = out_static
+
+    def prepare(self, leaves) -> None:
+        """Compile (or read from the compilation cache) for the shapes of `leaves`."""
+        self.compiled = self.call.lower(*leaves).compile()
 
     def __call__(self, leaves):
         import equinox as eqx
 
-        flat = self.call(*leaves)
+        if self.compiled is None:
+            self.prepare(leaves)
+        assert self.compiled is not None
+        flat = self.compiled(*leaves)
         out = jax.tree_util.tree_map(lambda i: flat[i], self.places)
         return eqx.combine(out, self.out_static)
 
@@ -277,6 +287,41 @@ _MEMO: collections.OrderedDict[str, _Entry | None] = collections.OrderedDict()
 # this process's counts by program name: "exported" (traced and written), "loaded" (read back),
 # "refused" (not exportable: traced as before), "as before" (not keyable, rebound names, devices)
 COUNTS: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+
+
+class Stopwatch:
+    """This process's time spent making programs ready to run: tracing, exporting, loading,
+    compiling or reading them from the compilation cache (`seconds`), and the calls that went
+    around the kept programs (`untimed`: traced and compiled inside the call, as before, so
+    their preparation is not in `seconds`). The main job reads it to tell a first call's
+    compilation from its run without running twice."""
+
+    def __init__(self):
+        self.seconds = 0.0
+        self.untimed = 0
+        self.exclusive = False
+
+    @contextlib.contextmanager
+    def timing(self):
+        """Within: a program waits for its inputs before it is made ready, so that `seconds`
+        does not include a previous program still running (XLA runs it while the next is
+        traced and compiled); outside, the two overlap."""
+        before, self.exclusive = self.exclusive, True
+        try:
+            yield self
+        finally:
+            self.exclusive = before
+
+    def since(self, mark: tuple[float, int]) -> tuple[float, bool]:
+        """``(seconds, complete)`` since ``mark`` (a :meth:`mark`); `complete` when every
+        program called in between was timed."""
+        return self.seconds - mark[0], self.untimed == mark[1]
+
+    def mark(self) -> tuple[float, int]:
+        return self.seconds, self.untimed
+
+
+PREPARED = Stopwatch()
 
 
 def _remember(k: str, entry: _Entry | None) -> None:
@@ -377,7 +422,11 @@ def call(fn, args, kwargs, options, fallback):
 
     folder = directory()
     if folder is None:
+        PREPARED.untimed += 1
         return fallback(*args, **kwargs)
+    if PREPARED.exclusive:
+        jax.block_until_ready(args)
+    start = time.perf_counter()
     counts = COUNTS[getattr(fn, "__name__", "?")]
     dyn, static = eqx.partition((args, kwargs), eqx.is_array)
     leaves, in_tree = jax.tree_util.tree_flatten(dyn)
@@ -387,12 +436,14 @@ def call(fn, args, kwargs, options, fallback):
         k = key(fn, dyn, static, options)
     except Unkeyable:
         counts["as before"] += 1
+        PREPARED.untimed += 1
         return fallback(*args, **kwargs)
     if k in _MEMO:
         entry = _MEMO[k]
         _MEMO.move_to_end(k)
     elif rebound() is not None:
         counts["as before"] += 1
+        PREPARED.untimed += 1
         return fallback(*args, **kwargs)
     else:
         path = os.path.join(folder, k)
@@ -407,7 +458,11 @@ def call(fn, args, kwargs, options, fallback):
         counts["refused" if entry is None else "loaded" if found else "exported"] += 1
         _remember(k, entry)
     if entry is None:
+        PREPARED.untimed += 1
         return fallback(*args, **kwargs)
+    if entry.compiled is None:
+        entry.prepare(leaves)
+        PREPARED.seconds += time.perf_counter() - start
     return entry(leaves)
 
 

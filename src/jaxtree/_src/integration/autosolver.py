@@ -512,12 +512,6 @@ def sample_times(t0: float, t1: float, dtype) -> np.ndarray:
     return np.linspace(t0, t1, SAMPLES).astype(dtype)
 
 
-@eqx.filter_jit
-def _packed(problem, y0):
-    """The flat state of `y0` (one small program, not a dozen operations compiled one by one)."""
-    return problem.pack(y0)
-
-
 def choose_solver(
     model: Model,
     t1,
@@ -574,7 +568,7 @@ def _choose(model: Model, t1, t0, y0, rtol, atol, law, params, problem=None, y=N
         )
         local = float(_local_rates(model).max(initial=0.0))  # the screen's own estimate, no margin
         return dfx.Dopri8(), SolverChoice("Dopri8", True, why, local, span * rate / R_STABILITY)
-    from .problem import make_problem
+    from .problem import make_problem, packed_start
 
     if problem is None:
         from ..equations.attitude import get_attitude
@@ -582,7 +576,7 @@ def _choose(model: Model, t1, t0, y0, rtol, atol, law, params, problem=None, y=N
 
         law, controller = with_model_laws(model, law, None)
         problem = make_problem(model, get_attitude("quaternion"), law, controller, params, False)
-    y = _packed(problem, y0) if y is None else y
+    y = packed_start(problem, y0) if y is None else y
     ts = sample_times(float(t0), float(t1), dtype)
     try:
         A, F = equation_jacobian_and_samples(problem, float(t0), y, ts)

@@ -26,6 +26,7 @@ from ..equations.dynamics import (
     mass_center_acceleration,
     solve_unchecked,
 )
+from ..numerics import program_jit
 from ..vehicle import hinges
 from ..vehicle.model import Model, State
 from .radau import Radau5, jacobian_by_parts
@@ -177,6 +178,13 @@ class Problem(eqx.Module):
             parts.append(jnp.zeros(3, dtype) if X is None else jnp.asarray(X, dtype))
             parts.append(jnp.zeros(3, dtype) if X_dot is None else jnp.asarray(X_dot, dtype))
         return jnp.concatenate([jnp.reshape(p, (-1,)) for p in parts])
+
+
+@program_jit
+def packed_start(problem: Problem, y0: State, X0=None, X_dot0=None):
+    """``problem.pack(y0, None, X0, X_dot0)`` as one small program (kept across processes where
+    it can be), not a dozen operations compiled one by one in every process."""
+    return problem.pack(y0, None, X0, X_dot0)
 
 
 @eqx.filter_jit

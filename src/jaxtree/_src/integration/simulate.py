@@ -54,7 +54,7 @@ from .failures import (
     format_failure,
     result_code,
 )
-from .problem import Problem, make_problem, problem_field, with_jacobian
+from .problem import Problem, make_problem, packed_start, problem_field, with_jacobian
 from .solution import Solution, check_solution, histories_of, report_from_callback, rhs_evaluations, run_diagnostics
 
 
@@ -388,7 +388,7 @@ def simulate(
         X0, Xd0 = model.orbit.position(jnp.asarray(t0, dtype)), model.orbit.velocity(jnp.asarray(t0, dtype))
     problem = make_problem(model, att, law, controller, params, bool(translation))
     if solver is None or isinstance(solver, str):
-        y_flat = problem.pack(y0, None, X0, Xd0)
+        y_flat = packed_start(problem, y0, X0, Xd0)
         solver, choice = choose_checked(
             model, t1, t0=t0, y0=y0, rtol=rtol, atol=atol, law=law, params=params, problem=problem, y=y_flat
         )

@@ -137,7 +137,8 @@ def summary(
     if first is not None or wall is not None:
         parts = []
         if first is not None:
-            parts.append(f"first call (compile + run) {first:.2f} s")
+            prepare = "" if wall is None else f": programs traced, compiled or loaded {max(first - wall, 0.0):.2f} s"
+            parts.append(f"first call {first:.2f} s{prepare}")
         if wall is not None:
             parts.append(f"run {wall:.3f} s")
         lines.append("  wall time: " + ", ".join(parts))
