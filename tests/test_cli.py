@@ -117,7 +117,7 @@ def test_simulate_writes_a_complete_result_within_its_error_estimate(run):
 def _wait_for_parts(parts_dir, count, proc, timeout=300):
     start = time.time()
     while time.time() - start < timeout:
-        if parts_dir.is_dir() and len(list(parts_dir.glob("part-*.nc"))) >= count:
+        if parts_dir.is_dir() and len(list(parts_dir.glob("part-*.npz"))) >= count:
             return
         if proc.poll() is not None:
             raise AssertionError(f"the run ended before writing {count} parts: {proc.communicate()}")
