@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import threading
 
 import jax
 
@@ -73,46 +74,67 @@ def enable() -> str | None:
 # law under jax.jit) is traced there with these checks, and JAX keeps that trace for its later calls.
 # JAXTREE_EQX_CHECKS=raise (or EQX_ON_ERROR set to anything but "raise") keeps equinox's own.
 
-_DEPTH = [0]
+# The scope is the thread's: the depth is thread-local, and equinox's branched_error_if is
+# wrapped once (on first use) by a function that asks the calling thread's depth, so that a
+# program traced on another thread at the same time (the main job's error-estimate runs) keeps
+# equinox's checks, and its key (checks_state) says so.
+_LOCAL = threading.local()
+_INSTALLED: list = []
+
+
+def _depth() -> int:
+    return getattr(_LOCAL, "depth", 0)
 
 
 def checks_state() -> tuple:
-    """What decides how equinox's checks are traced here: inside :func:`checks_without_callbacks`
-    or not, ``JAXTREE_EQX_CHECKS`` and equinox's own mode (a part of the key of a kept program,
-    :mod:`jaxtree._src.programs`)."""
+    """What decides how equinox's checks are traced on this thread: inside
+    :func:`checks_without_callbacks` or not, ``JAXTREE_EQX_CHECKS`` and equinox's own mode (a
+    part of the key of a kept program, :mod:`jaxtree._src.programs`)."""
     try:
         import equinox._errors as errors
     except ImportError:
-        return (bool(_DEPTH[0]), None, None)
+        return (bool(_depth()), None, None)
     keep = os.environ.get("JAXTREE_EQX_CHECKS", "").strip().lower()
-    return (bool(_DEPTH[0]), keep, str(getattr(errors, "EQX_ON_ERROR", None)))
+    return (bool(_depth()), keep, str(getattr(errors, "EQX_ON_ERROR", None)))
+
+
+def _switched(errors) -> bool:
+    """Inside the scope on this thread, and neither JAXTREE_EQX_CHECKS=raise nor another
+    equinox mode asked for."""
+    keep = os.environ.get("JAXTREE_EQX_CHECKS", "").strip().lower() == "raise"
+    return bool(_depth()) and not keep and getattr(errors, "EQX_ON_ERROR", "raise") == "raise"
+
+
+def _install(errors) -> None:
+    """Wrap equinox's branched_error_if once (nothing where this equinox has none)."""
+    with _INSTALL_LOCK:
+        original = getattr(errors, "branched_error_if", None)
+        if _INSTALLED or original is None:
+            return
+
+        def branched_error_if(x, pred, index, msgs, *, on_error="default"):
+            if on_error == "default" and _switched(errors):
+                on_error = "nan"
+            return original(x, pred, index, msgs, on_error=on_error)
+
+        errors.branched_error_if = branched_error_if
+        _INSTALLED.append(original)
+
+
+_INSTALL_LOCK = threading.Lock()
 
 
 @contextlib.contextmanager
 def checks_without_callbacks():
-    """Within: equinox runtime checks traced with ``on_error="nan"`` (see above)."""
+    """Within (on this thread): equinox runtime checks traced with ``on_error="nan"`` (see above)."""
     try:
         import equinox._errors as errors
     except ImportError:  # another equinox layout: leave its checks alone
         yield
         return
-    original = getattr(errors, "branched_error_if", None)
-    keep = os.environ.get("JAXTREE_EQX_CHECKS", "").strip().lower() == "raise"
-    if original is None or keep or getattr(errors, "EQX_ON_ERROR", "raise") != "raise" or _DEPTH[0]:
-        _DEPTH[0] += 1
-        try:
-            yield
-        finally:
-            _DEPTH[0] -= 1
-        return
-
-    def without_callbacks(x, pred, index, msgs, *, on_error="default"):
-        return original(x, pred, index, msgs, on_error="nan" if on_error == "default" else on_error)
-
-    errors.branched_error_if = without_callbacks
-    _DEPTH[0] += 1
+    _install(errors)
+    _LOCAL.depth = _depth() + 1
     try:
         yield
     finally:
-        _DEPTH[0] -= 1
-        errors.branched_error_if = original
+        _LOCAL.depth = _depth() - 1

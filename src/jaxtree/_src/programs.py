@@ -399,11 +399,13 @@ def _export(fn, dyn, static, in_tree, leaves, options):
         return out_leaves
 
     flat.__name__ = flat.__qualname__ = fn.__name__
-    exported = jax.export.export(jax.jit(flat))(*leaves)
+    blob = bytes(jax.export.export(jax.jit(flat))(*leaves).serialize())
     places, out_static = box[-1]
-    payload = pickle.dumps(
-        ("program", bytes(exported.serialize()), places, out_static), protocol=pickle.HIGHEST_PROTOCOL
-    )
+    payload = pickle.dumps(("program", blob, places, out_static), protocol=pickle.HIGHEST_PROTOCOL)
+    # called as read back, as a later process calls it: the program compiled here is the one
+    # the compilation cache then holds for that process (the exported object before its round
+    # trip lowers to a module that differs in detail, a miss in the cache)
+    exported = jax.export.deserialize(bytearray(blob))
     return _Entry(fn.__name__, exported, places, out_static, options), payload
 
 

@@ -52,6 +52,7 @@ from ..integration.failures import KINDS, failure_kind
 from ..integration.problem import Problem
 from ..integration.solution import Solution
 from ..linear.modes import Modes
+from ..numerics import program_jit
 from ..scene.scene import scene_from_dict, scene_to_dict
 from ..vehicle.model import Model, State
 from .files import atomic_write
@@ -147,7 +148,7 @@ def _clean_attrs(attrs: dict) -> dict:
 
 
 # ----------------------------------------------------------------------------- geometry
-@eqx.filter_jit
+@program_jit
 def _positions(model, gamma):
     cfg = jax.vmap(lambda g: configuration(model, g))(gamma)
     return cfg.rho, cfg.hinge
