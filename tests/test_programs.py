@@ -82,7 +82,8 @@ def _key(*args, fn=None, options=None):
 
 
 def test_the_key_tells_apart_what_changes_the_trace(monkeypatch):
-    """Equal for the same scene loaded twice; different for another scene, another dtype,
+    """Equal for the same scene loaded twice (and for equal strings, one object or two);
+    different for another scene, another dtype,
     another shape of the same leaf, other compile options, inside equinox's callback-free checks
     and with another JAXTREE_EQX_CHECKS; a function of numpy's is keyed (by numpy's version), one
     or a class of the user's is refused, and so is a program that is not jaxtree's."""
@@ -99,6 +100,10 @@ def test_the_key_tells_apart_what_changes_the_trace(monkeypatch):
         m.setenv("JAXTREE_EQX_CHECKS", "raise")
         assert _key(a) != base
     assert _key(a, np.sin) == _key(b, np.sin) != base
+    # equal strings keyed alike whether one object or two (how a scene's strings were made
+    # differs from process to process: with pickle's memo the keys differed)
+    one, two = "".join(["inte", "gral"]), "".join(["inte", "gral"])
+    assert one is not two and _key(a, (one, one)) == _key(a, (one, two)) != _key(a, (one, "rate"))
 
     def law(t, state, params):
         return state.gamma

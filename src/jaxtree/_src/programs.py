@@ -154,8 +154,13 @@ class _KeyPickler(pickle.Pickler):
 
 def _pickle(obj) -> bytes:
     buf = io.BytesIO()
+    pickler = _KeyPickler(buf, protocol=pickle.HIGHEST_PROTOCOL)
+    # no memo: equal objects pickle alike whether or not they are one object (two equal strings
+    # of a scene are one object in one process and two in the next: with the memo, the second
+    # is a back-reference in one and a copy in the other, and the keys differed)
+    pickler.fast = True
     try:
-        _KeyPickler(buf, protocol=pickle.HIGHEST_PROTOCOL).dump(obj)
+        pickler.dump(obj)
     except Unkeyable:
         raise
     except Exception as e:  # anything that does not pickle is not keyed
