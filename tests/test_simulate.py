@@ -7,8 +7,12 @@ axis, so the motion is a planar rotation with the reduced inertia I0 I1 / (I0 + 
 expm and DOP853 with tests/oracle.py, and the prescription's own inverse function.
 """
 
+import contextlib
 import dataclasses
+import io
 import re
+import sys
+import time
 
 import diffrax as dfx
 import equinox as eqx
@@ -679,8 +683,8 @@ def test_command_line_runs_the_sample_problem(tmp_path, monkeypatch, capsys):
     captured = capsys.readouterr()
     out = captured.out
     assert code == 0
-    # diffrax's progress meter only on a terminal (here stderr is captured: none, no redraws in a log)
-    assert "100.00%" not in captured.err + out and "\r" not in captured.err
+    # the elapsed time only on a terminal (here stderr is captured: no redraws in a log)
+    assert "elapsed" not in captured.err + out and "\r" not in captured.err
     assert "angular momentum" in out and "accepted" in out and "wall time" in out
     # the summary with units and the error estimate of a run at 10x the tolerances
     assert " J, max change " in out and " N m s, max change " in out and "] rad/s (in {b0})" in out
@@ -697,6 +701,44 @@ def test_command_line_runs_the_sample_problem(tmp_path, monkeypatch, capsys):
     back = jaxtree.load_result(tmp_path / "fig4_quaternion.nc")
     np.testing.assert_array_equal(np.asarray(back.gamma), data["quaternion/gamma"])
     assert "fig4_quaternion.nc" in out
+
+
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_sample_problem_on_a_terminal_times_its_runs_outside_the_integration(tmp_path, monkeypatch):
+    """On a terminal the main job redraws each run's elapsed time from a thread of its own and
+    gives the integration no progress meter: a meter inside it is a host callback, and a program
+    with one is neither exported nor kept in the compilation cache (every process would trace
+    and compile it again, ~12 s of fig4's)."""
+    from jaxtree._src import cli
+
+    from jaxtree.__main__ import main
+
+    calls = []
+    real = cli.simulate
+    monkeypatch.setattr(cli, "simulate", lambda *a, **kw: calls.append(kw) or real(*a, **kw))
+    monkeypatch.setenv("XLA_FLAGS", "")
+    err = _Terminal()
+    monkeypatch.setattr(sys, "stderr", err)
+    args = ["--duration", "0.5", "--points", "3", "--attitudes", "quaternion", "--no-plot", "--out", str(tmp_path)]
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(args) == 0
+    assert calls and all(kw.get("progress", False) is False for kw in calls)
+    assert err.getvalue().endswith("\r\033[K")  # the line erased when the run ended
+
+    shown = _Terminal()
+    with cli._elapsed("quaternion", True):
+        monkeypatch.setattr(sys, "stderr", shown)
+        time.sleep(1.2)
+    assert "\r   quaternion: 1 s elapsed" in shown.getvalue() and shown.getvalue().endswith("\r\033[K")
+    hidden = _Terminal()
+    monkeypatch.setattr(sys, "stderr", hidden)
+    with cli._elapsed("quaternion", False):
+        time.sleep(0.6)
+    assert hidden.getvalue() == ""
 
 
 def test_drift_is_absolute_and_relative_only_away_from_zero():

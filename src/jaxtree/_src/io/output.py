@@ -98,6 +98,42 @@ def save_plot(path, runs: dict[str, Solution], title: str = "") -> bool:
     return True
 
 
+def warm_writers(*, netcdf: bool = True, plot: bool = True) -> None:
+    """Pay the first-use costs of the result writers once: the imports (xarray, h5netcdf and h5py,
+    and whatever xarray loads on its first Dataset, dask where it is installed; matplotlib with its
+    Agg backend and 3-d projection) and the first figure's fonts and mathtext parser. 2-4 s of
+    Python on this machine that a run can spend while XLA integrates: the main job and `jaxtree
+    simulate` call this on a thread beside their integration (XLA releases Python's lock) and wait
+    for it before they write. Nothing is left behind (a NetCDF file in a temporary folder,
+    removed; a figure drawn into memory)."""
+    if netcdf:
+        import os
+        import tempfile
+
+        from .results import _xr, write_netcdf
+
+        xr = _xr()
+        ds = xr.Dataset({"x": ("t", np.zeros(2))}, coords={"t": np.arange(2.0)}, attrs={"warm": "up"})
+        with tempfile.TemporaryDirectory(prefix="jaxtree-warm-") as folder:
+            write_netcdf(ds, os.path.join(folder, "warm.nc"))
+    if plot:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            return
+        from .plots import DPI, _figure, _style
+
+        with _style():
+            fig = _figure(figsize=(3, 2), layout="constrained")
+            ax = fig.add_subplot(1, 2, 1)
+            ax.plot([0.0, 1.0], [0.0, 1.0], label="$\\omega^0_1$")
+            ax.set_title("$\\dot\\gamma_k$ (rad/s)")
+            ax.set_yscale("log")
+            ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0))
+            fig.suptitle("warm")
+        fig.savefig(io.BytesIO(), format="png", dpi=DPI)
+
+
 def _causes(why: list[str]) -> str:
     return f" (not conserved: {', '.join(why)})" if why else ""
 
