@@ -150,21 +150,32 @@ def run_diagnostics(model: Model, law, controller, params, ts, states: State, zs
     Compiled apart from the solve, and keyed on the model alone when it has no prescribed hinges
     (the hold torques need the hinge law only then): runs that differ in attitude variables,
     solver, tolerances, events or control laws share it.
+
+    One saved time after the other (``lax.map``: a loop around the equations of one state), not
+    ``vmap`` over all of them: XLA:CPU compiled fig4's vmapped diagnostics over 3384 saved times
+    in 11.5 s (2.6 s to lower), the loop in 2.0 s (0.6 s), for a run of 0.10 s instead of 0.02 s
+    (benchmarks/FINDINGS.md, "The diagnostics program").
     """
     problem = Problem(model, Quaternion(), law, controller, params, False, 0)
+    held = model.prescription is not None
 
-    def row(t, state, z):
+    def row(args):
+        t, state, z = args
         kinetic, H = energy_and_momentum(model, state)
         energy = kinetic + 0.5 * jnp.sum(model.stiffness * state.gamma**2)
-        if model.prescription is None:
-            hold = jnp.zeros((0,), state.gamma.dtype)
-        else:
-            tau = problem.torque(t, state, z)
-            tau = None if tau is None else jnp.asarray(tau, state.gamma.dtype)
-            hold = solve_accelerations(model, state, t, tau).hold_torque
-        return energy, H, hold
+        if not held:
+            return energy, H
+        tau = problem.torque(t, state, z)
+        tau = None if tau is None else jnp.asarray(tau, state.gamma.dtype)
+        return energy, H, solve_accelerations(model, state, t, tau).hold_torque
 
-    return jax.vmap(row)(ts, states, zs)
+    out = jax.lax.map(row, (ts, states, zs))
+    if held:
+        return out
+    energy, H = out
+    # no hinge held: no column (and none through lax.map, whose batching reshapes fail on a
+    # zero-sized axis)
+    return energy, H, jnp.zeros((ts.shape[0], 0), states.gamma.dtype)
 
 
 def rhs_evaluations(solver, stats, dt0_given: bool):
