@@ -201,6 +201,41 @@ def test_euler_angles_stop_with_an_error_near_their_singularity():
 
 
 # ----------------------------------------------------------------------------- prescribed hinges
+def test_diagnostics_looped_and_vmapped_agree_row_by_row(scenes, monkeypatch):
+    """On a CPU the diagnostics loop over the saved times (lax.map: 11.5 s of XLA compilation for
+    fig4's vmapped ones); elsewhere they are vmapped. The two forms agree, each row is its own
+    state's (the loop takes times, states and controller states in step), and a vehicle with no
+    held hinge gets an empty hold-torque column. (The values themselves are checked against
+    conservation laws and the free model elsewhere in this file.)"""
+    from jaxtree._src.equations.dynamics import energy_and_momentum
+    from jaxtree._src.integration import solution
+
+    model = scenes["fig4"]
+    sol = simulate(model, 2.0, saveat=7)
+    states = State(sol.dcm, sol.omega0, sol.gamma, sol.gamma_dot)
+    args = (model, sol.problem.law, sol.problem.controller, sol.problem.params, sol.ts, states, sol.control_state)
+    looped = solution.run_diagnostics(*args)
+    monkeypatch.setattr(solution.jax, "default_backend", lambda: "gpu")
+    vmapped = jax.jit(solution.run_diagnostics.__wrapped__)(*args)  # traced anew, the vmapped form
+    monkeypatch.undo()
+    for a, b in zip(looped, vmapped, strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-13, atol=1e-12)
+    for i in (0, 3, 6):
+        state = jax.tree_util.tree_map(lambda x: x[i], states)
+        kinetic, H = energy_and_momentum(model, state)
+        energy = kinetic + 0.5 * jnp.sum(model.stiffness * state.gamma**2)
+        np.testing.assert_allclose(float(looped[0][i]), float(energy), rtol=1e-13)
+        # round-off on the scale of |H| (29.7 N m s): the small components differ in their last digits
+        np.testing.assert_allclose(
+            np.asarray(looped[1][i]), np.asarray(H), rtol=1e-12, atol=1e-13 * float(jnp.linalg.norm(H))
+        )
+    assert looped[2].shape == (7, len(model.prescribed))
+    free = scenes["wings"]  # no held hinge: an empty column, made outside the loop
+    fsol = simulate(free, 0.2, saveat=3)
+    fstates = State(fsol.dcm, fsol.omega0, fsol.gamma, fsol.gamma_dot)
+    assert solution.run_diagnostics(free, None, None, None, fsol.ts, fstates, None)[2].shape == (3, 0)
+
+
 def test_hold_torque_fed_to_the_free_model_recovers_the_trajectory(scenes):
     model = scenes["fig4"]  # gamma_1 = sin(0.5 t) prescribed
     ts = FIG4_SAVE["saveat"].subs.ts
@@ -713,9 +748,8 @@ def test_sample_problem_on_a_terminal_times_its_runs_outside_the_integration(tmp
     gives the integration no progress meter: a meter inside it is a host callback, and a program
     with one is neither exported nor kept in the compilation cache (every process would trace
     and compile it again, ~12 s of fig4's)."""
-    from jaxtree._src import cli
-
     from jaxtree.__main__ import main
+    from jaxtree._src import cli
 
     calls = []
     real = cli.simulate

@@ -151,10 +151,12 @@ def run_diagnostics(model: Model, law, controller, params, ts, states: State, zs
     (the hold torques need the hinge law only then): runs that differ in attitude variables,
     solver, tolerances, events or control laws share it.
 
-    One saved time after the other (``lax.map``: a loop around the equations of one state), not
-    ``vmap`` over all of them: XLA:CPU compiled fig4's vmapped diagnostics over 3384 saved times
-    in 11.5 s (2.6 s to lower), the loop in 2.0 s (0.6 s), for a run of 0.10 s instead of 0.02 s
-    (benchmarks/FINDINGS.md, "The diagnostics program").
+    On a CPU one saved time after the other (``lax.map``: a loop around the equations of one
+    state), not ``vmap`` over all of them: XLA:CPU compiled fig4's vmapped diagnostics over 3384
+    saved times in 11.5 s (2.6 s to lower), the loop in 2.1 s (0.9 s), for a run of 0.11 s
+    instead of 0.02 s (benchmarks/FINDINGS.md, "The diagnostics program was the largest
+    compilation"). Elsewhere ``vmap``: on an accelerator each pass of a loop launches its kernels
+    again, 3384 times.
     """
     problem = Problem(model, Quaternion(), law, controller, params, False, 0)
     held = model.prescription is not None
@@ -169,11 +171,12 @@ def run_diagnostics(model: Model, law, controller, params, ts, states: State, zs
         tau = None if tau is None else jnp.asarray(tau, state.gamma.dtype)
         return energy, H, solve_accelerations(model, state, t, tau).hold_torque
 
-    out = jax.lax.map(row, (ts, states, zs))
+    rows = (ts, states, zs)
+    out = jax.lax.map(row, rows) if jax.default_backend() == "cpu" else jax.vmap(row)(rows)
     if held:
         return out
-    energy, H = out
-    # no hinge held: no column (and none through lax.map, whose batching reshapes fail on a
+    energy, H = out[0], out[1]
+    # no hinge held: no column (and none through lax.map, whose batched form fails to reshape a
     # zero-sized axis)
     return energy, H, jnp.zeros((ts.shape[0], 0), states.gamma.dtype)
 
