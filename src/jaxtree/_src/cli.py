@@ -1130,7 +1130,8 @@ def sample(argv=None) -> int:
     # the writers' imports and first use on a thread meanwhile (output.warm_writers); the two
     # attitudes run one after the other: side by side on two threads, each compile and each
     # integration slowed down (XLA:CPU already spreads its compilation and some kernels over the
-    # cores), the first run took 55 s instead of 45-49 s and the second no less
+    # cores; the first run took 55 s instead of 45-49 s, the second no less, measured on
+    # 2026-11-28 before the diagnostics loop of run_diagnostics)
     warming = concurrent.futures.ThreadPoolExecutor(max_workers=1)
     warm = warming.submit(output.warm_writers, plot=not args.no_plot)
     for att in attitudes:
@@ -1155,8 +1156,8 @@ def sample(argv=None) -> int:
     # The integration error: the same runs at 10x the tolerances (the tolerances are not compiled
     # in: the same programs), over all saved times. They run one after the other on a worker
     # thread (XLA releases Python's lock while it integrates) while this one writes the files and
-    # the plot on the other core (two workers: three busy threads on two cores, the files and the
-    # plot 1.3 s slower on this machine).
+    # the plot on the other core (two workers: three busy threads on two cores, and the figure
+    # took 2.8-3.0 s instead of 2.2 on the 2-core reference machine).
     def loose_run(att):
         return simulate(model, args.duration, attitude=att, saveat=points, rtol=10 * args.rtol, atol=10 * args.atol)
 
