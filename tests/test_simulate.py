@@ -767,7 +767,9 @@ def test_sample_problem_on_a_terminal_times_its_runs_outside_the_integration(tmp
     with cli._elapsed("quaternion", True):
         monkeypatch.setattr(sys, "stderr", shown)
         time.sleep(1.2)
-    assert "\r   quaternion: 1 s elapsed" in shown.getvalue() and shown.getvalue().endswith("\r\033[K")
+    # drawn every half second (the count itself depends on how busy the machine is), then erased
+    assert re.search(r"\r   quaternion: \d+ s elapsed", shown.getvalue()), shown.getvalue()
+    assert shown.getvalue().endswith("\r\033[K")
     hidden = _Terminal()
     monkeypatch.setattr(sys, "stderr", hidden)
     with cli._elapsed("quaternion", False):

@@ -750,11 +750,18 @@ def _check_simulate_options(args):
         raise UserError("--modes-tol needs --modes auto")
 
 
-def _warmed(warm: concurrent.futures.Future) -> None:
-    """Wait for :func:`output.warm_writers`. Its failure is not the run's: the writers themselves
-    then import and fail (or not) with their own message."""
-    with contextlib.suppress(Exception):
-        warm.result()
+def _warming(plot: bool) -> threading.Thread:
+    """:func:`output.warm_writers` started on a thread of its own (join it before writing). Its
+    failure is not the run's: the writers themselves then import and fail (or not) with their own
+    message. A daemon: an interrupted run does not wait for it."""
+
+    def warm():
+        with contextlib.suppress(Exception):
+            output.warm_writers(plot=plot)
+
+    thread = threading.Thread(target=warm, name="jaxtree-warm-writers", daemon=True)
+    thread.start()
+    return thread
 
 
 def _option_error(e: ChunkedRunError) -> UserError:
@@ -772,8 +779,7 @@ def cmd_simulate(args) -> int:
         raise UserError(f"--out {str(out)!r} is a folder; give a file name such as run.nc")
     # the writers' imports and first use (the result file, the plots) on a thread while XLA
     # integrates (output.warm_writers); waited for before the plots
-    warming = concurrent.futures.ThreadPoolExecutor(max_workers=1)
-    warm = warming.submit(output.warm_writers, plot=not args.no_plot)
+    warming = _warming(plot=not args.no_plot)
     try:
         cfg = _config(args, model)
         with _interrupts(), contextlib.closing(_Meter(args)) as meter:
@@ -799,9 +805,7 @@ def cmd_simulate(args) -> int:
                 f"are in {out} (complete = 0). Continue with the same command and --resume."
             )
         return EXIT_INTERRUPTED
-    finally:
-        warming.shutdown(wait=False)
-    _warmed(warm)
+    warming.join()
     written = [str(out)] + (_exports(args, out, run.dataset) if run.ok else [])
     print(_summary(model, run, written, time.perf_counter() - start_wall))
     if not run.ok:
@@ -1132,8 +1136,7 @@ def sample(argv=None) -> int:
     # integration slowed down (XLA:CPU already spreads its compilation and some kernels over the
     # cores; the first run took 55 s instead of 45-49 s, the second no less, measured on
     # 2026-11-28 before the diagnostics loop of run_diagnostics)
-    warming = concurrent.futures.ThreadPoolExecutor(max_workers=1)
-    warm = warming.submit(output.warm_writers, plot=not args.no_plot)
+    warming = _warming(plot=not args.no_plot)
     for att in attitudes:
         kw: dict[str, Any] = dict(attitude=att, saveat=points, rtol=args.rtol, atol=args.atol)
         print(f"-- {att}: compiling and running", flush=True)
@@ -1163,8 +1166,7 @@ def sample(argv=None) -> int:
 
     with concurrent.futures.ThreadPoolExecutor(max_workers=1) as pool:
         loose = {att: pool.submit(loose_run, att) for att in runs}
-        _warmed(warm)
-        warming.shutdown()
+        warming.join()
         os.makedirs(out, exist_ok=True)
         stem = model.name or "scene"
         output.save_npz(os.path.join(out, f"{stem}_histories.npz"), runs)
