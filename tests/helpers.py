@@ -156,3 +156,15 @@ def count_equations(jaxpr) -> int:
     import jax.extend.core
 
     return sum(1 + sum(count_equations(sub) for sub in jax.extend.core.jaxprs_in_params(e.params)) for e in jaxpr.eqns)
+
+
+def primitive_names(jaxpr) -> set[str]:
+    """The primitives of a jaxpr, those of nested jaxprs included."""
+    import jax.extend.core
+
+    names = set()
+    for e in jaxpr.eqns:
+        names.add(e.primitive.name)
+        for sub in jax.extend.core.jaxprs_in_params(e.params):
+            names |= primitive_names(sub)
+    return names

@@ -25,10 +25,13 @@ from scipy.integrate import solve_ivp
 
 import jaxtree
 from jaxtree import State, simulate
+from jaxtree._src.equations import dynamics
 from jaxtree._src.equations.control import hinge_torque_vector
+from jaxtree._src.integration.problem import with_jacobian
 
-from helpers import count_equations, random_state
+from helpers import count_equations, primitive_names, random_state
 from oracle import oracle_at
+from trees import chain, sprung_tree
 
 # Conservation over 100 s of fig4_free at rtol = atol = 1e-12 (the issue's requirement).
 DRIFT_100S = 1e-9
@@ -690,6 +693,27 @@ def test_radau_jacobian_by_parts_equals_jacfwd_and_central_differences(scenes):
         1,
     )
     np.testing.assert_allclose(J, fd, atol=FD_JACOBIAN * np.abs(fd).max())
+
+
+def test_radau_jacobian_is_traced_for_forward_use_only(monkeypatch):
+    """Radau5's J carries no derivative (its inputs and its value are cut), so Eq. (1)'s derivative
+    rule inside it gives its tangents directly (``numerics.forward_only``), not as a linear solve
+    whose product and transposed solve JAX would trace up front for nothing (flex95's first Radau5
+    call: its trace 2.7x shorter). With the rule that trees of BATCH_FIRST_DERIVATIVES_MIN bodies
+    and more take (forced here on a two-hinge chain), the Jacobian traced alone holds a linear
+    solve and Radau5's program none; Radau5's J against jacfwd and central differences: above."""
+    monkeypatch.setattr(dynamics, "BATCH_FIRST_DERIVATIVES_MIN", 1)
+    model = sprung_tree(np.random.default_rng(1), chain(2), damping=0.5)
+    problem = jaxtree.Problem(model, jaxtree.Quaternion(), None, None, None, False, 0)
+    y = problem.pack(random_state(model, np.random.default_rng(5)))
+    alone = jax.make_jaxpr(lambda y: problem.jacobian(jnp.asarray(0.2), y))(y)
+    assert "custom_linear_solve" in primitive_names(alone.jaxpr)
+    term = dfx.ODETerm(lambda t, y, p: p.vector_field(t, y))
+    controller = dfx.PIDController(rtol=1e-6, atol=1e-6)
+    solver = with_jacobian(jaxtree.Radau5())
+    run = lambda y: dfx.diffeqsolve(term, solver, 0.0, 0.1, 0.01, y, args=problem, stepsize_controller=controller).ys
+    names = primitive_names(jax.make_jaxpr(run)(y).jaxpr)
+    assert "custom_jvp_call" in names and "custom_linear_solve" not in names
 
 
 def test_simulate_validates_its_model_once(scenes, monkeypatch):

@@ -5,10 +5,37 @@ time, so that its checks are left to run time)."""
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+from collections.abc import Iterator
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
+
+# Set while a Jacobian is traced that no derivative will ever be taken of (Radau5's J: its inputs
+# and its value are cut from derivatives by `stop_gradient`): the derivative rule of Eq. (1) then
+# gives its tangents directly instead of as a linear solve, whose product and transposed solve
+# JAX traces up front for a transposition or a second derivative that cannot come (flex95: about
+# half of the Jacobian's trace). A context variable: each thread starts without it.
+_FORWARD_ONLY = contextvars.ContextVar("jaxtree_forward_only", default=False)
+
+
+@contextlib.contextmanager
+def forward_only() -> Iterator[None]:
+    """Trace the enclosed tangents of Eq. (1) for forward use only (see ``_FORWARD_ONLY``)."""
+    token = _FORWARD_ONLY.set(True)
+    try:
+        yield
+    finally:
+        _FORWARD_ONLY.reset(token)
+
+
+def is_forward_only() -> bool:
+    """Whether the tangents traced now are for forward use only (:func:`forward_only`)."""
+    return _FORWARD_ONLY.get()
+
 
 # A pivot d_i^2 of the Cholesky factorization A = L L^T of Eq. (1)'s matrix is at round-off
 # level when d_i^2 / A_ii < SINGULAR_PIVOT sqrt(m) eps (m rows, eps the unit roundoff). d_i^2 / A_ii

@@ -44,6 +44,7 @@ import numpy as np
 
 from ..numerics import (
     SINGULAR_PIVOT,  # noqa: F401 (SINGULAR_PIVOT is public here)
+    is_forward_only,
     is_traced,
     spd_inverse,
 )
@@ -694,6 +695,8 @@ def _rule(primals, tangents):
     dots = [jnp.asarray(tleaves[i], jnp.result_type(leaves[i])) for i in diff]
     if not wrapped:
         return acc, factor, _tangent_one(spec, arr, (acc, factor), dots)
+    if is_forward_only():  # never transposed nor differentiated again: no linear solve around it
+        return acc, factor, _tangent_of(spec, jax.jit(functools.partial(_tangent_one, spec)), arr, (acc, factor), dots)
     return acc, factor, _tangent_map(spec, arr, (acc, factor), dots)
 
 

@@ -125,6 +125,8 @@ import optimistix as optx
 from jax import Array
 from jax.flatten_util import ravel_pytree
 
+from ..numerics import forward_only
+
 __all__ = ["Radau5", "Radau5Interpolation", "Radau5State"]
 
 
@@ -394,12 +396,21 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
 
         return fun
 
-    def _jacobian(self, fun, t, y_flat, y_tree, args, unit):
-        """J at ``(t, y)``: `jacobian`, or ``jax.jacfwd`` of the vector field."""
-        if self.jacobian is None:
-            jac = jax.jacfwd(lambda y: fun(t, y))(y_flat)
-        else:
-            jac = jnp.asarray(self.jacobian(t * unit, y_tree, args), dtype=y_flat.dtype) * unit
+    def _jacobian(self, terms, t, y_flat, unravel, args, unit):
+        """J at ``(t, y)``: `jacobian`, or ``jax.jacfwd`` of the vector field. J carries no
+        derivative, and neither do its inputs: a derivative of the run would otherwise trace J's
+        own derivative (second derivatives of the vector field) only to drop it; and the tangents
+        of Eq. (1) inside are traced for forward use only (:func:`jaxtree._src.numerics.forward_only`)."""
+        dtype = y_flat.dtype
+        t, y_flat, unit = jax.lax.stop_gradient((t, y_flat, unit))
+        dyn, static = eqx.partition((terms, args), eqx.is_array)
+        terms, args = eqx.combine(jax.lax.stop_gradient(dyn), static)
+        with forward_only():
+            if self.jacobian is None:
+                fun = self._rhs(terms, args, unravel, dtype, unit)
+                jac = jax.jacfwd(lambda y: fun(t, y))(y_flat)
+            else:
+                jac = jnp.asarray(self.jacobian(t * unit, unravel(y_flat), args), dtype=dtype) * unit
         return jax.lax.stop_gradient(jac.reshape(y_flat.size, y_flat.size))
 
     @staticmethod
@@ -445,14 +456,14 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
             num_rhs=i32(0),
         )
 
-    def _reuse(self, st, fun, t0, h_t, y_flat, y0, args, unit, made_jump):
+    def _reuse(self, st, terms, t0, h_t, y_flat, unravel, args, unit, made_jump):
         """The Jacobian and the factorizations of this step: kept from the state, or new when
         Newton asked for it, after a rejected step or a jump, or when h left the factor window."""
         dtype = y_flat.dtype
         retry = h_t < 0.99 * st.h_last  # see the module docstring: rejected attempts are forgotten
         jac_current = (st.t_jac == t0) & ~made_jump
         new_jac = (st.refresh_jac | retry | made_jump) & ~jac_current
-        jac = jax.lax.cond(new_jac, lambda: self._jacobian(fun, t0, y_flat, y0, args, unit), lambda: st.jac)
+        jac = jax.lax.cond(new_jac, lambda: self._jacobian(terms, t0, y_flat, unravel, args, unit), lambda: st.jac)
         quot1, quot2 = self.factor_window
         ratio = h_t / st.h_lu
         slack = 64 * jnp.finfo(h_t.dtype).eps  # h recomputed as t1 - t0 differs from h_lu by roundoff
@@ -573,7 +584,7 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
         h = h_t.astype(dtype)
         made_jump = jnp.asarray(made_jump, dtype=bool)
         fresh_start = made_jump | ~st.started
-        jac, new_jac, lus, new_lu, retry = self._reuse(st, fun, t0, h_t, y_flat, y0, args, unit, made_jump)
+        jac, new_jac, lus, new_lu, retry = self._reuse(st, terms, t0, h_t, y_flat, unravel, args, unit, made_jump)
         h_lu_t = jnp.where(new_lu, h_t, st.h_lu)
 
         # starting values: the last collocation polynomial, extrapolated
