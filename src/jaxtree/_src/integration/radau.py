@@ -58,7 +58,9 @@ factored for, and the time J was evaluated at. As in RADAU5:
   a step only when the previous step's Newton iteration converged slowly (θ > `jac_refresh`,
   RADAU5's THET; 0.1 here, its advice for costly Jacobians), after a jump (`made_jump`), or when
   the step looks like a retry (below). The first step evaluates it at (t0, y0) (not `init`: the
-  compiled program then holds one Jacobian).
+  compiled program then holds one Jacobian). J carries no derivative: its value and its inputs
+  are cut by `stop_gradient` (a derivative of the run does not trace J's own), and Eq. (1)'s
+  derivative rule inside it is traced for forward use only (`numerics.forward_only`).
 * The two matrices are factored again only when J was refreshed or the step size left the window
   `factor_window` = [quot1, quot2] around h_LU (h/h_LU < quot1 or > quot2, with a relative slack
   of 64 ε of the time dtype, since t1 - t0 reproduces h_LU only up to rounding). Inside the
