@@ -699,7 +699,7 @@ def test_radau_jacobian_is_traced_for_forward_use_only(monkeypatch):
     """Radau5's J carries no derivative (its inputs and its value are cut), so Eq. (1)'s derivative
     rule inside it gives its tangents directly (``numerics.forward_only``), not as a linear solve
     whose product and transposed solve JAX would trace up front for nothing (flex95's first Radau5
-    call: its trace 2.7x shorter). With the rule that trees of BATCH_FIRST_DERIVATIVES_MIN bodies
+    call: its trace halved). With the rule that trees of BATCH_FIRST_DERIVATIVES_MIN bodies
     and more take (forced here on a two-hinge chain), the Jacobian traced alone holds a linear
     solve and Radau5's program none; Radau5's J against jacfwd and central differences: above."""
     monkeypatch.setattr(dynamics, "BATCH_FIRST_DERIVATIVES_MIN", 1)
