@@ -18,7 +18,9 @@ from jax.core import Tracer
 # and its value are cut from derivatives by `stop_gradient`): the derivative rule of Eq. (1) then
 # gives its tangents directly instead of as a linear solve, whose product and transposed solve
 # JAX traces up front for a transposition or a second derivative that cannot come (flex95: about
-# half of the Jacobian's trace). A context variable: each thread starts without it.
+# half of the Jacobian's trace). A context variable: each thread starts without it. JAX caches the
+# JVP of a jitted function's jaxpr whatever the context, so only what nothing differentiates is traced
+# under it (a jaxpr differentiated here and transposed elsewhere would fail loudly: no transpose).
 _FORWARD_ONLY = contextvars.ContextVar("jaxtree_forward_only", default=False)
 
 
