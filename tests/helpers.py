@@ -150,21 +150,22 @@ class ConstantLoads(jaxtree.BodyLoads):
         return self.force, self.torque
 
 
-def count_equations(jaxpr) -> int:
-    """Equations of a jaxpr, those of nested jaxprs included (the solve of Eq. 1 sits inside a
+def equations(jaxpr):
+    """Every equation of a jaxpr, those of nested jaxprs included (the solve of Eq. 1 sits inside a
     custom_jvp call, its derivative rule)."""
     import jax.extend.core
 
-    return sum(1 + sum(count_equations(sub) for sub in jax.extend.core.jaxprs_in_params(e.params)) for e in jaxpr.eqns)
+    for e in jaxpr.eqns:
+        yield e
+        for sub in jax.extend.core.jaxprs_in_params(e.params):
+            yield from equations(sub)
+
+
+def count_equations(jaxpr) -> int:
+    """How many :func:`equations` a jaxpr has."""
+    return sum(1 for _ in equations(jaxpr))
 
 
 def primitive_names(jaxpr) -> set[str]:
-    """The primitives of a jaxpr, those of nested jaxprs included."""
-    import jax.extend.core
-
-    names = set()
-    for e in jaxpr.eqns:
-        names.add(e.primitive.name)
-        for sub in jax.extend.core.jaxprs_in_params(e.params):
-            names |= primitive_names(sub)
-    return names
+    """The primitives of a jaxpr's :func:`equations`."""
+    return {e.primitive.name for e in equations(jaxpr)}
