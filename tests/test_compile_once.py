@@ -120,3 +120,45 @@ def test_simulate_hybrid(scene, monkeypatch):
     assert not c, dict(c)
     assert calls["pack"] == 0, dict(calls)
     assert not np.allclose(second.gamma, first.gamma)
+
+
+def test_an_eager_call_is_one_program():
+    """Eq. (1), its energy and the appendage builders called eagerly (outside any jit): each call
+    compiles one program, not each of its operations on its own (hundreds for Eq. 1: seconds of
+    a notebook's first cell), and a loop over times compiles once. A tree of a shape no other
+    test uses, so nothing is in JAX's caches yet."""
+    rng = np.random.default_rng(7)
+    bodies = [jaxtree.Body("base", 50.0, np.diag([10.0, 12.0, 14.0]))]
+    for k in range(1, 8):
+        axis = rng.normal(size=3)
+        bodies.append(
+            jaxtree.Body(
+                f"b{k}",
+                1.0 + k,
+                np.diag([1.0, 1.5, 2.0]),
+                int(rng.integers(k)),
+                tuple(axis / np.linalg.norm(axis)),
+                tuple(rng.normal(size=3)),
+                tuple(rng.normal(size=3)),
+            )
+        )
+    model = jaxtree.build_model(
+        bodies, {"gamma": rng.normal(size=7).tolist(), "gamma_dot": rng.normal(size=7).tolist()}
+    )
+    s = model.initial
+    with compilations() as c:
+        acc = jaxtree.solve_accelerations(model, s, 0.25)
+    assert 1 <= c["compiles"] <= 2, dict(c)
+    with compilations() as c:
+        for t in (0.5, 1.0, np.float64(1.5)):
+            jaxtree.solve_accelerations(model, s, t)
+        energy = jaxtree.kinetic_energy(model, s)
+    assert c["compiles"] <= 2, dict(c)
+    # the same numbers as the traced path, which a jit of the caller's takes
+    want = jax.jit(lambda m, st: jaxtree.solve_accelerations(m, st, 0.25))(model, s)
+    np.testing.assert_allclose(acc.gamma_ddot, want.gamma_ddot, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(energy, jax.jit(jaxtree.kinetic_energy)(model, s), rtol=1e-13)
+    fe = jaxtree.beam(1.7, 9, E=7e10, rho=2700.0, area=1e-4, Iy=1e-8)
+    with compilations() as c:
+        jaxtree.appendage(fe, "b3", n_modes=3)
+    assert c["compiles"] <= 2, dict(c)  # the held-interface modes, then the rest

@@ -7,12 +7,16 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from typing import ParamSpec, TypeVar, cast
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
+
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
 
 # Set while a Jacobian is traced that no derivative will ever be taken of (Radau5's J: its inputs
 # and its value are cut from derivatives by `stop_gradient`): the derivative rule of Eq. (1) then
@@ -182,17 +186,44 @@ def build_jit(fn):
     """``equinox.filter_jit`` for one-time construction: arrays traced, everything else static
     (hashed), compiled with :data:`BUILD_COMPILER_OPTIONS` (plain jit where the installed JAX
     does not take ``compiler_options``)."""
+    return _static_jit(fn, BUILD_COMPILER_OPTIONS, numbers_traced=False)
+
+
+def eager_jit(fn: Callable[_P, _R]) -> Callable[_P, _R]:
+    """One compiled program for an eager call of a public function of arrays (Eq. 1's
+    accelerations, its matrix, the energy, the hybrid right side), instead of JAX running its
+    operations one by one: each of those compiles on its own the first time, hundreds for one
+    call of Eq. (1) (seconds), and each later call dispatches them one by one (milliseconds).
+    Called inside a trace (the user's ``jit``, ``vmap``, ``grad``, or jaxtree's own programs) it
+    is the function itself, part of the caller's program. Compiled as jaxtree's programs are on
+    a CPU (:data:`CPU_COMPILER_OPTIONS`) at XLA's lowest optimization level (such calls are few:
+    compile time dominates). A number passed as an argument (a time ``t=0.5``) is traced, not
+    keyed on: a loop over times compiles once. Static parts that cannot
+    be hashed (a model holding an unhashable callable) fall back to the eager operations."""
+    return cast(Callable[_P, _R], _static_jit(fn, None, numbers_traced=True))
+
+
+def _static_jit(fn, options, *, numbers_traced):
     import functools
     import inspect
 
     import equinox as eqx
-    from jax.core import Tracer
 
-    options = BUILD_COMPILER_OPTIONS if "compiler_options" in inspect.signature(jax.jit).parameters else None
+    takes_options = "compiler_options" in inspect.signature(jax.jit).parameters
     compiled = {}
+
+    def as_array(x):
+        if isinstance(x, np.number):
+            x = x.item()  # weakly typed, like the Python number: one program for both
+        if isinstance(x, (float, int, complex)) and not isinstance(x, bool):
+            return jnp.asarray(x)
+        return x
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        if numbers_traced:
+            args = tuple(as_array(a) for a in args)
+            kwargs = {k: as_array(v) for k, v in kwargs.items()}
         dynamic, static = eqx.partition((args, kwargs), eqx.is_array)
         if any(isinstance(x, Tracer) for x in jax.tree_util.tree_leaves(dynamic)):
             return fn(*args, **kwargs)  # inside a trace (grad, jit): part of the caller's program
@@ -200,15 +231,18 @@ def build_jit(fn):
         try:
             key = (treedef, tuple(leaves))
             hash(key)
-        except TypeError:  # an unhashable static leaf: trace every call
-            return eqx.filter_jit(fn)(*args, **kwargs)
+        except TypeError:  # an unhashable static leaf
+            return fn(*args, **kwargs) if numbers_traced else eqx.filter_jit(fn)(*args, **kwargs)
         if key not in compiled:
 
             def run(dyn, _static=static):
                 a, kw = eqx.combine(dyn, _static)
                 return fn(*a, **kw)
 
-            compiled[key] = jax.jit(run, compiler_options=options) if options else jax.jit(run)
+            opts = options
+            if opts is None:
+                opts = {**(_program_options() or {}), **BUILD_COMPILER_OPTIONS} if takes_options else None
+            compiled[key] = jax.jit(run, compiler_options=opts) if (opts and takes_options) else jax.jit(run)
         try:
             return compiled[key](dynamic)
         except ValueError as err:  # compiler options are refused on a jit nested in another trace

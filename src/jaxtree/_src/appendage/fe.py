@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import SceneError
-from ..numerics import is_traced
+from ..numerics import build_jit, is_traced
 
 
 class Elements(eqx.Module):
@@ -339,16 +339,24 @@ def beam(
         if not is_traced(v) and not (np.ndim(v) == 0 and float(v) > 0):
             raise SceneError(f"beam: {name} must be a positive number, got {v!r}")
     dtype = jnp.result_type(float)
-    f = lambda x: jnp.asarray(x, dtype)
+    f = lambda x: jnp.asarray(x, dtype) if is_traced(x) else np.asarray(x, dtype)  # numpy: no eager operation
     length, E, rho, area, Iy = (f(v) for v in (length, E, rho, area, Iy))
-    Iz = Iy if Iz is None else f(Iz)
-    J = Iy + Iz if J is None else f(J)
-    G = E / 2.6 if G is None else f(G)
+    Iz, J, G = (None if v is None else f(v) for v in (Iz, J, G))
     direction, up, origin = f(direction), f(up), f(origin)
     if not is_traced((direction, up)):
         d, u = np.asarray(direction), np.asarray(up)
         if np.linalg.norm(np.cross(u, d)) < 1e-9 * np.linalg.norm(u) * np.linalg.norm(d):
             raise SceneError(f"beam: up {u.tolist()} is along direction {d.tolist()}")
+    return _beam(n, length, E, rho, area, Iy, Iz, J, G, direction, up, origin)
+
+
+@build_jit
+def _beam(n: int, length, E, rho, area, Iy, Iz, J, G, direction, up, origin) -> FEModel:
+    """:func:`beam`'s matrices once its arguments are checked: one program for concrete ones."""
+    dtype = length.dtype
+    Iz = Iy if Iz is None else Iz
+    J = Iy + Iz if J is None else J
+    G = E / 2.6 if G is None else G
     frame = _local_frame(direction, up)
     L = length / n
     s = jnp.arange(n + 1, dtype=dtype) * L
@@ -486,12 +494,23 @@ def plate(
         if not is_traced(v) and not (np.ndim(v) == 0 and float(v) > 0):
             raise SceneError(f"plate: {name} must be a positive number, got {v!r}")
     dtype = jnp.result_type(float)
+    f = lambda x: jnp.asarray(x, dtype) if is_traced(x) else np.asarray(x, dtype)
+    if not is_traced((direction, across)):
+        d, c = np.asarray(direction, float), np.asarray(across, float)
+        d = d / np.linalg.norm(d)
+        if float(np.linalg.norm(c - np.dot(c, d) * d)) < 1e-9:
+            raise SceneError(f"plate: across {list(across)} is along direction {list(direction)}")
+    args = (f(v) for v in (length, width, E, rho, thickness, nu, direction, across, origin))
+    return _plate(na, nb, *args)
+
+
+@build_jit
+def _plate(na: int, nb: int, length, width, E, rho, t, nu, direction, across, origin) -> FEModel:
+    """:func:`plate`'s matrices once its arguments are checked: one program for concrete ones."""
+    dtype = length.dtype
     f = lambda x: jnp.asarray(x, dtype)
-    length, width, E, rho, t, nu = (f(v) for v in (length, width, E, rho, thickness, nu))
-    d = f(direction) / jnp.linalg.norm(f(direction))
-    c = f(across) - jnp.dot(f(across), d) * d
-    if not is_traced((direction, across)) and float(jnp.linalg.norm(c)) < 1e-9:
-        raise SceneError(f"plate: across {list(across)} is along direction {list(direction)}")
+    d = direction / jnp.linalg.norm(direction)
+    c = across - jnp.dot(across, d) * d
     c = c / jnp.linalg.norm(c)
     n = jnp.cross(d, c)
     R = jnp.stack([d, c, n])  # rows: local x, y, z

@@ -451,25 +451,49 @@ def appendage(
             "stiffness of the spin's preload; pass geometric=False only for an appendage that does not spin"
         )
     dtype = fe.mass.dtype
-    frame = jnp.eye(3, dtype=dtype) if frame is None else jnp.asarray(frame, dtype)
-    point = jnp.asarray(point, dtype)
-    w2, Phi_all = held_interface_modes(fe, iface)
+    as_array = lambda x: jnp.asarray(x, dtype) if is_traced(x) else np.asarray(x, dtype)  # numpy: no eager operation
+    frame = None if frame is None else as_array(frame)
+    point = as_array(point)
+    w2, Phi_all = _held_modes(fe, iface)
     n_free = int(w2.shape[0])
-    X_s = fe.nodes - fe.nodes[iface[0]]  # from the interface point, structure's frame
-    R_s = _rigid_modes(X_s, fe.dofs, dtype)
     if isinstance(n_modes, str):
         if n_modes != "auto":
             raise SceneError(f"appendage: n_modes must be a number or 'auto', got {n_modes!r}")
         if is_traced((fe, w2)):
             raise SceneError("appendage: n_modes='auto' needs concrete matrices; give a number under jax transforms")
-        extent = float(np.max(np.linalg.norm(np.asarray(X_s), axis=1))) or 1.0
-        share = _static_share(fe, w2, Phi_all, R_s, extent)
+        X_s = np.asarray(fe.nodes) - np.asarray(fe.nodes)[iface[0]]  # from the interface point
+        extent = float(np.max(np.linalg.norm(X_s, axis=1))) or 1.0
+        share = _static_share(fe, w2, Phi_all, _rigid_modes_at(X_s, fe.dofs), extent)
         k = int(np.argmax(share <= tol)) if (share <= tol).any() else n_free
         k = max(k, 1)
     else:
         k = int(n_modes)
         if not 1 <= k <= n_free:
             raise SceneError(f"appendage: n_modes must be 1..{n_free} (the free degrees of freedom), got {n_modes!r}")
+    return _assemble(fe, w2, Phi_all, frame, point, damping, body, iface, outs, k, bool(geometric), str(name))
+
+
+@build_jit
+def _held_modes(fe: FEModel, iface: tuple):
+    """:func:`held_interface_modes`, one program for a concrete structure (eagerly, its
+    operations would each compile on a first build)."""
+    return held_interface_modes(fe, iface)
+
+
+@build_jit
+def _rigid_modes_at(X, dofs: int):
+    """:func:`_rigid_modes` of concrete positions, for the host-side rule of ``n_modes="auto"``."""
+    return _rigid_modes(X, dofs, X.dtype)
+
+
+@build_jit
+def _assemble(fe: FEModel, w2, Phi_all, frame, point, damping, body, iface, outs, k: int, geometric: bool, name: str):
+    """:func:`appendage` once its interface and number of modes are fixed: the modes and their
+    terms in the body's frame, one program for a concrete structure."""
+    dtype = fe.mass.dtype
+    frame = jnp.eye(3, dtype=dtype) if frame is None else frame
+    X_s = fe.nodes - fe.nodes[iface[0]]  # from the interface point, structure's frame
+    R_s = _rigid_modes(X_s, fe.dofs, dtype)
     Phi_s = Phi_all[:, :k]
     omega = jnp.sqrt(jnp.maximum(w2, 0.0))
     zeta = jnp.broadcast_to(jnp.asarray(damping, dtype), (k,))
@@ -494,9 +518,9 @@ def appendage(
     if samples is None:
         W = Wneg @ fe.mass @ Cbig.T  # per unit acceleration of each degree of freedom, body's axes
         Ro = _rigid_modes(Xo, fe.dofs, dtype)
-        terms = _appendage_terms(Xo, Phi, M, W, P, Ro, fe.dofs, bool(geometric), mass)
+        terms = _appendage_terms(Xo, Phi, M, W, P, Ro, fe.dofs, geometric, mass)
     else:
-        terms = _sample_terms(samples, fe, iface, Phi_s, Wneg, P, frame, point, bool(geometric), mass)
+        terms = _sample_terms(samples, fe, iface, Phi_s, Wneg, P, frame, point, geometric, mass)
     return Appendage(
         point=point,
         frame=frame,
@@ -514,8 +538,8 @@ def appendage(
         interface=iface,
         outputs=outs,
         dofs=fe.dofs,
-        geometric=bool(geometric),
-        name=str(name),
+        geometric=geometric,
+        name=name,
         edges=_edges(fe),
     )
 

@@ -44,6 +44,7 @@ import numpy as np
 
 from ..numerics import (
     SINGULAR_PIVOT,  # noqa: F401 (SINGULAR_PIVOT is public here)
+    eager_jit,
     is_forward_only,
     is_traced,
     spd_inverse,
@@ -106,6 +107,7 @@ def _dtype(model, *xs):
 
 
 @full_precision
+@eager_jit
 def configuration(model: Model, gamma) -> Configuration:
     """Rotations (Eqs. 4-5, 21-22), hinge axes, hinge points and mass centers at angles `gamma`."""
     _check_shapes("configuration", model, gamma=gamma)
@@ -184,6 +186,7 @@ def _hinge_momenta(model, cfg, extra=None):
 
 
 @full_precision
+@eager_jit
 def mass_matrix(model: Model, gamma) -> jax.Array:
     """The (n+3) x (n+3) coefficient matrix of Eq. (1) (Defs. 38-40) at hinge angles `gamma` (n,).
 
@@ -345,6 +348,7 @@ def complete_state(model, t, state: State):
 
 
 @full_precision
+@eager_jit
 def rotational_equations(model: Model, state: State, t=0.0, tau=None):
     """Matrix and right side of Eq. (1) for all n hinges, ``(A (n+3, n+3), rhs (n+3,))``.
 
@@ -399,7 +403,7 @@ def solve_accelerations(model: Model, state: State, t=0.0, tau=None) -> Accelera
     The torque needed to hold the prescription is returned as `hold_torque`.
     """
     _check_shapes("solve_accelerations", model, state, tau=tau)
-    acc = solve_unchecked(model, state, t, tau)
+    acc = _solve_eager(model, state, t, tau)
     _check_finite("solve_accelerations", model, state, t, tau, acc)
     return acc
 
@@ -415,6 +419,10 @@ def solve_unchecked(model, state, t, tau, completed=None):
     dtype = _dtype(model, state.gamma, state.gamma_dot, state.omega0)
     state = State(*(jnp.asarray(x, dtype) for x in state))
     return _solve_completed(model, state, jnp.asarray(t, dtype), tau, gdd_p)
+
+
+# an eager call of the public functions below: one program (the finite check stays outside it)
+_solve_eager = eager_jit(solve_unchecked)
 
 
 @eqx.filter_custom_jvp
@@ -1133,7 +1141,7 @@ def forward_dynamics(model: Model, dcm, omega0, gamma, gamma_dot, t=0.0):
     """
     _check_shapes("forward_dynamics", model, dcm=dcm, omega0=omega0, gamma=gamma, gamma_dot=gamma_dot)
     state = State(dcm, omega0, gamma, gamma_dot)
-    acc = solve_unchecked(model, state, t, None)
+    acc = _solve_eager(model, state, t, None)
     _check_finite("forward_dynamics", model, state, t, None, acc)
     return acc.omega0_dot, acc.gamma_ddot
 
@@ -1150,6 +1158,7 @@ def _momenta(model, state):
 
 
 @full_precision
+@eager_jit
 def kinetic_energy(model: Model, state: State):
     """Kinetic energy relative to the system mass center (the quadratic form of Eq. 1's matrix)."""
     _check_shapes("kinetic_energy", model, state)
@@ -1157,6 +1166,7 @@ def kinetic_energy(model: Model, state: State):
 
 
 @full_precision
+@eager_jit
 def angular_momentum(model: Model, state: State):
     """Angular momentum about the system mass center, inertial components ``{i}`` (3,)."""
     _check_shapes("angular_momentum", model, state)
@@ -1173,6 +1183,7 @@ def energy_and_momentum(model, state):
 
 
 @full_precision
+@eager_jit
 def mass_center_acceleration(model: Model, state: State, t=0.0):
     """Eq. (2): ``X_ddot = F / M`` in inertial components (zero when the model has no loads)."""
     _check_shapes("mass_center_acceleration", model, state)

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..equations.attitude import AbstractAttitude
-from ..numerics import is_traced
+from ..numerics import eager_jit, is_traced
 from ..vehicle.hinges import prescribed_motion, selector
 from ..vehicle.model import Model, State
 
@@ -262,6 +262,7 @@ class HybridModel(eqx.Module):
         g, gd, gdd = motion
         return gamma + EG @ g, gamma_dot + EG @ gd, gdd
 
+    @eager_jit
     def state(self, t, y) -> State:
         """The physical :class:`~jaxtree.State` (all n hinges) of a flat hybrid state:
         ``gamma_A = gamma_bar_A + Gamma_1 Phi_r Y_r``, ``gamma_dot_A = Gamma_2 Phi_r Y_r``
@@ -275,6 +276,7 @@ class HybridModel(eqx.Module):
         gamma_dot = gamma_dot + ES @ (self.rates[:nu] @ s)
         return State(self.attitude.to_dcm(att), w, gamma, gamma_dot)
 
+    @eager_jit
     def appendage_coordinates(self, y):
         """Each finite-element appendage's held-interface modal coordinates and their rates in the
         flat state `y`: a list of ``(q (k,), q' (k,))``, in the order of ``appendages``."""
@@ -302,6 +304,7 @@ class HybridModel(eqx.Module):
         z = jnp.zeros(self.n_small - self.nu, y.dtype)
         return jnp.concatenate([y, z, yd, z])
 
+    @eager_jit
     def pack(self, state: State) -> jax.Array:
         """Flat hybrid state of a physical :class:`~jaxtree.State`: the modal coordinates are
         ``s = project @ [y; y']`` (``y = gamma_A - gamma_bar_A``), the projection of the small
@@ -323,6 +326,7 @@ class HybridModel(eqx.Module):
             ]
         )
 
+    @eager_jit
     def projection_residual(self, state: State):
         """The part of the small motion of `state` outside the retained modes:
         ``|[y; y'] - [positions; rates] s| / |[y; y']|`` with ``s`` the projection of

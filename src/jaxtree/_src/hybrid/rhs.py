@@ -28,6 +28,7 @@ import numpy as np
 from ..equations.dynamics import rotational_equations
 from ..equations.kinematics import full_precision
 from ..integration.radau import jacobian_by_parts
+from ..numerics import eager_jit
 from ..vehicle.model import State
 from .model import HybridModel
 from .precomputed import pre_blocks, pre_system, substructure_order
@@ -88,6 +89,7 @@ def _schur_solve(hinv, Mxx, Mxh, Mhx, rx, rh, xh=None):
 
 
 @full_precision
+@eager_jit
 def hybrid_equations(hybrid: HybridModel, t, y):
     """The linear system of Eq. (118) (first-order form) or Eq. (121) (real form) at ``(t, y)``:
     ``(matrix, rhs)`` for the unknowns ``[omega0_dot, gamma_ddot_L, modal]`` (modal: ``eta_r''``
@@ -153,6 +155,7 @@ def solve(hm: HybridModel, t, parts):
 
 
 @full_precision
+@eager_jit
 def hybrid_rhs(t, y, args: HybridModel):
     """Right side of the hybrid-coordinate equations (diffrax signature ``(t, y, args)``).
 
@@ -181,6 +184,7 @@ def _field(hm: HybridModel, t, parts):
 
 
 @full_precision
+@eager_jit
 def hybrid_jacobian(t, y, args: HybridModel):
     """``d hybrid_rhs / d y`` (size x size), for :class:`jaxtree.Radau5` (its `jacobian` option;
     :func:`jaxtree.simulate_hybrid` passes it by default).

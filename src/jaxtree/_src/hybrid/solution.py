@@ -43,7 +43,7 @@ from ..integration.core import (
 )
 from ..integration.failures import MESSAGES, Failure, SimulationError, failure_report, report_failures, result_code
 from ..integration.radau import Radau5
-from ..numerics import is_traced, program_jit
+from ..numerics import eager_jit, is_traced, program_jit
 from ..vehicle.model import State
 from .model import HybridModel, appendage_body
 from .rhs import _equations, hybrid_jacobian, hybrid_rhs, solve
@@ -193,6 +193,7 @@ def _hybrid_failure_message(code, t, state, modal):
     return failure_report(code, describe)
 
 
+@eager_jit
 def _energy_and_momentum(hm: HybridModel, state, coords=()):
     """Kinetic energy plus the potential energy of the hinge springs and of the appendages' modes,
     and the angular momentum about the vehicle's mass center (inertial components).
