@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..numerics import eager_jit
 from ..vehicle.model import Model, State
 from .dynamics import complete_state, external_loads, hinge_torques
 from .kinematics import body_rotations, full_precision, relative_rotations
@@ -56,6 +57,7 @@ def _port_index(topology):
 
 
 @full_precision
+@eager_jit
 def barycentric(model: Model) -> Barycentric:
     """Defs. 30-36: total and branch masses, L^{kr}, D^k, D^{kj} and Phi^{kk}."""
     dtype = model.mass.dtype
@@ -78,6 +80,7 @@ def barycentric(model: Model) -> Barycentric:
 
 
 @full_precision
+@eager_jit
 def coupling_inertia(model: Model, gamma, bary: Barycentric | None = None):
     """Def. 37: ``Phi[k, j]`` = matrix of the dyadic Phi^{kj} ({b^k} left, {b^j} right), with
     Phi^{kk} of Def. 36 on the diagonal. Shape (n+1, n+1, 3, 3)."""
@@ -98,6 +101,7 @@ def coupling_inertia(model: Model, gamma, bary: Barycentric | None = None):
 
 
 @full_precision
+@eager_jit
 def seed_equations(model: Model, state: State, t=0.0, tau=None):
     """Eq. (1) from Defs. 38-41 as printed (with the errata applied): ``(A, rhs)``.
 

@@ -255,6 +255,7 @@ def mass_center_velocities(model, cfg, omega):
     return vel - jnp.sum(mass[:, None] * vel, 0) / jnp.sum(mass)
 
 
+@eager_jit
 def hinge_torques(model: Model, gamma, gamma_dot):
     """Joint-law torques tau_k (Def. 21): springs and dampers on `model.sprung`, zero elsewhere."""
     _check_shapes("hinge_torques", model, gamma=gamma, gamma_dot=gamma_dot)
