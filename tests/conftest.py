@@ -7,6 +7,12 @@ import os
 # JAX starts its backend.
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
+# Most of the suite's time is XLA compiling programs that then run for milliseconds: at XLA's
+# lowest backend optimization level they compile faster and the whole runs shorter even where a
+# test runs long (six of the slowest tests, 497 -> 404 s on 2026-11-28; benchmarks/FINDINGS.md).
+# The numbers are the same arithmetic (no fast math at any level); speed is the benchmarks' job.
+if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ["XLA_FLAGS"] + " --xla_backend_optimization_level=0").strip()
 
 # The tests compile from scratch and leave no files behind, but a program is compiled once per
 # run: the persistent compilation cache that `import jaxtree` turns on lives in a directory of
