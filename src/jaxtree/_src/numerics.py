@@ -198,9 +198,12 @@ def eager_jit(fn: Callable[_P, _R]) -> Callable[_P, _R]:
     is the function itself, part of the caller's program. Compiled as jaxtree's programs are on
     a CPU (:data:`CPU_COMPILER_OPTIONS`) at XLA's lowest optimization level (such calls are few:
     compile time dominates). A number passed as an argument (a time ``t=0.5``) is traced, not
-    keyed on: a loop over times compiles once. Static parts that cannot
-    be hashed (a model holding an unhashable callable) fall back to the eager operations."""
+    keyed on: a loop over times compiles once. Static parts that cannot be hashed (a model
+    holding an unhashable callable) fall back to the eager operations."""
     return cast(Callable[_P, _R], _static_jit(fn, None, numbers_traced=True))
+
+
+_STATIC_JIT_KEEP = 256  # programs kept per function (the oldest dropped first)
 
 
 def _static_jit(fn, options, *, numbers_traced):
@@ -234,6 +237,8 @@ def _static_jit(fn, options, *, numbers_traced):
         except TypeError:  # an unhashable static leaf
             return fn(*args, **kwargs) if numbers_traced else eqx.filter_jit(fn)(*args, **kwargs)
         if key not in compiled:
+            if len(compiled) >= _STATIC_JIT_KEEP:  # new static parts on every call (a lambda made in a loop)
+                compiled.pop(next(iter(compiled)))
 
             def run(dyn, _static=static):
                 a, kw = eqx.combine(dyn, _static)
