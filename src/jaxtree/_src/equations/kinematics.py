@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..numerics import eager_jit
 from ..vehicle.topology import Topology
 
 _P = ParamSpec("_P")
@@ -152,6 +153,7 @@ def subtree_sum(topology: Topology, x, bodies=None):
     return jnp.tensordot(jnp.asarray(E, x.dtype), x, axes=1)
 
 
+@eager_jit
 def dcm_rate(dcm, omega0):
     """Eq. (3): ``dC/dt = -tilde(omega0) C``."""
     return -mm(tilde(omega0), dcm)

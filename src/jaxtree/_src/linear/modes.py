@@ -49,7 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import SceneError, SceneTypeError, short
-from ..numerics import is_traced
+from ..numerics import build_jit, is_traced
 from ..values import as_float
 from .linearize import LinearSystem, structure
 
@@ -500,9 +500,15 @@ def _real_modes(I, K, zeta, traced: bool, cdtype) -> _Solved:
     """Eqs. (97)-(103), with the modal damping of Eq. (104)."""
     nu = I.shape[0]
     s2, phi = _real_core(I, K)
+    rigid = np.zeros(nu, bool) if traced else _real_rigid(np.asarray(s2))
+    return _real_fields(I, K, zeta, s2, phi, rigid, cdtype)
+
+
+@build_jit
+def _real_fields(I, K, zeta, s2, phi, rigid, cdtype) -> _Solved:
+    """:func:`_real_modes` once the rigid modes are known: one program for a concrete system."""
+    nu = I.shape[0]
     sigma = jnp.sqrt(jnp.clip(s2, 0.0))
-    rigid_np = None if traced else _real_rigid(np.asarray(s2))
-    rigid = jnp.asarray(rigid_np) if rigid_np is not None else jnp.zeros(nu, bool)
     safe = jnp.where(rigid, 1.0, sigma)
     up = jnp.concatenate([phi, 1j * safe * phi], 0) / (jnp.sqrt(2.0) * safe)
     up = jnp.where(rigid[None, :], 0.0, up).astype(cdtype)
