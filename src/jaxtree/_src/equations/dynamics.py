@@ -895,6 +895,35 @@ def _members(spec, size, arr, arr_f):
     return values, f
 
 
+# The batch-first tangents and cotangents below are jitted with the spec, the batch's size, which
+# arrays carry members and the tangents' extra axes static: JAX keeps the traced program, so each is
+# traced once per signature. A linear solve's batching rule batches its functions again until it
+# knows which of its outputs are batched (a fixed point: twice at least), and a second derivative
+# batches the rule's own tangent solve too; each of those passes would otherwise trace the
+# batch-first recursion and its derivative afresh (fig4_free's vmapped Hessian: 10 traces of it).
+@functools.partial(jax.jit, static_argnums=(0, 1, 2, 3))
+def _members_jvp(spec, size, arr_f, extra, arr, dots):
+    """The tangents ``dots`` (`extra` leading tangent axes, then the members) of the batch-first
+    accelerations of :func:`_members`, with the members moved to axis 0."""
+    values, f = _members(spec, size, arr, arr_f)
+    one = lambda d: jax.jvp(f, (values,), (d,))[1]
+    for _ in range(extra):
+        one = jax.vmap(one)
+    return jax.tree_util.tree_map(lambda x: jnp.moveaxis(x, extra, 0), one(dots))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1, 2, 3))
+def _members_vjp(spec, size, arr_f, extra, arr, c):
+    """The cotangents of the differentiated leaves from the accelerations' cotangents `c` (as in
+    :func:`_members_jvp`), with the members moved to axis 0."""
+    values, f = _members(spec, size, arr, arr_f)
+    _, pullback = jax.vjp(f, values)
+    one = lambda c: list(pullback(c)[0])
+    for _ in range(extra):
+        one = jax.vmap(one)
+    return [jnp.moveaxis(x, extra, 0) for x in one(c)]
+
+
 def _tangent_of(spec, per, arr, res, dots):
     """``G p'`` (:func:`_tangent_one`), by the batch-first recursion differentiated forward under
     ``jax.vmap`` of at least :func:`batch_first_min` members."""
@@ -913,12 +942,8 @@ def _tangent_of(spec, per, arr, res, dots):
         elif size >= batch_first_min():
             j = spec.where[0]
             extra = jnp.ndim(dots[0]) - int(dot_f[0]) - (jnp.ndim(arr[j]) - int(arr_f[j]))
-            values, f = _members(spec, size, arr, arr_f)
             d = [_tangent_axes(x, b, size, extra) for x, b in zip(dots, dot_f)]
-            one = lambda d: jax.jvp(f, (values,), (d,))[1]
-            for _ in range(extra):
-                one = jax.vmap(one)
-            out = jax.tree_util.tree_map(lambda x: jnp.moveaxis(x, extra, 0), one(d))
+            out = _members_jvp(spec, size, tuple(arr_f), extra, arr, d)
         else:
             axes = _axes(in_batched)
             out = jax.vmap(lambda a, r, d: _tangents(spec, per, a, r, d), in_axes=axes, axis_size=size)(arr, res, dots)
@@ -955,13 +980,8 @@ def _cotangent_of(spec, per, arr, res, c):
             out = _cotangent_of(spec, per, arr, res, c)
         elif size >= batch_first_min():
             extra = jnp.ndim(c.omega0_dot) - int(c_f.omega0_dot) - 1
-            values, f = _members(spec, size, arr, arr_f)
-            _, pullback = jax.vjp(f, values)
             cc = jax.tree_util.tree_map(lambda x, b: _tangent_axes(x, b, size, extra), c, c_f)
-            one = lambda c: list(pullback(c)[0])
-            for _ in range(extra):
-                one = jax.vmap(one)
-            out = [jnp.moveaxis(x, extra, 0) for x in one(cc)]
+            out = _members_vjp(spec, size, tuple(arr_f), extra, arr, cc)
         else:
             out = jax.vmap(
                 lambda a, b, c: _cotangent_one(spec, per, a, b, c), in_axes=_axes(in_batched), axis_size=size
