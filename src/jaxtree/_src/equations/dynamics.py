@@ -895,30 +895,39 @@ def _members(spec, size, arr, arr_f):
     return values, f
 
 
-# The batch-first tangents and cotangents below are jitted with the spec, the batch's size, which
-# arrays carry members and the tangents' extra axes static: JAX keeps the traced program, so each is
-# traced once per signature. A linear solve's batching rule batches its functions again until it
-# knows which of its outputs are batched (a fixed point: twice at least), and a second derivative
-# batches the rule's own tangent solve too; each of those passes would otherwise trace the
+# The batch-first tangent below is jitted with the spec, the batch's size and which arrays carry
+# members static, and traced for one tangent: JAX keeps the traced program, so a signature is traced
+# once, and its batches over tangents and its transpose (the cotangents) are made from that program
+# rather than by tracing the recursion again. A linear solve's batching rule batches its functions
+# again until it knows which of its outputs are batched (a fixed point: twice at least), and a second
+# derivative batches the rule's own tangent solve too; each of those passes would otherwise trace the
 # batch-first recursion and its derivative afresh (fig4_free's vmapped Hessian: 10 traces of it).
-@functools.partial(jax.jit, static_argnums=(0, 1, 2, 3))
-def _members_jvp(spec, size, arr_f, extra, arr, dots):
-    """The tangents ``dots`` (`extra` leading tangent axes, then the members) of the batch-first
-    accelerations of :func:`_members`, with the members moved to axis 0."""
+@functools.partial(jax.jit, static_argnums=(0, 1, 2))
+def _members_tangent(spec, size, arr_f, arr, dots):
+    """The tangent along `dots` (one per differentiated leaf, the members on axis 0) of the
+    batch-first accelerations of :func:`_members`."""
     values, f = _members(spec, size, arr, arr_f)
-    one = lambda d: jax.jvp(f, (values,), (d,))[1]
+    return jax.jvp(f, (values,), (dots,))[1]
+
+
+def _members_jvp(spec, size, arr_f, extra, arr, dots):
+    """:func:`_members_tangent` along `dots` with `extra` leading tangent axes, the members then
+    moved to axis 0."""
+    one = lambda d: _members_tangent(spec, size, arr_f, arr, d)
     for _ in range(extra):
         one = jax.vmap(one)
     return jax.tree_util.tree_map(lambda x: jnp.moveaxis(x, extra, 0), one(dots))
 
 
-@functools.partial(jax.jit, static_argnums=(0, 1, 2, 3))
 def _members_vjp(spec, size, arr_f, extra, arr, c):
     """The cotangents of the differentiated leaves from the accelerations' cotangents `c` (as in
-    :func:`_members_jvp`), with the members moved to axis 0."""
-    values, f = _members(spec, size, arr, arr_f)
-    _, pullback = jax.vjp(f, values)
-    one = lambda c: list(pullback(c)[0])
+    :func:`_members_jvp`): the transpose of :func:`_members_tangent`."""
+    shapes = [
+        jax.ShapeDtypeStruct(jnp.shape(arr[j]) if arr_f[j] else (size,) + jnp.shape(arr[j]), jnp.result_type(arr[j]))
+        for j in spec.where
+    ]
+    transposed = jax.linear_transpose(lambda d: _members_tangent(spec, size, arr_f, arr, d), shapes)
+    one = lambda c: list(transposed(c)[0])
     for _ in range(extra):
         one = jax.vmap(one)
     return [jnp.moveaxis(x, extra, 0) for x in one(c)]
