@@ -262,3 +262,10 @@ def is_traced(tree) -> bool:
     """True when any leaf of `tree` is a JAX tracer (inside jit, vmap or grad): its value is
     known only at run time, so checks on values are left to run time."""
     return any(isinstance(x, Tracer) for x in jax.tree_util.tree_leaves(tree))
+
+
+def host_or_traced(x, dtype):
+    """`x` as a numpy array of `dtype` when its value is known (a builder's checks and host-side
+    work then run no eager JAX operation, each of which would compile on its own), as a JAX array
+    when it is traced."""
+    return jnp.asarray(x, dtype) if is_traced(x) else np.asarray(x, dtype)

@@ -21,13 +21,15 @@ the geometric stiffness of in-plane stress.
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..errors import SceneError
-from ..numerics import build_jit, is_traced
+from ..numerics import build_jit, host_or_traced, is_traced
 
 
 class Elements(eqx.Module):
@@ -339,7 +341,7 @@ def beam(
         if not is_traced(v) and not (np.ndim(v) == 0 and float(v) > 0):
             raise SceneError(f"beam: {name} must be a positive number, got {v!r}")
     dtype = jnp.result_type(float)
-    f = lambda x: jnp.asarray(x, dtype) if is_traced(x) else np.asarray(x, dtype)  # numpy: no eager operation
+    f = functools.partial(host_or_traced, dtype=dtype)
     length, E, rho, area, Iy = (f(v) for v in (length, E, rho, area, Iy))
     Iz, J, G = (None if v is None else f(v) for v in (Iz, J, G))
     direction, up, origin = f(direction), f(up), f(origin)
@@ -494,7 +496,7 @@ def plate(
         if not is_traced(v) and not (np.ndim(v) == 0 and float(v) > 0):
             raise SceneError(f"plate: {name} must be a positive number, got {v!r}")
     dtype = jnp.result_type(float)
-    f = lambda x: jnp.asarray(x, dtype) if is_traced(x) else np.asarray(x, dtype)
+    f = functools.partial(host_or_traced, dtype=dtype)
     if not is_traced((direction, across)):
         d, c = np.asarray(direction, float), np.asarray(across, float)
         d = d / np.linalg.norm(d)

@@ -52,6 +52,8 @@ acceleration) and ``G1`` (its velocity) of the modal rows.
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -60,7 +62,7 @@ import numpy as np
 from ..equations.kinematics import tilde
 from ..errors import SceneError
 from ..hybrid.substructure import Terms, taylor_terms
-from ..numerics import build_jit, is_traced
+from ..numerics import build_jit, host_or_traced, is_traced
 from .fe import Elements, FEModel, Samples
 
 
@@ -451,7 +453,7 @@ def appendage(
             "stiffness of the spin's preload; pass geometric=False only for an appendage that does not spin"
         )
     dtype = fe.mass.dtype
-    as_array = lambda x: jnp.asarray(x, dtype) if is_traced(x) else np.asarray(x, dtype)  # numpy: no eager operation
+    as_array = functools.partial(host_or_traced, dtype=dtype)
     frame = None if frame is None else as_array(frame)
     point = as_array(point)
     w2, Phi_all = _held_modes(fe, iface)
