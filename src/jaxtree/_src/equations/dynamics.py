@@ -835,15 +835,19 @@ def _factored_one(model, state, t, tau, gdd_p):
     return _from_matrix(model, A, rhs, gdd_p, lambda _, b: jnp.where(ok, solve_u(b), jnp.nan)), factor
 
 
+def _over_axes(fn, extra):
+    """`fn` of one tangent (or cotangent) mapped over `extra` leading axes of its argument."""
+    for _ in range(extra):
+        fn = jax.vmap(fn)
+    return fn
+
+
 def _tangents(spec, per, arr, res, dots):
     """``G p'`` for one member by `per` (:func:`_tangent_one`); `dots` may carry leading axes of
     tangents beyond the shapes of their primals (the same on every one): the factor is made
     once (it does not depend on them) and applied to all."""
     extra = jnp.ndim(dots[0]) - jnp.ndim(arr[spec.where[0]])
-    one = lambda d: per(arr, res, d)
-    for _ in range(extra):
-        one = jax.vmap(one)
-    return one(dots)
+    return _over_axes(lambda d: per(arr, res, d), extra)(dots)
 
 
 def _tangent_one(spec, arr, res, dots):
@@ -913,10 +917,8 @@ def _members_tangent(spec, size, arr_f, arr, dots):
 def _members_jvp(spec, size, arr_f, extra, arr, dots):
     """:func:`_members_tangent` along `dots` with `extra` leading tangent axes, the members then
     moved to axis 0."""
-    one = lambda d: _members_tangent(spec, size, arr_f, arr, d)
-    for _ in range(extra):
-        one = jax.vmap(one)
-    return jax.tree_util.tree_map(lambda x: jnp.moveaxis(x, extra, 0), one(dots))
+    out = _over_axes(lambda d: _members_tangent(spec, size, arr_f, arr, d), extra)(dots)
+    return jax.tree_util.tree_map(lambda x: jnp.moveaxis(x, extra, 0), out)
 
 
 def _members_vjp(spec, size, arr_f, extra, arr, c):
@@ -927,10 +929,7 @@ def _members_vjp(spec, size, arr_f, extra, arr, c):
         for j in spec.where
     ]
     transposed = jax.linear_transpose(lambda d: _members_tangent(spec, size, arr_f, arr, d), shapes)
-    one = lambda c: list(transposed(c)[0])
-    for _ in range(extra):
-        one = jax.vmap(one)
-    return [jnp.moveaxis(x, extra, 0) for x in one(c)]
+    return [jnp.moveaxis(x, extra, 0) for x in _over_axes(lambda c: list(transposed(c)[0]), extra)(c)]
 
 
 def _tangent_of(spec, per, arr, res, dots):
@@ -967,10 +966,7 @@ def _cotangent_one(spec, per, arr, res, c):
     values = [arr[j] for j in spec.where]
     extra = jnp.ndim(c.omega0_dot) - 1
     transposed = jax.linear_transpose(lambda d: per(arr, res, d), values)
-    one = lambda c: list(transposed(c)[0])
-    for _ in range(extra):
-        one = jax.vmap(one)
-    return one(c)
+    return _over_axes(lambda c: list(transposed(c)[0]), extra)(c)
 
 
 def _cotangent_of(spec, per, arr, res, c):
