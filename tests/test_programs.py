@@ -185,3 +185,36 @@ def test_a_rebound_name_keeps_the_kept_programs_off(monkeypatch):
         m.setattr(jaxtree.HybridModel, "pack", lambda *a: None)
         assert programs.rebound() == "jaxtree._src.hybrid.model.HybridModel.pack"
     assert programs.rebound() is None
+
+
+def test_recording_survives_an_import_during_a_garbage_collection():
+    """`record` snapshots ``sys.modules`` while another thread may import (the command line warms
+    its writers on a thread while the run traces). Here a garbage collection adds a module, as a
+    thread that runs during a collection's finalizers would; it is made to happen while the
+    modules are listed (the free list of pairs used up, a collection on every allocation). Before
+    the snapshot was one ``dict.copy``, this raised "dictionary changed size during iteration"
+    (five errors of one test run)."""
+    import gc
+    import types
+
+    added = []
+
+    def import_now(phase, info):
+        if phase == "start":
+            name = f"_jaxtree_probe_{len(added)}"
+            sys.modules[name] = types.ModuleType(name)
+            added.append(name)
+
+    pairs = [(None, i) for i in range(5000)]  # no free 2-tuples left: each new pair is allocated
+    threshold = gc.get_threshold()
+    gc.callbacks.append(import_now)
+    gc.set_threshold(1)
+    try:
+        programs.record()
+    finally:
+        gc.set_threshold(*threshold)
+        gc.callbacks.remove(import_now)
+        for name in added:
+            sys.modules.pop(name, None)
+    assert len(pairs) == 5000 and added  # a collection did run inside record
+    assert programs.rebound() is None

@@ -229,16 +229,21 @@ _SEEN: dict[str, list[tuple[object, dict]]] = {}
 
 
 def _namespaces(name: str, module) -> list[tuple[object, dict]]:
-    spaces: list[tuple[object, dict]] = [(module, dict(vars(module)))]
-    for value in list(vars(module).values()):
+    names = vars(module).copy()
+    spaces: list[tuple[object, dict]] = [(module, names)]
+    for value in names.values():
         if isinstance(value, type) and value.__module__ == name:
             spaces.append((value, dict(vars(value))))
     return spaces
 
 
 def record() -> None:
-    """Record the namespaces of jaxtree's modules not yet seen."""
-    for name, module in list(sys.modules.items()):
+    """Record the namespaces of jaxtree's modules not yet seen. `sys.modules` is copied in one
+    step (``dict.copy`` runs no Python code): ``list(sys.modules.items())`` allocates a tuple per
+    module, an allocation may start a garbage collection whose finalizers let another thread run,
+    and a thread that imports meanwhile (the command line's warm-up of the writers) changed the
+    dict under the iteration (a RuntimeError in a test run)."""
+    for name, module in sys.modules.copy().items():
         if module is not None and name not in _SEEN and (name == "jaxtree" or name.startswith("jaxtree.")):
             _SEEN[name] = _namespaces(name, module)
 
