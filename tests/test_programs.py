@@ -216,5 +216,5 @@ def test_recording_survives_an_import_during_a_garbage_collection():
         gc.callbacks.remove(import_now)
         for name in added:
             sys.modules.pop(name, None)
-    assert len(pairs) == 5000 and added  # a collection did run inside record
+    assert len(pairs) == 5000 and added  # collections did run while record listed the modules
     assert programs.rebound() is None
