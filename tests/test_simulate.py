@@ -556,7 +556,7 @@ def test_bad_times_are_named_before_tracing():
 
 def test_bad_initial_states_and_tolerances_are_named_before_tracing():
     """Wrong field shapes (JAX would clamp the indices and run), a dcm that is not a rotation,
-    negative or all-zero tolerances and max_steps < 1 raise a ValueError naming the field."""
+    negative or all-zero tolerances, a zero atol and max_steps < 1 raise a ValueError naming the field."""
     model = coaxial(jaxtree.SpringDamper(3.0), gamma0=0.4)
     s = model.initial
     c, d = np.cos(0.3), np.sin(0.3)
@@ -571,6 +571,7 @@ def test_bad_initial_states_and_tolerances_are_named_before_tracing():
         (dict(y0=s._replace(dcm=jnp.diag(jnp.array([1.0, 1.0, -1.0])))), r"not a rotation matrix .* det C = -1"),
         (dict(rtol=-1e-6), "rtol must be finite and non-negative"),
         (dict(rtol=0.0, atol=0.0), "rtol and atol are both zero"),
+        (dict(atol=0.0), "atol is zero: a purely relative tolerance"),
         (dict(max_steps=0), "max_steps must be at least 1"),
     ]
     for kwargs, message in cases:

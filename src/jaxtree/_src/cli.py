@@ -1139,7 +1139,7 @@ def sample(argv=None) -> int:
     warming = _warming(plot=not args.no_plot)
     for att in attitudes:
         kw: dict[str, Any] = dict(attitude=att, saveat=points, rtol=args.rtol, atol=args.atol)
-        print(f"-- {att}: compiling and running", flush=True)
+        print(f"-- {att}: running (the summary below splits program preparation from the run)", flush=True)
         with programs.PREPARED.timing(), _elapsed(att, show_progress):
             mark = programs.PREPARED.mark()
             t0 = time.perf_counter()

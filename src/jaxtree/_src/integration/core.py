@@ -252,7 +252,7 @@ def check_state(name, model: Model, state: State):
 
 
 def check_tolerances(name, rtol, atol, max_steps):
-    """Concrete tolerances non-negative and not both zero, and at least one step allowed."""
+    """Concrete tolerances non-negative, atol not zero, and at least one step allowed."""
     as_int(max_steps, f"{name}: max_steps", minimum=1)
     values = {"rtol": rtol, "atol": atol}
     if is_traced(list(values.values())):
@@ -263,6 +263,14 @@ def check_tolerances(name, rtol, atol, max_steps):
             raise SceneError(f"{name}: {label} must be finite and non-negative, got {v.tolist()}")
     if np.all(np.asarray(rtol, float) == 0) and np.all(np.asarray(atol, float) == 0):
         raise SceneError(f"{name}: rtol and atol are both zero: no step would ever be accepted")
+    if np.all(np.asarray(atol, float) == 0):
+        # pure relative control: the error allowed in a state component that passes through zero (a
+        # hinge angle, a rate, a direction cosine) goes to zero with it, and the steps collapse there
+        raise SceneError(
+            f"{name}: atol is zero: a purely relative tolerance allows no error where a state component "
+            f"passes through zero (hinge angles, rates and direction cosines do), and the steps collapse "
+            f"there; give atol > 0 (the default: 1e-9 in float64, 1e-4 in float32)"
+        )
 
 
 def tolerances(name, rtol, atol, max_steps, dtype, stepsize_controller, stacklevel) -> tuple:
