@@ -197,6 +197,11 @@ from ._src.hybrid import substructures as substructures
 from ._src.hybrid.linear import (
     linearize as linearize,
 )
+from ._src.identify import ConvergenceWarning as ConvergenceWarning
+from ._src.identify import Fit as Fit
+from ._src.identify import IdentifiabilityWarning as IdentifiabilityWarning
+from ._src.identify import body_rates as body_rates
+from ._src.identify import identify as identify
 from ._src.hybrid.linear import (
     linearize_vehicle as linearize_vehicle,
 )
@@ -536,6 +541,12 @@ __all__ = [
     "animation_html",
     "mode_html",
     "expand_shape",
+    # parameter identification through the simulation (the use of Eq. 1 its users named first)
+    "identify",
+    "Fit",
+    "body_rates",
+    "ConvergenceWarning",
+    "IdentifiabilityWarning",
 ]
 
 

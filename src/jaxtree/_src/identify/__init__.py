@@ -1,0 +1,9 @@
+"""Parameter identification through the simulation: named parameters (:mod:`.quantities`,
+:mod:`.parameters`), sensor models (:mod:`.sensors`) and the fit (:mod:`.fit`)."""
+
+from .fit import REASONS as REASONS
+from .fit import ConvergenceWarning as ConvergenceWarning
+from .fit import Fit as Fit
+from .fit import IdentifiabilityWarning as IdentifiabilityWarning
+from .fit import identify as identify
+from .sensors import body_rates as body_rates
