@@ -125,7 +125,6 @@ class _Spec:
     sensors: tuple[sen.Sensor, ...]
     samples: int
     reverse: bool
-    max_steps: int
     progress: bool
 
 
@@ -136,7 +135,15 @@ def _residual_fn(spec: _Spec, model: Model, times, data, weights, mask, rtol, at
     def residuals(theta):
         m = spec.params.apply(model, theta)
         sol = simulate(
-            m, times[-1], t0=times[0], saveat=times, rtol=rtol, atol=atol, adjoint=adjoint, throw=False, solver=dfx.Dopri8()
+            m,
+            times[-1],
+            t0=times[0],
+            saveat=times,
+            rtol=rtol,
+            atol=atol,
+            adjoint=adjoint,
+            throw=False,
+            solver=dfx.Dopri8(),
         )
         parts = sen.readings(m, spec.sensors, sol, data)
         flat = jnp.concatenate([(parts[s.name] * weights[s.name]).reshape(-1) for s in spec.sensors])
@@ -147,7 +154,7 @@ def _residual_fn(spec: _Spec, model: Model, times, data, weights, mask, rtol, at
     return residuals
 
 
-def _loop(spec: _Spec, residuals, theta0, tol, xtol):
+def _loop(spec: _Spec, residuals, theta0, tol, xtol, max_steps):
     """Levenberg-Marquardt (module docstring): returns the accepted theta, r, J and the counts."""
     P = theta0.shape[0]
 
@@ -192,7 +199,7 @@ def _loop(spec: _Spec, residuals, theta0, tol, xtol):
             jnp.where(
                 left <= tol,
                 1,
-                jnp.where(small, 2, jnp.where(lam > 1e30, 5, jnp.where(step >= spec.max_steps, 3, 0))),
+                jnp.where(small, 2, jnp.where(lam > 1e30, 5, jnp.where(step >= max_steps, 3, 0))),
             ),
         ).astype(jnp.int32)
         if spec.progress:
@@ -223,16 +230,16 @@ def _report(step, cost, lam, left, accept):
 
 
 @eqx.filter_jit
-def _fit(spec: _Spec, model, times, data, weights, mask, theta0, rtol, atol, tol, xtol):
+def _fit(spec: _Spec, model, times, data, weights, mask, theta0, rtol, atol, tol, xtol, max_steps):
     residuals = _residual_fn(spec, model, times, data, weights, mask, rtol, atol)
-    return _loop(spec, residuals, theta0, tol, xtol)
+    return _loop(spec, residuals, theta0, tol, xtol, max_steps)
 
 
 @eqx.filter_jit
-def _fit_many(spec: _Spec, model, times, data, weights, mask, theta0, rtol, atol, tol, xtol):
+def _fit_many(spec: _Spec, model, times, data, weights, mask, theta0, rtol, atol, tol, xtol, max_steps):
     def one(d, m, th):
         residuals = _residual_fn(spec, model, times, d, weights, m, rtol, atol)
-        return _loop(spec, residuals, th, tol, xtol)
+        return _loop(spec, residuals, th, tol, xtol, max_steps)
 
     return jax.vmap(one)(data, mask, theta0)
 
@@ -392,13 +399,13 @@ def identify(
     if np.any(used < params.size):
         raise SceneError(f"identify: {int(np.min(used))} samples for {params.size} parameters: the record is too short")
     reverse = jacobian == "reverse" or (jacobian == "auto" and params.size > samples)
-    spec = _Spec(params, sensors, samples, reverse, int(max_steps), bool(progress))
+    spec = _Spec(params, sensors, samples, reverse, bool(progress))
     weights = {s.name: jnp.asarray(1.0 / sigmas[s.name], dtype) for s in sensors}
     theta0 = jnp.asarray(params.to_theta(jnp.asarray(values0, dtype)), dtype)
     args = (model, jnp.asarray(ts, dtype), filled, weights, jnp.asarray(mask), theta0)
     tols = tuple(jnp.asarray(x, dtype) for x in (rtol, atol, tol, xtol))
     run = _fit_many if members else _fit
-    theta, r, J, steps, reason = jax.device_get(run(spec, *args, *tols))
+    theta, r, J, steps, reason = jax.device_get(run(spec, *args, *tols, jnp.asarray(max_steps, jnp.int32)))
     return _result(spec, model, theta, r, J, steps, reason, mask, members, warn)
 
 

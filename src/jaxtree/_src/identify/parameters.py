@@ -127,7 +127,9 @@ def start_values(model: Model, params: Parameters, start, members: int | None) -
     start = dict(start or {})
     unknown = set(start) - set(params.names)
     if unknown:
-        raise SceneKeyError(f"identify: start: no parameter named {sorted(unknown)[0]!r}; parameters are {list(params.names)}")
+        raise SceneKeyError(
+            f"identify: start: no parameter named {sorted(unknown)[0]!r}; parameters are {list(params.names)}"
+        )
     shape = () if members is None else (members,)
     columns = []
     for name, group in zip(params.names, params.quantities):
@@ -137,7 +139,9 @@ def start_values(model: Model, params: Parameters, start, members: int | None) -
             except (TypeError, ValueError):
                 raise SceneTypeError(f"identify: start[{name!r}] must be a number, got {start[name]!r}") from None
             if v.shape not in ((), shape):
-                raise SceneError(f"identify: start[{name!r}]: a number{' or one per member' if members else ''}, got shape {v.shape}")
+                raise SceneError(
+                    f"identify: start[{name!r}]: a number{' or one per member' if members else ''}, got shape {v.shape}"
+                )
             v = np.broadcast_to(v, shape)
         else:
             v = np.full(shape, np.mean([qty.value(model, q) for q in group]))
