@@ -258,3 +258,47 @@ def test_a_fit_that_runs_out_of_steps_says_so(wings, noisy):
         jaxtree.identify(
             wings, ["wingp_1.stiffness"], TS[:21], {k: v[:21] for k, v in data.items()}, SIGMA, max_steps=2, warn=False
         )
+
+
+def test_the_command_line_fits_a_csv_record_and_reads_a_result_file(wings, noisy, tmp_path, capsys):
+    """`jaxtree identify` on a CSV record (a unit after a name, a missing cell): the estimates of
+    jaxtree.identify on the same data, a residual plot and a JSON file; a result file read by the
+    named sensors gives the simulation's own histories; a mistake is one line and status 2."""
+    from PIL import Image
+
+    from jaxtree._src.cli import main
+    from jaxtree._src.identify.record import load_record, save_record_csv
+
+    data, _ = noisy
+    short = {k: v[:21].copy() for k, v in data.items()}
+    short["wingp_1.angle"][7] = np.nan
+    csv_path = tmp_path / "record.csv"
+    save_record_csv(csv_path, TS[:21], short)
+    text = csv_path.read_text().replace("wingp_1.angle", "wingp_1.angle (rad)", 1)
+    csv_path.write_text(text)
+    direct = jaxtree.identify(wings, ["wingp_1.stiffness"], TS[:21], short, SIGMA)
+    argv = ["identify", "wings", str(csv_path), "--free", "wingp_1.stiffness"]
+    argv += [f"--sigma={k}={v}" for k, v in SIGMA.items()]
+    argv += ["--plot", str(tmp_path / "res.png"), "-o", str(tmp_path / "fit.json")]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "wingp_1.stiffness" in out and "converged" in out
+    import json
+
+    doc = json.loads((tmp_path / "fit.json").read_text())
+    assert doc["values"]["wingp_1.stiffness"] == pytest.approx(direct.values["wingp_1.stiffness"], rel=1e-12)
+    assert doc["stderr"]["wingp_1.stiffness"] == pytest.approx(direct.stderr["wingp_1.stiffness"], rel=1e-9)
+    assert doc["dof"] == 21 * 5 - 1 - 1
+    with Image.open(tmp_path / "res.png") as png:
+        assert png.size[0] > 500
+    # a result file, read by the sensors
+    sol = jaxtree.simulate(wings, 2.0, saveat=jnp.asarray(TS[:21]), rtol=TOL, atol=TOL)
+    jaxtree.save_result(tmp_path / "run.nc", sol)
+    ts, reads = load_record(tmp_path / "run.nc", wings, ["hub.omega", "wingm_1.rate"])
+    np.testing.assert_allclose(ts, TS[:21], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(reads["hub.omega"], sol.omega0, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(reads["wingm_1.rate"], sol.gamma_dot[:, 4], rtol=0, atol=1e-15)
+    # a mistake: one line, status 2
+    assert main(["identify", "wings", str(csv_path), "--free", "wingp_1.stiffnes", "--sigma", "hub.omega=1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unknown quantity 'wingp_1.stiffnes'" in err[0]

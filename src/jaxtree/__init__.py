@@ -197,14 +197,14 @@ from ._src.hybrid import substructures as substructures
 from ._src.hybrid.linear import (
     linearize as linearize,
 )
+from ._src.hybrid.linear import (
+    linearize_vehicle as linearize_vehicle,
+)
 from ._src.identify import ConvergenceWarning as ConvergenceWarning
 from ._src.identify import Fit as Fit
 from ._src.identify import IdentifiabilityWarning as IdentifiabilityWarning
 from ._src.identify import body_rates as body_rates
 from ._src.identify import identify as identify
-from ._src.hybrid.linear import (
-    linearize_vehicle as linearize_vehicle,
-)
 from ._src.integration.autosolver import (
     SolverChoice as SolverChoice,
 )

@@ -13,6 +13,8 @@ Subcommands (``jaxtree SUBCOMMAND --help`` for each):
 - ``check SCENE``: validate a scene; its tree, the seed's Tables 1-2, masses and the condition
   number of Eq. (1) at the initial state;
 - ``plot RESULT``: the plots of a result file;
+- ``identify SCENE RECORD --free ... --sigma ...``: estimate named parameters from a record of
+  sensor readings (:func:`jaxtree.identify`; :mod:`~jaxtree._src.identify.command`);
 - ``bench [CASE ...]``: error against run time for each solver, formulation and peer: a CSV,
   a Markdown report and one work-precision plot per case (:func:`jaxtree.work_precision`);
 - ``sample`` (also: no subcommand at all): the seed's sample problem (``python -m jaxtree``).
@@ -54,6 +56,7 @@ from .appendage.files import scene_appendages
 from .campaigns.chunked import ChunkedRunError, chunked_config, parse_hinges, simulate_to_file
 from .campaigns.chunked import solver_named as solver_named
 from .hybrid.linear import linearize
+from .identify import command as identify_command
 from .integration.autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
 from .integration.simulate import simulate
 from .io import output, plots
@@ -65,7 +68,7 @@ from .linear.modes import ModalError, modes
 from .scene.check import check_scene
 from .scene.scene import SceneError, list_scenes, load_scene
 
-SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "bench", "sample")
+SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "identify", "bench", "sample")
 EXIT_USAGE, EXIT_FAILED, EXIT_INTERRUPTED = 2, 1, 130
 # Seconds to sleep after each part of `simulate` is written: lets a test interrupt a run
 # between parts deterministically. Not for users.
@@ -248,7 +251,15 @@ def _parser():
     )
     p.add_argument("--version", action="store_true", help="print the versions and exit")
     sub = p.add_subparsers(dest="command", metavar="SUBCOMMAND", parser_class=_Parser)
-    for add in (_simulate_parser, _modes_parser, _animate_parser, _check_parser, _plot_parser, _bench_parser):
+    for add in (
+        _simulate_parser,
+        _modes_parser,
+        _animate_parser,
+        _check_parser,
+        _plot_parser,
+        _identify_parser,
+        _bench_parser,
+    ):
         add(sub)
     sub.add_parser("sample", help="the seed's sample problem (the default without a subcommand)", add_help=False)
     return p
@@ -281,6 +292,7 @@ _COMMANDS = {
         "plots of a result file",
         "Plot a result: time histories and drift (simulation) or mode shapes (modes).",
     ),
+    "identify": ("estimate parameters from a record of sensor readings", identify_command.DESCRIPTION),
     "bench": (
         "error against run time: solvers, formulations and peers",
         "Work-precision report: for each case, formulation (full Eq. 1, Eq. 30, hybrid) and solver, "
@@ -441,6 +453,10 @@ def _plot_parser(sub):
     pl.add_argument("-o", "--out", metavar="PREFIX", help="file name prefix (default: RESULT without .nc)")
 
 
+def _identify_parser(sub):
+    identify_command.add_arguments(_subparser(sub, "identify"))
+
+
 def _bench_parser(sub):
     b = _subparser(sub, "bench")
     b.add_argument("cases", metavar="CASE", nargs="*", help="bench cases (see above), or stiff_<scale>")
@@ -517,6 +533,7 @@ def _main(argv) -> int:
             "animate": cmd_animate,
             "check": cmd_check,
             "plot": cmd_plot,
+            "identify": cmd_identify,
             "bench": cmd_bench,
         }[args.command](args)
     except UserError as e:
@@ -588,6 +605,14 @@ def cmd_bench(args) -> int:
 
 
 # ----------------------------------------------------------------------------- check
+def cmd_identify(args) -> int:
+    model = _load_scene(args.scene)
+    try:
+        return identify_command.run(args, model, matplotlib_ok=not args.no_plot and _matplotlib())
+    except SceneError as e:
+        raise UserError(str(e).removeprefix("identify: ")) from None
+
+
 def cmd_check(args) -> int:
     model = _load_scene(args.scene)
     src = pathlib.Path(args.scene)

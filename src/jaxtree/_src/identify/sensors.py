@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -57,7 +58,9 @@ def resolve(model: Model, name, shape: tuple[int, ...], batched: bool) -> Sensor
     try:
         k = model.body_index(int(body) if body.isdigit() else body)
     except (KeyError, IndexError):
-        raise SceneKeyError(f"identify: sensor {name!r}: no body {body!r}; bodies are {', '.join(model.names)}") from None
+        raise SceneKeyError(
+            f"identify: sensor {name!r}: no body {body!r}; bodies are {', '.join(model.names)}"
+        ) from None
     if kind in ("angle", "rate") and k == 0:
         raise SceneError(f"identify: sensor {name!r}: body {model.names[0]!r} is the base; it has no hinge")
     sample = shape[1:]
@@ -97,28 +100,41 @@ def body_dcms(model: Model, gamma, dcm):
     return jnp.einsum("kji,jl->kil", R, dcm)
 
 
-def readings(model: Model, sensors: tuple[Sensor, ...], sol, data: dict) -> dict:
-    """Each sensor's residual, model minus measurement (T, width), from a :class:`Solution`
-    `sol` at the measurement times; attitudes as the small rotation of the module docstring."""
+def read(model: Model, sensors: tuple[Sensor, ...], sol) -> dict:
+    """What each sensor reads along a :class:`Solution` `sol`: ``"omega"`` (T, 3), ``"angle"``
+    and ``"rate"`` (T,), ``"attitude"`` the body's direction cosines (T, 3, 3)."""
     need_rates = any(s.kind == "omega" and s.body != 0 for s in sensors)
     need_dcms = any(s.kind == "attitude" and s.body != 0 for s in sensors)
-    from jax import vmap
-
-    rates = vmap(lambda g, gd, w: body_rates(model, g, gd, w))(sol.gamma, sol.gamma_dot, sol.omega0) if need_rates else None
-    dcms = vmap(lambda g, C: body_dcms(model, g, C))(sol.gamma, sol.dcm) if need_dcms else None
+    rates = (
+        jax.vmap(lambda g, gd, w: body_rates(model, g, gd, w))(sol.gamma, sol.gamma_dot, sol.omega0)
+        if need_rates
+        else None
+    )
+    dcms = jax.vmap(lambda g, C: body_dcms(model, g, C))(sol.gamma, sol.dcm) if need_dcms else None
     out = {}
     for s in sensors:
-        y = data[s.name]
         if s.kind == "omega":
-            out[s.name] = (sol.omega0 if s.body == 0 else rates[:, s.body]) - y
+            out[s.name] = sol.omega0 if s.body == 0 else rates[:, s.body]
         elif s.kind in ("angle", "rate"):
-            x = sol.gamma if s.kind == "angle" else sol.gamma_dot
-            out[s.name] = (x[:, s.body - 1] - y)[:, None]
+            out[s.name] = (sol.gamma if s.kind == "angle" else sol.gamma_dot)[:, s.body - 1]
         else:
-            C = sol.dcm if s.body == 0 else dcms[:, s.body]
+            out[s.name] = sol.dcm if s.body == 0 else dcms[:, s.body]
+    return out
+
+
+def readings(model: Model, sensors: tuple[Sensor, ...], sol, data: dict) -> dict:
+    """Each sensor's residual, model minus measurement (T, width), from a :class:`Solution`
+    `sol` at the measurement times; an attitude's as the small rotation phi of the module
+    docstring (``C_meas = (U - tilde(phi)) C_model`` to first order)."""
+    model_reads = read(model, sensors, sol)
+    out = {}
+    for s in sensors:
+        y, x = data[s.name], model_reads[s.name]
+        if s.kind == "attitude":
             measured = quaternion_to_dcm(y) if s.form == "quaternion" else y
-            # C_meas C^T = U - tilde(phi): phi the rotation from the model's attitude to the measured one
-            out[s.name] = -_vee_of_skew(jnp.einsum("tij,tkj->tik", measured, C))
+            out[s.name] = -_vee_of_skew(jnp.einsum("tij,tkj->tik", measured, x))
+        else:
+            out[s.name] = (x - y).reshape(x.shape[0], -1)
     return out
 
 
