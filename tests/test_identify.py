@@ -178,6 +178,12 @@ def test_noisy_fit_is_a_least_squares_minimum_with_the_gauss_newton_covariance(w
     assert max(off) < 4.5, off
     assert fit.chi2 == pytest.approx(float(r @ r), rel=1e-6)
     assert fit.dof == 101 * 5 - 6
+    # the coarse phase changes where the fit ends by much less than a standard error: without it
+    # (the same compiled loop: tolerances are numbers of the program)
+    fine = jaxtree.identify(wings, FREE, TS, data, SIGMA, rtol=TOL, atol=TOL, coarse_tol=None)
+    assert fine.converged and fine.steps != fit.steps
+    for n in names:
+        assert abs(fine.values[n] - fit.values[n]) < 1e-3 * fit.stderr[n], n
 
 
 def test_many_records_at_once_equal_their_single_fits(wings, noisy):

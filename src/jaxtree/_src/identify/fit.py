@@ -32,13 +32,13 @@ from collections.abc import Mapping
 from typing import Any
 
 import diffrax as dfx
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..errors import SceneError, SceneTypeError
 from ..integration.simulate import simulate
+from ..numerics import program_jit
 from ..vehicle.model import Model
 from . import sensors as sen
 from .parameters import Parameters, parameters, start_values
@@ -128,11 +128,11 @@ class _Spec:
     progress: bool
 
 
-def _residual_fn(spec: _Spec, model: Model, times, data, weights, mask, rtol, atol):
-    """theta -> (flat weighted residuals (M,), ok): one simulation."""
+def _residual_fn(spec: _Spec, model: Model, times, data, weights, mask):
+    """(theta, rtol, atol) -> (flat weighted residuals (M,), ok): one simulation."""
     adjoint = dfx.RecursiveCheckpointAdjoint() if spec.reverse else dfx.ForwardMode()
 
-    def residuals(theta):
+    def residuals(theta, rtol, atol):
         m = spec.params.apply(model, theta)
         sol = simulate(
             m,
@@ -154,13 +154,25 @@ def _residual_fn(spec: _Spec, model: Model, times, data, weights, mask, rtol, at
     return residuals
 
 
-def _loop(spec: _Spec, residuals, theta0, tol, xtol, max_steps):
-    """Levenberg-Marquardt (module docstring): returns the accepted theta, r, J and the counts."""
+# The coarse phase ends when the Gauss-Newton step left is this many standard errors or fewer
+SWITCH = 1.0
+
+
+def _loop(spec: _Spec, residuals, theta0, tols, max_steps):
+    """Levenberg-Marquardt (module docstring): returns the accepted theta, r, J and the counts.
+
+    Two phases: the simulations run at the coarse tolerances until the fit nears its solution
+    (the Gauss-Newton step left is :data:`SWITCH` standard errors or less, or the coarse fit
+    stops), then at the fit's own tolerances from the point reached (re-evaluated there
+    first), so that the estimate, its residuals and its covariance are those of the fit's
+    tolerances. Where the coarse tolerances are no coarser, the loop starts in the second phase."""
+    rtol, atol, coarse_rtol, coarse_atol, tol, xtol = tols
     P = theta0.shape[0]
 
-    def evaluate(theta):
+    def evaluate(theta, phase):
         """Residuals, their Jacobian and whether the simulation ran, from one simulation."""
-        with_aux = lambda th: (lambda out: (out[0], out))(residuals(th))
+        rt, at = jnp.where(phase == 0, coarse_rtol, rtol), jnp.where(phase == 0, coarse_atol, atol)
+        with_aux = lambda th: (lambda out: (out[0], out))(residuals(th, rt, at))
         J, (r, ok) = (jax.jacrev if spec.reverse else jax.jacfwd)(with_aux, has_aux=True)(theta)
         return r, J, ok
 
@@ -175,71 +187,79 @@ def _loop(spec: _Spec, residuals, theta0, tol, xtol, max_steps):
         return delta, predicted, scale, left
 
     def body(c):
-        r_t, J_t, ok = evaluate(c["trial"])
+        r_t, J_t, ok = evaluate(c["trial"], c["phase"])
         cost_t = jnp.where(ok, 0.5 * r_t @ r_t, jnp.inf)
-        first = c["step"] == 0
+        fresh = c["fresh"]  # the start, or the same point at the fit's own tolerances: accepted as it is
         rho = (c["cost"] - cost_t) / jnp.maximum(c["predicted"], 1e-300)
-        accept = first | (jnp.isfinite(cost_t) & (rho > 1e-4))
+        accept = fresh | (jnp.isfinite(cost_t) & (rho > 1e-4))
         theta = jnp.where(accept, c["trial"], c["theta"])
         r = jnp.where(accept, r_t, c["r"])
         J = jnp.where(accept, J_t, c["J"])
         cost = jnp.where(accept, cost_t, c["cost"])
         lam = jnp.where(
-            first,
+            c["step"] == 0,
             1e-3,  # relative to the scaling: 1e-3 of the largest diagonal of J^T J
-            jnp.where(accept, c["lam"] * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), c["lam"] * c["nu"]),
+            jnp.where(
+                fresh,
+                c["lam"],
+                jnp.where(accept, c["lam"] * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), c["lam"] * c["nu"]),
+            ),
         )
         nu = jnp.where(accept, 2.0, 2 * c["nu"])
         delta, predicted, scale, left = propose(theta, r, J, lam, c["scale"])
         step = c["step"] + 1
         small = jnp.all(jnp.abs(delta) <= xtol * (jnp.abs(theta) + xtol))
         reason = jnp.where(
-            first & ~ok,
+            fresh & ~ok,
             4,
             jnp.where(
                 left <= tol,
                 1,
                 jnp.where(small, 2, jnp.where(lam > 1e30, 5, jnp.where(step >= max_steps, 3, 0))),
             ),
-        ).astype(jnp.int32)
+        )
+        near = (reason == 1) | (reason == 2) | (reason == 5) | (left <= SWITCH)
+        switch = (c["phase"] == 0) & near & (reason != 4) & (step < max_steps)
         if spec.progress:
-            jax.debug.callback(_report, step, cost, lam, left, accept, ordered=True)
+            jax.debug.callback(_report, step, cost, lam, left, accept, c["phase"], ordered=True)
         return dict(
-            trial=theta + delta, theta=theta, r=r, J=J, cost=cost, predicted=predicted,
-            lam=lam, nu=nu, scale=scale, step=step, reason=reason, left=left,
+            trial=jnp.where(switch, theta, theta + delta), theta=theta, r=r, J=J, cost=cost, predicted=predicted,
+            lam=lam, nu=nu, scale=scale, step=step, reason=jnp.where(switch, 0, reason).astype(jnp.int32),
+            left=left, phase=jnp.where(switch, 1, c["phase"]).astype(jnp.int32), fresh=switch,
         )  # fmt: skip
 
     M = spec.samples
     dtype = theta0.dtype
+    coarser = (coarse_rtol > rtol) | (coarse_atol > atol)
     init = dict(
         trial=theta0, theta=theta0, r=jnp.zeros(M, dtype), J=jnp.zeros((M, P), dtype), cost=jnp.asarray(jnp.inf, dtype),
         predicted=jnp.ones((), dtype), lam=jnp.ones((), dtype), nu=jnp.asarray(2.0, dtype),
         scale=jnp.zeros(P, dtype), step=jnp.zeros((), jnp.int32), reason=jnp.zeros((), jnp.int32),
-        left=jnp.asarray(jnp.inf, dtype),
+        left=jnp.asarray(jnp.inf, dtype), phase=jnp.where(coarser, 0, 1).astype(jnp.int32), fresh=jnp.asarray(True),
     )  # fmt: skip
     out = jax.lax.while_loop(lambda c: c["reason"] == 0, body, init)
     return out["theta"], out["r"], out["J"], out["step"], out["reason"]
 
 
-def _report(step, cost, lam, left, accept):
+def _report(step, cost, lam, left, accept, phase):
     print(
-        f"identify: simulation {int(step)}: chi2 {2 * float(cost):.6g}, damping {float(lam):.2g}, "
+        f"identify: simulation {int(step)}{' (coarse)' if int(phase) == 0 else ''}: chi2 {2 * float(cost):.6g}, damping {float(lam):.2g}, "
         f"Gauss-Newton step left {float(left):.3g} std errors{'' if bool(accept) else ' (rejected)'}",
         flush=True,
     )
 
 
-@eqx.filter_jit
-def _fit(spec: _Spec, model, times, data, weights, mask, theta0, rtol, atol, tol, xtol, max_steps):
-    residuals = _residual_fn(spec, model, times, data, weights, mask, rtol, atol)
-    return _loop(spec, residuals, theta0, tol, xtol, max_steps)
+@program_jit
+def _fit(spec: _Spec, model, times, data, weights, mask, theta0, tols, max_steps):
+    residuals = _residual_fn(spec, model, times, data, weights, mask)
+    return _loop(spec, residuals, theta0, tols, max_steps)
 
 
-@eqx.filter_jit
-def _fit_many(spec: _Spec, model, times, data, weights, mask, theta0, rtol, atol, tol, xtol, max_steps):
+@program_jit
+def _fit_many(spec: _Spec, model, times, data, weights, mask, theta0, tols, max_steps):
     def one(d, m, th):
-        residuals = _residual_fn(spec, model, times, d, weights, m, rtol, atol)
-        return _loop(spec, residuals, th, tol, xtol, max_steps)
+        residuals = _residual_fn(spec, model, times, d, weights, m)
+        return _loop(spec, residuals, th, tols, max_steps)
 
     return jax.vmap(one)(data, mask, theta0)
 
@@ -318,6 +338,7 @@ def identify(
     log: Mapping | None = None,
     tol: float = 1e-4,
     xtol: float = 1e-10,
+    coarse_tol: float | None = 1e-6,
     jacobian: str = "auto",
     progress: bool = False,
     warn: bool = True,
@@ -349,6 +370,9 @@ def identify(
       inertias, stiffnesses and dampings as logarithms, the rest as themselves).
     - `tol`: stop when the Gauss-Newton step left is shorter than `tol` standard errors; `xtol`:
       or when a step changes every fitted coordinate by less than `xtol` relative.
+    - `coarse_tol`: the simulations' tolerance (relative and absolute) while the fit is far from
+      its solution, where `rtol` and `atol` are tighter; the last steps, the estimate and its
+      covariance are at `rtol`, `atol` (None: `rtol`, `atol` throughout).
     - `jacobian`: ``"forward"`` (one tangent per parameter), ``"reverse"`` (one cotangent per
       residual) or ``"auto"`` (forward unless the parameters outnumber the residuals).
     - `progress`: print each simulation's chi-square and damping (a host callback: such a program
@@ -366,7 +390,7 @@ def identify(
     params = parameters(model, free, log)
     sensors, data, sigmas, members = _check_measurements(model, measurements, sigma, ts.size)
     values0 = start_values(model, params, start, members)
-    for label, x in (("rtol", rtol), ("atol", atol), ("tol", tol), ("xtol", xtol)):
+    for label, x in (("rtol", rtol), ("atol", atol), ("tol", tol), ("xtol", xtol), ("coarse_tol", coarse_tol or 1.0)):
         if not isinstance(x, (int, float)) or not np.isfinite(x) or x <= 0:
             raise SceneError(f"identify: {label} must be a positive number, got {x!r}")
     if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
@@ -403,9 +427,10 @@ def identify(
     weights = {s.name: jnp.asarray(1.0 / sigmas[s.name], dtype) for s in sensors}
     theta0 = jnp.asarray(params.to_theta(jnp.asarray(values0, dtype)), dtype)
     args = (model, jnp.asarray(ts, dtype), filled, weights, jnp.asarray(mask), theta0)
-    tols = tuple(jnp.asarray(x, dtype) for x in (rtol, atol, tol, xtol))
+    coarse = rtol if coarse_tol is None else coarse_tol
+    tols = tuple(jnp.asarray(x, dtype) for x in (rtol, atol, max(rtol, coarse), max(atol, coarse), tol, xtol))
     run = _fit_many if members else _fit
-    theta, r, J, steps, reason = jax.device_get(run(spec, *args, *tols, jnp.asarray(max_steps, jnp.int32)))
+    theta, r, J, steps, reason = jax.device_get(run(spec, *args, tols, jnp.asarray(max_steps, jnp.int32)))
     return _result(spec, model, theta, r, J, steps, reason, mask, members, warn)
 
 
