@@ -205,6 +205,10 @@ from ._src.identify import Fit as Fit
 from ._src.identify import IdentifiabilityWarning as IdentifiabilityWarning
 from ._src.identify import body_rates as body_rates
 from ._src.identify import identify as identify
+from ._src.identify import load_record as load_record
+from ._src.identify import plot_residuals as plot_residuals
+from ._src.identify import save_record_csv as save_record_csv
+from ._src.identify import with_quantities as with_quantities
 from ._src.integration.autosolver import (
     SolverChoice as SolverChoice,
 )
@@ -543,6 +547,10 @@ __all__ = [
     "expand_shape",
     # parameter identification through the simulation (the use of Eq. 1 its users named first)
     "identify",
+    "with_quantities",
+    "load_record",
+    "save_record_csv",
+    "plot_residuals",
     "Fit",
     "body_rates",
     "ConvergenceWarning",

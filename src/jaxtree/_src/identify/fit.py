@@ -18,15 +18,17 @@ standard errors (its Mahalanobis length ``|J dtheta_GN|``), when a step changes 
 by more than `xtol` relative, or after `max_steps` simulations.
 
 Many records or vehicles at once: a measurement array with a leading members axis fits each
-member in the same loop (``jax.vmap``: each member keeps its own iterates, damping and stop, and
-its estimate is its single fit's).
+member by the single-record program, the members shared among threads on the cores (each
+estimate is its single fit's, and a member that has converged costs nothing more).
 
 This is not an equation of the seed: it is the use of Eq. (1) its users named first.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
+import os
 import warnings
 from collections.abc import Mapping
 from typing import Any
@@ -255,13 +257,25 @@ def _fit(spec: _Spec, model, times, data, weights, mask, theta0, tols, max_steps
     return _loop(spec, residuals, theta0, tols, max_steps)
 
 
-@program_jit
-def _fit_many(spec: _Spec, model, times, data, weights, mask, theta0, tols, max_steps):
-    def one(d, m, th):
-        residuals = _residual_fn(spec, model, times, d, weights, m)
-        return _loop(spec, residuals, th, tols, max_steps)
+def _members(spec: _Spec, args, tols, limit, members: int, workers: int | None):
+    """Each member's fit by the single-record program, the members shared among `workers` threads
+    (XLA releases Python's lock while a program runs): a member that has converged costs nothing
+    more, and each estimate is its single fit's, bit for bit. (A vmapped loop cost 7.8 times the
+    single fits of 16 wings records on a 2-core CPU: every iteration ran every member to the
+    slowest member's step count, and XLA:CPU runs a batch of 16 such solves no faster per member
+    than one; benchmarks/FINDINGS.md.)"""
+    model, times, data, weights, mask, theta0 = args
 
-    return jax.vmap(one)(data, mask, theta0)
+    def one(i):
+        member = (model, times, {k: v[i] for k, v in data.items()}, weights, mask[i], theta0[i])
+        return jax.device_get(_fit(spec, *member, tols, limit))
+
+    first = one(0)  # compiles (or loads) the program once, before the threads share it
+    if workers is None:
+        workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, min(int(workers), members - 1))) as pool:
+        rest = list(pool.map(one, range(1, members)))
+    return tuple(np.stack([np.asarray(x[k]) for x in (first, *rest)]) for k in range(5))
 
 
 def _check_times(times) -> np.ndarray:
@@ -342,6 +356,7 @@ def identify(
     jacobian: str = "auto",
     progress: bool = False,
     warn: bool = True,
+    workers: int | None = None,
 ) -> Fit:
     """Estimate the parameters `free` of `model` from sensor `measurements` sampled at `times`.
 
@@ -378,6 +393,7 @@ def identify(
     - `progress`: print each simulation's chi-square and damping (a host callback: such a program
       is not kept in the compilation cache).
     - `warn`: warn when the fit does not converge or some parameters are not identifiable.
+    - `workers`: threads that share a batch's members (default: the cores this process may use).
 
     **Returns:** a :class:`Fit`.
 
@@ -429,8 +445,12 @@ def identify(
     args = (model, jnp.asarray(ts, dtype), filled, weights, jnp.asarray(mask), theta0)
     coarse = rtol if coarse_tol is None else coarse_tol
     tols = tuple(jnp.asarray(x, dtype) for x in (rtol, atol, max(rtol, coarse), max(atol, coarse), tol, xtol))
-    run = _fit_many if members else _fit
-    theta, r, J, steps, reason = jax.device_get(run(spec, *args, tols, jnp.asarray(max_steps, jnp.int32)))
+    limit = jnp.asarray(max_steps, jnp.int32)
+    if not members:
+        out = jax.device_get(_fit(spec, *args, tols, limit))
+    else:
+        out = _members(spec, args, tols, limit, members, workers)
+    theta, r, J, steps, reason = out
     return _result(spec, model, theta, r, J, steps, reason, mask, members, warn)
 
 

@@ -157,3 +157,14 @@ def start_values(model: Model, params: Parameters, start, members: int | None) -
                 f"give a positive start, or log={{{name!r}: False}}"
             )
     return values
+
+
+def with_quantities(model: Model, values: Mapping) -> Model:
+    """`model` with named quantities set: ``values`` a dict ``quantity -> number`` in the names of
+    :func:`jaxtree.identify` (``"wingp_1.stiffness"``, ``"hub.inertia[0,1]"`` (both entries),
+    ``"initial.omega0[2]"`` ...). The numbers may be traced (differentiable, vmappable)."""
+    if not isinstance(values, Mapping):
+        raise SceneTypeError(f"with_quantities: values must be a dict quantity -> number, got {type(values).__name__}")
+    names = list(values)
+    p = parameters(model, names, log={n: False for n in names})
+    return p.apply(model, jnp.stack([jnp.asarray(values[n], jnp.result_type(model.mass)) for n in names]))
