@@ -217,7 +217,7 @@ def test_user_mistakes_print_one_line_and_exit_nonzero(tmp_path, capsys):
 
 
 def test_help_of_every_subcommand(capsys):
-    for sub in ("simulate", "modes", "animate", "check", "plot"):
+    for sub in ("simulate", "modes", "animate", "check", "plot", "identify", "bench"):
         with pytest.raises(SystemExit) as e:
             cli.main([sub, "--help"])
         assert e.value.code == 0
@@ -225,7 +225,7 @@ def test_help_of_every_subcommand(capsys):
     with pytest.raises(SystemExit):
         cli.main(["--help"])
     out = capsys.readouterr().out
-    assert all(s in out for s in ("simulate", "modes", "animate", "check", "sample problem"))
+    assert all(s in out for s in ("simulate", "modes", "animate", "check", "identify", "sample problem"))
     # the sample problem's own help names the command it was reached by (not `python -m jaxtree`)
     with pytest.raises(SystemExit):
         cli.main(["sample", "--help"])

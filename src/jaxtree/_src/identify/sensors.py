@@ -114,11 +114,11 @@ def read(model: Model, sensors: tuple[Sensor, ...], sol) -> dict:
     out = {}
     for s in sensors:
         if s.kind == "omega":
-            out[s.name] = sol.omega0 if s.body == 0 else rates[:, s.body]
+            out[s.name] = sol.omega0 if rates is None else rates[:, s.body]
         elif s.kind in ("angle", "rate"):
             out[s.name] = (sol.gamma if s.kind == "angle" else sol.gamma_dot)[:, s.body - 1]
         else:
-            out[s.name] = sol.dcm if s.body == 0 else dcms[:, s.body]
+            out[s.name] = sol.dcm if dcms is None else dcms[:, s.body]
     return out
 
 
