@@ -258,13 +258,21 @@ def test_bad_input_is_named_before_anything_is_traced(wings, monkeypatch):
 
 
 def test_a_fit_that_runs_out_of_steps_says_so(wings, noisy):
-    """max_steps=2: not converged, a warning naming why; warn=False keeps quiet."""
+    """max_steps=2: not converged, a warning naming why; warn=False keeps quiet; reverse-mode
+    Jacobians take the same steps."""
     data, _ = noisy
     with pytest.warns(jaxtree.ConvergenceWarning, match="max_steps"):
         fit = jaxtree.identify(
             wings, ["wingp_1.stiffness"], TS[:21], {k: v[:21] for k, v in data.items()}, SIGMA, max_steps=2
         )
     assert not fit.converged and fit.steps == 2
+    # the Jacobian by reverse mode (one cotangent per residual) takes the same two steps
+    back = jaxtree.identify(
+        wings, ["wingp_1.stiffness"], TS[:21], {k: v[:21] for k, v in data.items()}, SIGMA, max_steps=2,
+        jacobian="reverse", warn=False,
+    )  # fmt: skip
+    assert back.values["wingp_1.stiffness"] == pytest.approx(fit.values["wingp_1.stiffness"], rel=1e-10)
+    assert back.stderr["wingp_1.stiffness"] == pytest.approx(fit.stderr["wingp_1.stiffness"], rel=1e-8)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         jaxtree.identify(

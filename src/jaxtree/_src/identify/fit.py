@@ -415,25 +415,7 @@ def identify(
         raise SceneError(f"identify: jacobian must be 'auto', 'forward' or 'reverse', got {jacobian!r}")
 
     dtype = jnp.result_type(model.mass)
-    # flat residual layout: sensor by sensor, (T, width) each
-    lead = (members,) if members else ()
-    filled, masks = {}, []
-    for s in sensors:
-        a = data[s.name]
-        missing = np.isnan(a)
-        fill = np.where(missing, 0.0, a)
-        if s.kind == "attitude" and s.form == "quaternion":
-            fill = np.where(missing.any(-1, keepdims=True), np.array([1.0, 0, 0, 0]), fill)
-        elif s.kind == "attitude":
-            fill = np.where(missing.any((-1, -2), keepdims=True), np.eye(3), fill)
-        filled[s.name] = jnp.asarray(fill, dtype)
-        if s.kind == "attitude":
-            sample_missing = missing.reshape(*lead, ts.size, -1).any(-1)
-            comp = np.repeat(sample_missing[..., None], 3, -1)
-        else:
-            comp = missing.reshape(*lead, ts.size, -1)
-        masks.append(~comp.reshape(*lead, -1))
-    mask = np.concatenate(masks, -1)
+    filled, mask = _filled_and_mask(sensors, data, ts.size, members, dtype)
     samples = mask.shape[-1]
     used = mask.sum(-1)
     if np.any(used < params.size):
@@ -454,10 +436,63 @@ def identify(
     return _result(spec, model, theta, r, J, steps, reason, mask, members, warn)
 
 
+def _filled_and_mask(sensors, data, T: int, members, dtype):
+    """The measurements with each missing sample filled by a harmless value (0, or the identity
+    attitude), and the mask of the flat residuals that are kept (sensor by sensor, (T, width)
+    each; an attitude sample is kept or dropped whole)."""
+    lead = (members,) if members else ()
+    filled, masks = {}, []
+    for s in sensors:
+        a = data[s.name]
+        missing = np.isnan(a)
+        fill = np.where(missing, 0.0, a)
+        if s.kind == "attitude" and s.form == "quaternion":
+            fill = np.where(missing.any(-1, keepdims=True), np.array([1.0, 0, 0, 0]), fill)
+        elif s.kind == "attitude":
+            fill = np.where(missing.any((-1, -2), keepdims=True), np.eye(3), fill)
+        filled[s.name] = jnp.asarray(fill, dtype)
+        if s.kind == "attitude":
+            comp = np.repeat(missing.reshape(*lead, T, -1).any(-1)[..., None], 3, -1)
+        else:
+            comp = missing.reshape(*lead, T, -1)
+        masks.append(~comp.reshape(*lead, -1))
+    return filled, np.concatenate(masks, -1)
+
+
+def _unidentifiable(names, J, corr) -> tuple[str, ...]:
+    """The parameters a record cannot tell apart: those in a correlation above
+    :data:`CORRELATED`, or in a direction the column-scaled Jacobian does not see (a singular
+    value below :data:`SINGULAR` of the largest); every member of a batch."""
+    P = len(names)
+    bad: set[str] = set()
+    Js = J / np.maximum(np.linalg.norm(J, axis=-2, keepdims=True), 1e-300)
+    sv, vt = np.linalg.svd(Js, full_matrices=False)[1:]
+    flat_sv, flat_vt, flat_corr = sv.reshape(-1, P), vt.reshape(-1, P, P), corr.reshape(-1, P, P)
+    for m in range(flat_sv.shape[0]):
+        for k in np.flatnonzero(flat_sv[m] < SINGULAR * max(flat_sv[m, 0], 1e-300)):
+            bad.update(names[i] for i in np.flatnonzero(np.abs(flat_vt[m, k]) > 0.3))
+        hi = np.abs(np.nan_to_num(flat_corr[m])) > CORRELATED
+        np.fill_diagonal(hi, False)
+        bad.update(names[i] for i in np.flatnonzero(hi.any(-1)))
+    return tuple(n for n in names if n in bad)
+
+
+def _by_sensor(sensors, r, mask, members) -> dict:
+    """The flat residuals split by sensor, (T, width) or (T,), NaN where a sample was missing."""
+    lead = (members,) if members else ()
+    out, at = {}, 0
+    T = r.shape[-1] // sum(sen.width(x) for x in sensors)
+    for s in sensors:
+        w = sen.width(s)
+        block = np.where(mask[..., at : at + T * w], r[..., at : at + T * w], np.nan).reshape(*lead, T, w)
+        out[s.name] = block if w > 1 else block[..., 0]
+        at += T * w
+    return out
+
+
 def _result(spec: _Spec, model, theta, r, J, steps, reason, mask, members, warn) -> Fit:
     params = spec.params
     P = params.size
-    lead = (members,) if members else ()
     theta, r, J = np.asarray(theta), np.asarray(r), np.asarray(J)
     info = np.einsum("...mi,...mj->...ij", J, J)
     cov_theta = np.linalg.pinv(info, hermitian=True)
@@ -467,28 +502,8 @@ def _result(spec: _Spec, model, theta, r, J, steps, reason, mask, members, warn)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / (sd[..., :, None] * sd[..., None, :])
     values = np.asarray(params.to_values(theta))
-    # what the record cannot see: strongly correlated pairs, and the null directions of J
-    bad: list[str] = []
-    Js = J / np.maximum(np.linalg.norm(J, axis=-2, keepdims=True), 1e-300)
-    sv, vt = np.linalg.svd(Js, full_matrices=False)[1:]
-    flat_sv, flat_vt = sv.reshape(-1, P), vt.reshape(-1, P, P)
-    flat_corr = corr.reshape(-1, P, P)
-    for m in range(flat_sv.shape[0]):
-        null = flat_sv[m] < SINGULAR * max(flat_sv[m, 0], 1e-300)
-        for k in np.flatnonzero(null):
-            bad += [params.names[i] for i in np.flatnonzero(np.abs(flat_vt[m, k]) > 0.3)]
-        hi = np.abs(np.nan_to_num(flat_corr[m])) > CORRELATED
-        np.fill_diagonal(hi, False)
-        bad += [params.names[i] for i in np.flatnonzero(hi.any(-1))]
-    unidentifiable = tuple(n for n in params.names if n in set(bad))
-    # residuals by sensor at the solution, NaN where missing
-    residuals, at = {}, 0
-    T = r.shape[-1] // sum(sen.width(x) for x in spec.sensors)
-    for s in spec.sensors:
-        w = sen.width(s)
-        block = np.where(mask[..., at : at + T * w], r[..., at : at + T * w], np.nan).reshape(*lead, T, w)
-        residuals[s.name] = block if w > 1 else block[..., 0]
-        at += T * w
+    unidentifiable = _unidentifiable(params.names, J, corr)
+    residuals = _by_sensor(spec.sensors, r, mask, members)
     chi2 = np.sum(np.where(mask, r, 0.0) ** 2, -1)
     dof = mask.sum(-1) - P
     converged = np.isin(reason, (1, 2))
