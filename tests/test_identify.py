@@ -258,7 +258,8 @@ def test_bad_input_is_named_before_anything_is_traced(wings, monkeypatch):
 
 
 def test_a_fit_that_runs_out_of_steps_says_so(wings, noisy):
-    """max_steps=2: not converged, a warning naming why; warn=False keeps quiet; reverse-mode
+    """max_steps=2: not converged, a warning naming why; warn=False keeps quiet; a model that
+    cannot fit the record stops at the simulations' resolution and says so; reverse-mode
     Jacobians take the same steps."""
     data, _ = noisy
     with pytest.warns(jaxtree.ConvergenceWarning, match="max_steps"):
@@ -266,6 +267,11 @@ def test_a_fit_that_runs_out_of_steps_says_so(wings, noisy):
             wings, ["wingp_1.stiffness"], TS[:21], {k: v[:21] for k, v in data.items()}, SIGMA, max_steps=2
         )
     assert not fit.converged and fit.steps == 2
+    # run to its end, the one-parameter model cannot fit a record of six changed numbers: it stops
+    # when the chi-square's decrease left is below the simulations' resolution, and says the misfit
+    whole = jaxtree.identify(wings, ["wingp_1.stiffness"], TS[:21], {k: v[:21] for k, v in data.items()}, SIGMA)
+    assert whole.converged and "ftol" in whole.reason and whole.steps < 20
+    assert whole.chi2 / whole.dof > 1e4 and "does not fit the record" in whole.table()
     # the Jacobian by reverse mode (one cotangent per residual) takes the same two steps
     back = jaxtree.identify(
         wings, ["wingp_1.stiffness"], TS[:21], {k: v[:21] for k, v in data.items()}, SIGMA, max_steps=2,

@@ -119,7 +119,6 @@ def run(args, model, matplotlib_ok: bool) -> int:
         f"{', '.join(data)}), {len(fit.names)} parameters; {fit.steps} simulations in {wall:.1f} s"
     )
     print(fit.table())
-    print(f"chi2 {fit.chi2:.6g} for {fit.dof} degrees of freedom (chi2/dof {fit.chi2 / max(fit.dof, 1):.3f})")
     if len(fit.names) > 1:
         print("correlations:")
         width = max(len(n) for n in fit.names)

@@ -6,16 +6,22 @@ units of each sensor's noise standard deviation. They are minimized by Levenberg
 (Madsen, Nielsen & Tingleff, *Methods for non-linear least squares problems*, 2004, Sec. 3.2:
 Marquardt's scaling by the running largest diagonal of J^T J, Nielsen's damping update). Each
 iteration evaluates the residuals and their Jacobian together at its trial point: one
-simulation with one tangent per parameter (forward mode; reverse mode when the parameters
-outnumber the residuals). A rejected trial costs that simulation; an accepted one brings the
+simulation with one tangent per parameter (forward mode; ``jacobian="reverse"``: one cotangent
+per residual). A rejected trial costs that simulation; an accepted one brings the
 Jacobian the next step needs, and the last one accepted gives the Gauss-Newton covariance
 ``(J^T J)^-1`` at the solution without another simulation. The loop is one ``lax.while_loop``
 in one compiled program per problem shape: a second fit of a record of the same shape (other
 data, other start, other model numbers) compiles nothing.
 
+While the fit is far from its answer the simulations run at a coarse tolerance (`coarse_tol`,
+1e-6), where the integration error is far below what a step needs; once the Gauss-Newton step
+left is :data:`SWITCH` standard errors, the point is evaluated again at the fit's own tolerances
+and the fit finishes there, so that the estimate and its covariance are those of `rtol`, `atol`.
+
 The fit stops when the Gauss-Newton step left would move the parameters by less than `tol`
 standard errors (its Mahalanobis length ``|J dtheta_GN|``), when a step changes no parameter
-by more than `xtol` relative, or after `max_steps` simulations.
+by more than `xtol` relative, when that step would lower the chi-square by less than `ftol` of
+it, or after `max_steps` simulations.
 
 Many records or vehicles at once: a measurement array with a leading members axis fits each
 member by the single-record program, the members shared among threads on the cores (each
@@ -53,6 +59,7 @@ REASONS = (
     "max_steps simulations without meeting tol",
     "the simulation at the start failed",
     "the damping grew without bound: no step lowers the residuals",
+    "the decrease of chi-square left is below ftol of it (the simulations' resolution)",
 )
 CORRELATED = 0.99  # |correlation| above which two parameters are named as not told apart
 SINGULAR = 1e-10  # smallest over largest singular value of the column-scaled Jacobian
@@ -116,6 +123,14 @@ class Fit:
             lines.append(line)
         state = "converged" if np.all(self.converged) else "NOT converged"
         lines.append(f"{state} after {int(np.max(self.steps))} simulations: {pick(self.reason)}")
+        ratio = float(pick(self.chi2)) / max(int(pick(self.dof)), 1)
+        note = ""
+        if ratio > 2:  # far outside chi-square's spread for any record of more than a few samples
+            note = (
+                f": the residuals are {np.sqrt(ratio):.3g} times sigma; the model does not fit the record to its noise "
+                "(or sigma is too small), and the standard errors are that much too small"
+            )
+        lines.append(f"chi2/dof {ratio:.4g}{note}")
         return "\n".join(lines)
 
 
@@ -168,7 +183,7 @@ def _loop(spec: _Spec, residuals, theta0, tols, max_steps):
     stops), then at the fit's own tolerances from the point reached (re-evaluated there
     first), so that the estimate, its residuals and its covariance are those of the fit's
     tolerances. Where the coarse tolerances are no coarser, the loop starts in the second phase."""
-    rtol, atol, coarse_rtol, coarse_atol, tol, xtol = tols
+    rtol, atol, coarse_rtol, coarse_atol, tol, xtol, ftol = tols
     P = theta0.shape[0]
 
     def evaluate(theta, phase):
@@ -217,10 +232,18 @@ def _loop(spec: _Spec, residuals, theta0, tols, max_steps):
             jnp.where(
                 left <= tol,
                 1,
-                jnp.where(small, 2, jnp.where(lam > 1e30, 5, jnp.where(step >= max_steps, 3, 0))),
+                jnp.where(
+                    small,
+                    2,
+                    jnp.where(
+                        0.5 * left**2 <= ftol * cost,  # the Gauss-Newton step's own predicted decrease
+                        6,
+                        jnp.where(lam > 1e30, 5, jnp.where(step >= max_steps, 3, 0)),
+                    ),
+                ),
             ),
         )
-        near = (reason == 1) | (reason == 2) | (reason == 5) | (left <= SWITCH)
+        near = (reason == 1) | (reason == 2) | (reason == 5) | (reason == 6) | (left <= SWITCH)
         switch = (c["phase"] == 0) & near & (reason != 4) & (step < max_steps)
         if spec.progress:
             jax.debug.callback(_report, step, cost, lam, left, accept, c["phase"], ordered=True)
@@ -352,6 +375,7 @@ def identify(
     log: Mapping | None = None,
     tol: float = 1e-4,
     xtol: float = 1e-10,
+    ftol: float = 1e-10,
     coarse_tol: float | None = 1e-6,
     jacobian: str = "auto",
     progress: bool = False,
@@ -384,7 +408,10 @@ def identify(
     - `log`: dict ``parameter -> bool``: fit it as its logarithm or not (default: masses, diagonal
       inertias, stiffnesses and dampings as logarithms, the rest as themselves).
     - `tol`: stop when the Gauss-Newton step left is shorter than `tol` standard errors; `xtol`:
-      or when a step changes every fitted coordinate by less than `xtol` relative.
+      or when a step changes every fitted coordinate by less than `xtol` relative; or when the
+      Gauss-Newton step left would lower the chi-square by less than `ftol` of it (a model that
+      cannot fit the record down to its noise: the simulations' own error then decides the last
+      steps, which are rejected one after another).
     - `coarse_tol`: the simulations' tolerance (relative and absolute) while the fit is far from
       its solution, where `rtol` and `atol` are tighter; the last steps, the estimate and its
       covariance are at `rtol`, `atol` (None: `rtol`, `atol` throughout).
@@ -406,7 +433,15 @@ def identify(
     params = parameters(model, free, log)
     sensors, data, sigmas, members = _check_measurements(model, measurements, sigma, ts.size)
     values0 = start_values(model, params, start, members)
-    for label, x in (("rtol", rtol), ("atol", atol), ("tol", tol), ("xtol", xtol), ("coarse_tol", coarse_tol or 1.0)):
+    checked = (
+        ("rtol", rtol),
+        ("atol", atol),
+        ("tol", tol),
+        ("xtol", xtol),
+        ("ftol", ftol),
+        ("coarse_tol", coarse_tol or 1.0),
+    )
+    for label, x in checked:
         if not isinstance(x, (int, float)) or not np.isfinite(x) or x <= 0:
             raise SceneError(f"identify: {label} must be a positive number, got {x!r}")
     if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
@@ -426,7 +461,7 @@ def identify(
     theta0 = jnp.asarray(params.to_theta(jnp.asarray(values0, dtype)), dtype)
     args = (model, jnp.asarray(ts, dtype), filled, weights, jnp.asarray(mask), theta0)
     coarse = rtol if coarse_tol is None else coarse_tol
-    tols = tuple(jnp.asarray(x, dtype) for x in (rtol, atol, max(rtol, coarse), max(atol, coarse), tol, xtol))
+    tols = tuple(jnp.asarray(x, dtype) for x in (rtol, atol, max(rtol, coarse), max(atol, coarse), tol, xtol, ftol))
     limit = jnp.asarray(max_steps, jnp.int32)
     if not members:
         out = jax.device_get(_fit(spec, *args, tols, limit))
@@ -506,7 +541,7 @@ def _result(spec: _Spec, model, theta, r, J, steps, reason, mask, members, warn)
     residuals = _by_sensor(spec.sensors, r, mask, members)
     chi2 = np.sum(np.where(mask, r, 0.0) ** 2, -1)
     dof = mask.sum(-1) - P
-    converged = np.isin(reason, (1, 2))
+    converged = np.isin(reason, (1, 2, 6))
     reasons = np.vectorize(lambda c: REASONS[int(c)], otypes=[object])(reason)
     reason_out = reasons if members else str(reasons)
     if members:
