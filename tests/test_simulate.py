@@ -465,6 +465,23 @@ def test_exact_gimbal_lock_under_jit_is_a_failure_at_the_start(scenes):
         simulate(pair, 0.5, y0=jax.tree.map(lambda x: x[0], starts))
 
 
+def test_without_diagnostics_the_states_are_the_same(scenes):
+    """diagnostics=False (an identification's simulations): the states of the default run to the
+    bit, the same steps, the energy, momentum and hold-torque histories NaN in their shapes; a
+    value that is not a bool is named."""
+    fig4 = scenes["fig4"]
+    a = simulate(fig4, 2.0, saveat=11)
+    b = simulate(fig4, 2.0, saveat=11, diagnostics=False)
+    for field in ("gamma", "gamma_dot", "omega0", "dcm", "ts"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    assert int(a.stats["num_steps"]) == int(b.stats["num_steps"]) and b.ok
+    for field in ("energy", "angular_momentum", "hold_torque"):
+        assert getattr(b, field).shape == getattr(a, field).shape and np.all(np.isnan(getattr(b, field)))
+    assert np.all(np.isfinite(a.energy))
+    with pytest.raises(TypeError, match="diagnostics must be True or False"):
+        simulate(fig4, 2.0, diagnostics="no")
+
+
 def test_max_steps_is_reported_eagerly_and_under_jit():
     model = coaxial(jaxtree.SpringDamper(3.0), gamma0=0.4)
     with pytest.raises(jaxtree.SimulationError, match="(?s)maximum number of solver steps.*stopped at t = "):

@@ -161,6 +161,7 @@ def _residual_fn(spec: _Spec, model: Model, times, data, weights, mask):
             adjoint=adjoint,
             throw=False,
             solver=dfx.Dopri8(),
+            diagnostics=False,  # the states alone: no energy histories, no second factorization at the start
         )
         parts = sen.readings(m, spec.sensors, sol, data)
         flat = jnp.concatenate([(parts[s.name] * weights[s.name]).reshape(-1) for s in spec.sensors])

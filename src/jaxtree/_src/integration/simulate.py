@@ -142,6 +142,7 @@ class _Options(NamedTuple):
     grid: int | None  # number of evenly spaced save times, or None
     user_saveat: bool
     report_in_callback: bool
+    check_start: bool = True  # the test of a singular start (simulate's `diagnostics`)
 
 
 class _Run(NamedTuple):
@@ -167,7 +168,7 @@ class _Run(NamedTuple):
 def _solve(problem: Problem, y0: State, run: _Run, opts: _Options):
     dtype = jnp.result_type(problem.model.mass)
     y = problem.pack(y0, None, run.X0, run.Xd0)
-    start_ok, singular_start, rest = _start(problem, y, run.t0)
+    start_ok, singular_start, rest = _start(problem, y, run.t0, opts.check_start)
     controller, dt0 = run.controller, run.dt0
     if controller is None:
         controller = default_controller(run.rtol, run.atol, run.t0, run.t1)
@@ -203,17 +204,22 @@ def _solve(problem: Problem, y0: State, run: _Run, opts: _Options):
     return out
 
 
-def _start(problem: Problem, y, t0):
+def _start(problem: Problem, y, t0, check: bool = True):
     """``(start_ok, singular_start, rest)`` of a flat start `y`.
 
     A non-finite start cannot be integrated: NaN error estimates give NaN steps until max_steps
     (a vmapped batch would wait for its worst member). Nor can a start where Eq. (1) is singular
     to working precision (exact gimbal lock): the accelerations are undetermined, and the
     factorization may even return finite garbage. Such a run integrates the vehicle at rest
-    (`rest`) in their place, reports "nonfinite_start" / "singular_start" and returns NaN histories."""
+    (`rest`) in their place, reports "nonfinite_start" / "singular_start" and returns NaN histories.
+    Without `check` (simulate's ``diagnostics=False``) a singular start is not looked for: Eq. (1)'s
+    matrix is not assembled and factored a second time."""
     dtype = jnp.result_type(problem.model.mass)
     finite_start = jnp.all(jnp.isfinite(y))
-    singular_start = finite_start & _singular(problem, t0, jax.lax.stop_gradient(y))
+    if check:
+        singular_start = finite_start & _singular(problem, t0, jax.lax.stop_gradient(y))
+    else:
+        singular_start = jnp.zeros((), bool)
     n, z3 = problem.model.n, jnp.zeros(3, dtype)
     rest = problem.pack(State(jnp.eye(3, dtype=dtype), z3, jnp.zeros(n, dtype), jnp.zeros(n, dtype)))
     return finite_start & ~singular_start, singular_start, rest
@@ -293,6 +299,7 @@ def simulate(
     adjoint: dfx.AbstractAdjoint | None = None,
     event: dfx.Event | Callable | None = None,
     progress: bool | dfx.AbstractProgressMeter = False,
+    diagnostics: bool = True,
     law: Callable | None = None,
     controller: AbstractController | None = None,
     params: Any = None,
@@ -347,6 +354,11 @@ def simulate(
       ``(t, state) -> scalar`` (see :func:`state_event`, :func:`hinge_angle_event`).
     - `progress`: show diffrax's progress meter (tqdm when installed, else text), or a diffrax
       progress meter.
+    - `diagnostics`: the energy, angular momentum and hold-torque histories, and the test of a
+      singular start (True). False, for a caller that needs the states alone (an identification's
+      simulations, traced many times): those three histories are NaN, and a start where Eq. (1)
+      is singular is not looked for (its run then fails as non-finite, or returns what the
+      factorization gave); the states are the same to the bit. A program less to trace and compile.
     - `law`: hinge law ``tau(t, state, params) -> (n,)`` added to the joint laws (and to the
       model's own ``model.law``, from its scene's ``control``).
     - `controller`: an :class:`~jaxtree.control.AbstractController` whose internal states are
@@ -367,6 +379,8 @@ def simulate(
     (through the diffrax adjoint).
     """
     _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw)
+    if not isinstance(diagnostics, (bool, np.bool_)):
+        raise SceneTypeError(f"simulate: diagnostics must be True or False, got {short(diagnostics)}")
     att = _check_attitude_and_laws(attitude, controller, law)
     law, controller = with_model_laws(model, law, controller)  # a scene's own laws first
     dtype = jnp.result_type(model.mass)
@@ -400,12 +414,12 @@ def simulate(
     traced = is_traced((*inputs, rtol, atol, dt0, solver, stepsize_controller, adjoint))
     if not traced and throw:
         _check_finite_start(y0, X0, Xd0, t0, att)
-    opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced))
+    opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced), bool(diagnostics))
     as_array = lambda x: None if x is None else jnp.asarray(x, dtype)
     arrays = (as_array(X0), as_array(Xd0), as_array(t0), as_array(t1), as_array(rtol), as_array(atol), as_array(dt0))
     with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
         sol = _solve(problem, y0, _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter), opts)
-    sol = _with_diagnostics(sol, model, law, controller, params)
+    sol = _with_diagnostics(sol, model, law, controller, params) if diagnostics else _without_diagnostics(sol, model)
     sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
     if throw and not traced:
         check_solution(sol)
@@ -454,6 +468,14 @@ def _check_finite_start(y0: State, X0, Xd0, t0, att: AbstractAttitude) -> None:
     if not all(np.all(np.isfinite(x)) for x in start):
         # (under jit the solver would reject every step until max_steps: NaN step sizes)
         raise SimulationError(format_failure("nonfinite_start", t0, y0, np.nan, np.nan, att.name))
+
+
+def _without_diagnostics(sol: Solution, model: Model) -> Solution:
+    """`sol` with NaN energy, angular momentum and hold-torque histories (``diagnostics=False``)."""
+    T, dtype = sol.ts.shape[0], sol.omega0.dtype
+    nan = lambda *shape: jnp.full(shape, jnp.nan, dtype)
+    diag = (nan(T), nan(T, 3), nan(T, len(model.prescribed)))
+    return eqx.tree_at(lambda s: (s.energy, s.angular_momentum, s.hold_torque), sol, diag, is_leaf=lambda x: x is None)
 
 
 def _with_diagnostics(sol: Solution, model: Model, law, controller, params) -> Solution:
