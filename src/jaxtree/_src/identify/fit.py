@@ -226,23 +226,18 @@ def _loop(spec: _Spec, residuals, theta0, tols, max_steps):
         nu = jnp.where(accept, 2.0, 2 * c["nu"])
         delta, predicted, scale, left = propose(theta, r, J, lam, c["scale"])
         step = c["step"] + 1
-        small = jnp.all(jnp.abs(delta) <= xtol * (jnp.abs(theta) + xtol))
-        reason = jnp.where(
-            fresh & ~ok,
-            4,
-            jnp.where(
+        # why it stops, in order of precedence (0: it goes on); codes as in REASONS
+        reason = jnp.select(
+            [
+                fresh & ~ok,
                 left <= tol,
-                1,
-                jnp.where(
-                    small,
-                    2,
-                    jnp.where(
-                        0.5 * left**2 <= ftol * cost,  # the Gauss-Newton step's own predicted decrease
-                        6,
-                        jnp.where(lam > 1e30, 5, jnp.where(step >= max_steps, 3, 0)),
-                    ),
-                ),
-            ),
+                jnp.all(jnp.abs(delta) <= xtol * (jnp.abs(theta) + xtol)),
+                0.5 * left**2 <= ftol * cost,  # the Gauss-Newton step's own predicted decrease
+                lam > 1e30,
+                step >= max_steps,
+            ],
+            [4, 1, 2, 6, 5, 3],
+            0,
         )
         near = (reason == 1) | (reason == 2) | (reason == 5) | (reason == 6) | (left <= SWITCH)
         switch = (c["phase"] == 0) & near & (reason != 4) & (step < max_steps)
