@@ -72,6 +72,18 @@ def _indices(text: str | None, name: str) -> tuple[int, ...]:
         raise SceneError(f"identify: quantity {name!r}: the index [{text}] must be integers") from None
 
 
+def body_of(model: Model, body: str, what: str, hinge: bool = False) -> int:
+    """The index of `body` (a name of ``model.names`` or an index) for `what` (a quantity or a
+    sensor, named in the error), which needs the body's hinge when `hinge`."""
+    try:
+        k = model.body_index(int(body) if body.isdigit() else body)
+    except (KeyError, IndexError):
+        raise SceneKeyError(f"identify: {what}: no body {body!r}; bodies are {', '.join(model.names)}") from None
+    if hinge and k == 0:
+        raise SceneError(f"identify: {what}: body {model.names[0]!r} is the base; it has no hinge")
+    return k
+
+
 def resolve(model: Model, name) -> Quantity:
     """The :class:`Quantity` a name denotes in `model`; a :class:`SceneError` naming it if none."""
     if not isinstance(name, str):
@@ -84,14 +96,7 @@ def resolve(model: Model, name) -> Quantity:
     body, _, field = head.rpartition(".")
     if field in _BODY_FIELDS and body:
         path, kind, dims, positive = _BODY_FIELDS[field]
-        try:
-            k = model.body_index(int(body) if body.isdigit() else body)
-        except (KeyError, IndexError):
-            raise SceneKeyError(
-                f"identify: quantity {name!r}: no body {body!r}; bodies are {', '.join(model.names)}"
-            ) from None
-        if kind == "hinge" and k == 0:
-            raise SceneError(f"identify: quantity {name!r}: body {model.names[0]!r} is the base; it has no hinge")
+        k = body_of(model, body, f"quantity {name!r}", hinge=kind == "hinge")
         if kind == "hinge" and field in ("stiffness", "damping") and k not in model.sprung:
             raise SceneError(
                 f"identify: quantity {name!r}: the hinge of body {model.names[k]!r} carries no spring-damper law "

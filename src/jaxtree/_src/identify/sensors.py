@@ -28,6 +28,7 @@ from ..equations.attitude import quaternion_to_dcm
 from ..equations.kinematics import ancestor_sum, body_rotations, mv
 from ..errors import SceneError, SceneKeyError, SceneTypeError
 from ..vehicle.model import Model
+from .quantities import body_of
 
 KINDS = ("omega", "angle", "rate", "attitude")
 # components of one sample of each kind's residual
@@ -55,14 +56,7 @@ def resolve(model: Model, name, shape: tuple[int, ...], batched: bool) -> Sensor
         raise SceneKeyError(
             f"identify: unknown sensor {name!r}: expected '<body>.<kind>' with kind one of {', '.join(KINDS)}"
         )
-    try:
-        k = model.body_index(int(body) if body.isdigit() else body)
-    except (KeyError, IndexError):
-        raise SceneKeyError(
-            f"identify: sensor {name!r}: no body {body!r}; bodies are {', '.join(model.names)}"
-        ) from None
-    if kind in ("angle", "rate") and k == 0:
-        raise SceneError(f"identify: sensor {name!r}: body {model.names[0]!r} is the base; it has no hinge")
+    k = body_of(model, body, f"sensor {name!r}", hinge=kind in ("angle", "rate"))
     sample = shape[1:]
     form = ""
     if kind == "attitude":
