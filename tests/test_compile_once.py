@@ -162,3 +162,40 @@ def test_an_eager_call_is_one_program():
     with compilations() as c:
         jaxtree.appendage(fe, "b3", n_modes=3)
     assert c["compiles"] <= 2, dict(c)  # the held-interface modes, then the rest
+
+
+def test_a_notebook_session_compiles_nothing_twice(scene):
+    """What a user changes while exploring a vehicle in a notebook (the number of save points
+    within its size bucket, the save times themselves, t1, the tolerances, a mass, the initial
+    rate) reuses the programs of the first runs: simulate, linearize and modes again compile
+    and trace nothing. The runs are still the runs asked for: the requested rows, the same
+    trajectory where only the save grid changed, other numbers where the model changed."""
+    model, other = scene
+    spin = np.array([0.0, 0.0, 1.0])
+    first = jaxtree.simulate(model, 1.0)  # the default grid: 101 save points
+    jaxtree.simulate(model, 1.0, saveat=np.linspace(0.0, 1.0, 33))  # a grid of the user's
+    jaxtree.modes(jaxtree.linearize(model, (1, 2), omega0=spin))
+    heavier = eqx.tree_at(lambda m: m.mass, model, model.mass * jnp.linspace(1.0, 1.3, model.mass.shape[0]))
+    faster = eqx.tree_at(lambda m: m.initial.omega0, model, model.initial.omega0 + jnp.array([0.0, 0.0, 0.2]))
+    times = np.linspace(0.1, 0.9, 80)
+    with compilations() as c:
+        coarse = jax.block_until_ready(jaxtree.simulate(model, 1.0, saveat=57))
+        at_times = jax.block_until_ready(jaxtree.simulate(model, 1.0, saveat=times))
+        longer = jax.block_until_ready(jaxtree.simulate(model, 2.0))
+        looser = jax.block_until_ready(jaxtree.simulate(model, 1.0, rtol=1e-6, atol=1e-8))
+        runs = [jax.block_until_ready(jaxtree.simulate(m, 1.0)) for m in (heavier, faster)]
+        lin = jaxtree.linearize(heavier, (1, 2), omega0=1.3 * spin)
+        heavy_modes = jax.block_until_ready(jaxtree.modes(lin))
+    assert not c, dict(c)
+    # the rows asked for, at the times asked for
+    assert coarse.gamma.shape == (57, model.n) and at_times.gamma.shape == (80, model.n)
+    np.testing.assert_allclose(coarse.ts, np.linspace(0.0, 1.0, 57), rtol=0, atol=4e-16)
+    np.testing.assert_array_equal(at_times.ts, times)
+    assert coarse.energy.shape == (57,) and at_times.angular_momentum.shape == (80, 3)
+    # one trajectory whatever the grid: the same steps, so the same end, to the bit
+    np.testing.assert_array_equal(coarse.gamma[-1], first.gamma[-1])
+    np.testing.assert_array_equal(coarse.gamma[::14], first.gamma[::25])  # t = 0, 0.25, 0.5, 0.75, 1
+    assert float(longer.ts[-1]) == 2.0 and int(looser.stats["num_steps"]) < int(first.stats["num_steps"])
+    for run in runs:
+        assert not np.allclose(run.gamma, first.gamma)
+    assert heavy_modes.frequencies.shape[0] > 0

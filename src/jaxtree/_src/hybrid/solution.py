@@ -18,6 +18,7 @@ quasi-static response is off by factors up to 12 where the dynamic one is within
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import diffrax as dfx
@@ -35,8 +36,11 @@ from ..integration.core import (
     DEFAULT_MAX_STEPS,
     check_state,
     check_times,
+    cut_rows,
     default_controller,
+    grid_times,
     integrate,
+    padded_times,
     progress_meter,
     solver_statistics,
     tolerances,
@@ -328,6 +332,12 @@ def _truncation_estimate(hm: HybridModel, t0, ts, ys, q_start, appendages: bool 
     return dynamic, static, jnp.stack([jnp.real(q_end), jnp.imag(q_end)], -1)
 
 
+_HISTORIES = (
+    "ts", "omega0", "dcm", "gamma", "gamma_dot", "modal", "ys", "energy", "angular_momentum",
+    "truncation", "truncation_static", "truncation_error", "appendage_truncation",
+)  # fmt: skip
+
+
 @program_jit
 def _solve_hybrid(
     hybrid,
@@ -478,7 +488,8 @@ def simulate_hybrid(
 
     - `y0`: a physical :class:`~jaxtree.State` (default ``hybrid.model.initial``), projected on
       the retained modes by :meth:`HybridModel.pack`, or a flat hybrid state;
-    - `saveat`: a number of evenly spaced save times (default 101) or an array of times;
+    - `saveat`: a number of evenly spaced save times (default 101) or an array of times (an
+      eager call compiles for a bucket of save times, as :func:`jaxtree.simulate` does);
     - `solver`: a diffrax solver (a :class:`jaxtree.Radau5` without a Jacobian of its own gets
       :func:`jaxtree.hybrid_jacobian`), or ``"auto"`` (the default; None too): Dopri8 or
       Radau5, whichever :func:`jaxtree.choose_solver`'s rule predicts to reach the tolerance in
@@ -529,11 +540,20 @@ def simulate_hybrid(
         q_start = jnp.asarray(truncation_start, dtype)
     if y.shape != (hybrid.size,):
         raise ValueError(f"simulate_hybrid: flat state of size {hybrid.size} expected, got {y.shape}")
+    # an eager run's save grid is padded to its size bucket and the histories cut back after
+    # (save_bucket): another number of save points or other times compile nothing
+    exact = is_traced((hybrid, y, t0, t1, saveat, rtol, atol, dt0, solver, stepsize_controller, q_start))
     if isinstance(saveat, (int, np.integer)) and not isinstance(saveat, bool):
-        ts = jnp.linspace(jnp.asarray(t0, dtype), jnp.asarray(t1, dtype), int(saveat))
+        if exact:
+            ts = jnp.linspace(jnp.asarray(t0, dtype), jnp.asarray(t1, dtype), int(saveat))
+        else:
+            ts = grid_times(t0, t1, int(saveat), dtype)
     else:
-        ts = jnp.asarray(saveat, dtype)
+        ts = jnp.asarray(saveat, dtype) if exact else np.asarray(saveat, dtype)
     check_times("simulate_hybrid", t0, t1, ts)
+    n_saved = None if exact or ts.shape[0] == 0 else ts.shape[0]
+    if n_saved is not None:
+        ts = padded_times(ts)
     t0a, t1a = jnp.asarray(t0, dtype), jnp.asarray(t1, dtype)
     dt0 = 1e-3 * (t1a - t0a) if dt0 is None else jnp.asarray(dt0, dtype)
     if solver is None or isinstance(solver, str):
@@ -566,6 +586,9 @@ def simulate_hybrid(
             q_start,
         )
     sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
+    if n_saved is not None:
+        size = sol.ts.shape[0]
+        sol = dataclasses.replace(sol, **{k: cut_rows(getattr(sol, k), size, n_saved) for k in _HISTORIES})
     if throw and not traced:
         message = _hybrid_failure_message(sol.failure, sol.t_final, sol.final, sol.final_modal)
         if message is not None:

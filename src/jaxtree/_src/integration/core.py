@@ -220,6 +220,44 @@ def check_times(name, t0, t1, ts=None):
         raise SceneError(f"{name}: saveat[{i}] = {ts[i]:g} lies outside the integration from t0 = {a:g} to t1 = {b:g}")
 
 
+def save_bucket(n: int) -> int:
+    """The number of save times compiled for a request of `n`: the default (101) doubled until it
+    holds `n`. An eager run pads its save grid to this size (repeating the last time) and cuts
+    the histories back (:func:`padded_times`, :func:`cut_rows`), so that a user who changes the
+    number of save points or the times themselves reuses the compiled run within a bucket."""
+    size = DEFAULT_SAVE_POINTS
+    while size < n:
+        size *= 2
+    return size
+
+
+def grid_times(t0, t1, n: int, dtype) -> np.ndarray:
+    """`n` evenly spaced times from `t0` to `t1` on the host, by :func:`jax.numpy.linspace`'s
+    formula (an eager ``jnp.linspace`` compiles a program per `n`)."""
+    a, b = np.asarray(t0, dtype), np.asarray(t1, dtype)
+    step = np.arange(n, dtype=dtype) / np.asarray(max(n - 1, 1), dtype)
+    return np.where(step < 1, a * (1 - step) + b * step, b).astype(dtype)
+
+
+def padded_times(ts) -> jax.Array:
+    """Save times `ts` (concrete, 1-D, not empty) padded with their last to :func:`save_bucket`."""
+    ts = np.asarray(ts)
+    padded = np.concatenate([ts, np.full(save_bucket(ts.shape[0]) - ts.shape[0], ts[-1], ts.dtype)])
+    return jax.device_put(padded)  # (jnp.asarray would compile a copy per shape)
+
+
+def cut_rows(tree, size: int, n: int):
+    """The leaves of `tree` with `size` rows cut to their first `n`, copied through the host so
+    that no program is compiled for `n` (a history saved on a padded grid, :func:`save_bucket`)."""
+
+    def cut(x):
+        if getattr(x, "shape", ())[:1] != (size,):
+            return x
+        return jax.device_put(np.asarray(x)[:n])
+
+    return jax.tree.map(cut, tree)
+
+
 def check_state(name, model: Model, state: State):
     """A concrete initial :class:`~jaxtree.State`, checked before tracing: numeric fields of the
     shapes for the model's n hinges (JAX would clamp out-of-range indices silently), and ``dcm``

@@ -11,6 +11,7 @@ stops early is reported by :mod:`.failures` with the time, the state and a diagn
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from collections.abc import Callable
 from typing import Any, NamedTuple, cast
@@ -40,9 +41,12 @@ from .core import (
     DEFAULT_SAVE_POINTS,
     check_state,
     check_times,
+    cut_rows,
     default_controller,
     integrate,
+    padded_times,
     progress_meter,
+    save_bucket,
     solver_statistics,
     tolerances,
 )
@@ -162,6 +166,7 @@ class _Run(NamedTuple):
     adjoint: Any
     event: Any
     progress_meter: Any
+    grid_div: Any = None  # with a bucketed grid: the requested number of save times less one
 
 
 @program_jit
@@ -178,7 +183,7 @@ def _solve(problem: Problem, y0: State, run: _Run, opts: _Options):
             dt0 = jax.lax.stop_gradient(_initial_step(problem, jnp.where(start_ok, y, rest), run.t0, run.t1))
     ts = None
     if not opts.user_saveat:
-        ts = jnp.linspace(run.t0, run.t1, opts.grid, dtype=dtype) if opts.grid is not None else run.saveat
+        ts = _grid(run.t0, run.t1, opts.grid, run.grid_div, dtype) if opts.grid is not None else run.saveat
     solver = with_jacobian(run.solver)
     ends = integrate(
         problem_field,
@@ -202,6 +207,16 @@ def _solve(problem: Problem, y0: State, run: _Run, opts: _Options):
     if opts.report_in_callback:
         report_from_callback(out)
     return out
+
+
+def _grid(t0, t1, size, div, dtype):
+    """`size` evenly spaced times from `t0` to `t1`; with `div` (traced) the first ``div + 1`` of
+    them are ``jnp.linspace(t0, t1, div + 1)`` to the bit (its formula) and the rest repeat `t1`:
+    a grid of any length up to `size` in one program (see :func:`.core.save_bucket`)."""
+    if div is None:
+        return jnp.linspace(t0, t1, size, dtype=dtype)
+    step = jax.lax.iota(dtype, size) / div
+    return jnp.where(step < 1, t0 * (1 - step) + t1 * step, t1)
 
 
 def _start(problem: Problem, y, t0, check: bool = True):
@@ -322,7 +337,10 @@ def simulate(
       ``dcm`` are checked before tracing.
     - `saveat`: a :class:`diffrax.SaveAt` (used as is; the final state is its last saved row),
       a number of evenly spaced save times (default 101), or an array of times (from `t0`
-      toward `t1`, within the run; checked before tracing, as are finite `t0` and `t1`). Values
+      toward `t1`, within the run; checked before tracing, as are finite `t0` and `t1`). An
+      eager call compiles its run for a bucket of save times (101, 202, 404, ...: the grid is
+      padded with its last time and the histories cut back), so that another number of save
+      points or other times in the same bucket compile nothing. Values
       between steps come from the solver's dense output; Dopri8's (a degree-6 polynomial)
       is 2-3x less accurate than the steps at tight tolerances (fig4_free over 10 s at rtol =
       atol = 2e-10: 1.2e-9 at the save times, 3.9e-10 at the steps). For step accuracy at
@@ -393,7 +411,7 @@ def simulate(
     meter = progress_meter(progress)
     # every argument is checked: from here on JAX may trace
     if not (grid is not None or user_saveat):
-        saveat = jnp.asarray(saveat, dtype)
+        saveat = jnp.asarray(saveat, dtype) if is_traced(saveat) else np.asarray(saveat, dtype)
     X0 = Xd0 = None
     if isinstance(translation, tuple):
         X0, Xd0 = translation
@@ -414,13 +432,17 @@ def simulate(
     traced = is_traced((*inputs, rtol, atol, dt0, solver, stepsize_controller, adjoint))
     if not traced and throw:
         _check_finite_start(y0, X0, Xd0, t0, att)
+    saveat, grid, div, n_saved = _bucketed(saveat, grid, user_saveat or traced, dtype)
     opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced), bool(diagnostics))
     as_array = lambda x: None if x is None else jnp.asarray(x, dtype)
     arrays = (as_array(X0), as_array(Xd0), as_array(t0), as_array(t1), as_array(rtol), as_array(atol), as_array(dt0))
+    run = _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, div)
     with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
-        sol = _solve(problem, y0, _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter), opts)
+        sol = _solve(problem, y0, run, opts)
     sol = _with_diagnostics(sol, model, law, controller, params) if diagnostics else _without_diagnostics(sol, model)
     sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
+    if n_saved is not None:
+        sol = _cut(sol, n_saved)
     if throw and not traced:
         check_solution(sol)
     return sol
@@ -460,6 +482,38 @@ def _check_saveat(saveat, t0, t1):
             )
     check_times("simulate", t0, t1, None if grid is not None or user_saveat else saveat)
     return saveat, grid, user_saveat
+
+
+def _bucketed(saveat, grid, exact: bool, dtype):
+    """``(saveat, grid, div, n)``: the save grid of an eager run padded to its :func:`save_bucket`
+    (`grid` the bucket's size and `div` the requested number less one; or an array of times
+    padded with its last), `n` the number of save times asked for. With `exact` (a user's
+    SaveAt, or traced inputs: the caller's program is compiled for its shapes anyway) nothing
+    changes and `n` is None."""
+    if exact:
+        return saveat, grid, None, None
+    if grid is not None:
+        return None, save_bucket(grid), jax.device_put(np.asarray(grid - 1, dtype)), grid
+    ts = np.asarray(saveat, dtype)
+    n = ts.shape[0]
+    if n == 0:
+        return saveat, grid, None, None
+    return padded_times(ts), None, None, n
+
+
+_HISTORIES = (
+    "ts", "gamma", "gamma_dot", "omega0", "dcm", "attitude", "control_state", "X", "X_dot",
+    "hold_torque", "energy", "angular_momentum", "orthogonality",
+)  # fmt: skip
+
+
+def _cut(sol: Solution, n: int) -> Solution:
+    """`sol`'s histories and its diffrax solution's saves cut to their first `n` rows."""
+    size = sol.ts.shape[0]
+    raw = sol.raw
+    if raw is not None:
+        raw = dataclasses.replace(raw, ts=cut_rows(raw.ts, size, n), ys=cut_rows(raw.ys, size, n))
+    return dataclasses.replace(sol, raw=raw, **{k: cut_rows(getattr(sol, k), size, n) for k in _HISTORIES})
 
 
 def _check_finite_start(y0: State, X0, Xd0, t0, att: AbstractAttitude) -> None:
