@@ -403,14 +403,25 @@ def test_hybrid_simulation_follows_the_full_equations_at_small_amplitude(tmp_pat
     capsys.readouterr()
 
 
-def test_every_solver_name_builds_a_solver():
-    """`--solver` and "auto"'s choice (Radau5 on stiff scenes) name a solver the runner can build."""
-    import diffrax as dfx
+# the order of each method, from its authors (Hairer & Wanner; Kennedy & Carpenter; Kvaerno;
+# Tsitouras; Bogacki & Shampine)
+_ORDERS = {"Dopri8": 8, "Dopri5": 5, "Tsit5": 5, "Bosh3": 3, "Heun": 2, "Kvaerno3": 3, "Kvaerno4": 4,
+           "Kvaerno5": 5, "KenCarp4": 4, "Radau5": 5}  # fmt: skip
 
+
+def test_every_solver_name_builds_that_method():
+    """`--solver NAME` (and "auto"'s choice, Radau5 on stiff scenes) builds the method of that
+    name, of the order its authors give, on the terms `simulate` hands it."""
     from jaxtree._src.cli import SOLVERS, solver_named
+    from jaxtree._src.integration.core import terms
 
-    for name in set(SOLVERS.values()) - {"auto"}:
-        assert isinstance(solver_named(name), dfx.AbstractSolver), name
+    assert set(SOLVERS.values()) - {"auto"} == set(_ORDERS)
+    for flag, name in SOLVERS.items():
+        if name == "auto":
+            continue
+        solver = solver_named(name)
+        assert type(solver).__name__ == name and flag == name.lower(), (flag, solver)
+        assert solver.order(terms(solver, lambda t, y, args: -y)) == _ORDERS[name], name
     assert isinstance(solver_named("Radau5"), jaxtree.Radau5)
 
 

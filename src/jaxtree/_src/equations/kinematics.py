@@ -49,29 +49,31 @@ def full_precision(fn: Callable[_P, _R]) -> Callable[_P, _R]:
 # Small 3-vector / 3x3 algebra on stacks (leading axes are batch axes), written out by
 # components: XLA on CPU fuses these elementwise forms, while a batched 3x3 dot (einsum,
 # matmul) or a reduction over an axis of length 3 runs several times slower.
+# The 3x3 algebra below is written by components, as sums of elementwise products that XLA:CPU
+# fuses into one loop (a dot_general or einsum runs slower on these small stacks: FINDINGS.md),
+# and each operand is split into its components once (one `unstack` each): the same arithmetic
+# in the same order as an entry-by-entry sum, in about a tenth of the primitives, which is what
+# a program's tracing, lowering and compilation pay for.
+
+
 def mv(A, x):
     """``A @ x`` for stacks of 3x3 matrices and 3-vectors."""
-    return jnp.stack(
-        [A[..., i, 0] * x[..., 0] + A[..., i, 1] * x[..., 1] + A[..., i, 2] * x[..., 2] for i in range(3)], -1
-    )
+    a0, a1, a2 = jnp.unstack(A, axis=-1)  # the columns
+    x0, x1, x2 = jnp.unstack(x[..., None, :], axis=-1)
+    return a0 * x0 + a1 * x1 + a2 * x2
 
 
 def mm(A, B):
     """``A @ B`` for stacks of 3x3 matrices."""
-    rows = [
-        jnp.stack(
-            [A[..., i, 0] * B[..., 0, j] + A[..., i, 1] * B[..., 1, j] + A[..., i, 2] * B[..., 2, j] for j in range(3)],
-            -1,
-        )
-        for i in range(3)
-    ]
-    return jnp.stack(rows, -2)
+    a0, a1, a2 = jnp.unstack(A[..., :, :, None], axis=-2)  # the columns, (..., 3, 1)
+    b0, b1, b2 = jnp.unstack(B[..., :, None, :], axis=-3)  # the rows, (..., 1, 3)
+    return a0 * b0 + a1 * b1 + a2 * b2
 
 
 def cross(a, b):
     """``a x b`` for stacks of 3-vectors."""
-    a1, a2, a3 = a[..., 0], a[..., 1], a[..., 2]
-    b1, b2, b3 = b[..., 0], b[..., 1], b[..., 2]
+    a1, a2, a3 = jnp.unstack(a, axis=-1)
+    b1, b2, b3 = jnp.unstack(b, axis=-1)
     return jnp.stack([a2 * b3 - a3 * b2, a3 * b1 - a1 * b3, a1 * b2 - a2 * b1], -1)
 
 

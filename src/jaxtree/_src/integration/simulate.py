@@ -25,10 +25,7 @@ import numpy as np
 from ..cache import checks_without_callbacks
 from ..equations.attitude import AbstractAttitude, get_attitude
 from ..equations.control import AbstractController, with_model_laws
-from ..equations.dynamics import (
-    rotational_equations,
-    unknown_rows,
-)
+from ..equations.dynamics import mass_matrix, unknown_rows
 from ..equations.kinematics import full_precision
 from ..errors import SceneError, SceneTypeError, SceneWarning, short
 from ..numerics import is_traced, program_jit, regular
@@ -115,8 +112,7 @@ def _singular(problem: Problem, t, y):
     factorization a pivot at round-off level instead of failing it, and the solve then returns
     finite garbage; this catches both."""
     model = problem.model
-    state = problem.state(t, y)
-    A = rotational_equations(model, state, t)[0]
+    A = mass_matrix(model, problem.state(t, y).gamma)  # (the matrix alone: no rates, no loads)
     u = unknown_rows(model)
     A = A[np.ix_(u, u)]
     return ~regular(jax.lax.linalg.cholesky(A, symmetrize_input=False), A)  # a failed factorization (NaN) too
