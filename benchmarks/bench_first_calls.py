@@ -147,6 +147,7 @@ compiled.clear(); seconds.clear(); captured.clear()
 t = time.perf_counter()
 jax.block_until_ready(eval(call))
 wall = time.perf_counter() - t
+timing = dict(seconds)  # (before the attribution below traces the program again)
 t = time.perf_counter()
 jax.block_until_ready(eval(call))
 again = time.perf_counter() - t
@@ -187,8 +188,8 @@ largest = max((c for c in compiled if c[0].removeprefix("jit_") in captured), ke
 sources = attribute(largest[0].removeprefix("jit_")) if largest else None
 print(json.dumps(dict(
     yardstick=stick, wall=wall, again=again, programs=sorted(compiled, key=lambda c: -c[2]),
-    trace=seconds["jaxpr_trace_duration"], lower=seconds["jaxpr_to_mlir_module_duration"],
-    compile=seconds["backend_compile_duration"], largest=largest and largest[0], sources=sources,
+    trace=timing["jaxpr_trace_duration"], lower=timing["jaxpr_to_mlir_module_duration"],
+    compile=timing["backend_compile_duration"], largest=largest and largest[0], sources=sources,
 )))
 """
 

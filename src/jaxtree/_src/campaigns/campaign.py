@@ -654,11 +654,17 @@ def _settings(model, sample, n, t1, saveat, rtol, atol, chunk_size, order, dt, m
     return _Settings(n, t1, ts, rtol, atol, dt, max_steps, chunk_size, -(-n // chunk_size), dtype)
 
 
+@eqx.filter_jit
+def _sampled(sample, n: int, key, model: Model):
+    """``sample`` over the members' keys, compiled as one program (run eagerly, each random
+    operation of a sample compiles on its own: 0.8 s of a 64-run campaign's first call)."""
+    return eqx.filter_vmap(sample, in_axes=(0, None))(jax.random.split(key, n), model)
+
+
 def _draw(model: Model, sample, n: int, key):
     """The `n` dispersed vehicles: ``sample`` vmapped over the members' keys, every array leaf
     as a numpy array with a leading run axis (a leaf the sample did not touch repeated)."""
-    keys = jax.random.split(key, n)
-    models = eqx.filter_vmap(sample, in_axes=(0, None))(keys, model)
+    models = _sampled(sample, n, key, model)
     if jax.tree_util.tree_structure(jax.tree_util.tree_map(lambda x: None, models)) != jax.tree_util.tree_structure(
         jax.tree_util.tree_map(lambda x: None, model)
     ):

@@ -30,6 +30,9 @@ from .radau import Radau5
 DEFAULT_RTOL = 1e-9
 DEFAULT_ATOL = 1e-9
 DEFAULT_SAVE_POINTS = 101
+# The smallest save grid an eager simulate compiles: the default 101 save points and a user's 501
+# or 1001 run in one program (FINDINGS.md, "Save-time buckets").
+FIRST_BUCKET = 1024
 DEFAULT_MAX_STEPS = 200_000
 # The default controller stops with `dt_min_reached` (a clear error) instead of shrinking the
 # step forever when the motion becomes singular (gimbal lock, non-finite accelerations).
@@ -220,12 +223,16 @@ def check_times(name, t0, t1, ts=None):
         raise SceneError(f"{name}: saveat[{i}] = {ts[i]:g} lies outside the integration from t0 = {a:g} to t1 = {b:g}")
 
 
-def save_bucket(n: int) -> int:
-    """The number of save times compiled for a request of `n`: the default (101) doubled until it
-    holds `n`. An eager run pads its save grid to this size (repeating the last time) and cuts
-    the histories back (:func:`padded_times`, :func:`cut_rows`), so that a user who changes the
-    number of save points or the times themselves reuses the compiled run within a bucket."""
-    size = DEFAULT_SAVE_POINTS
+def save_bucket(n: int, first: int = DEFAULT_SAVE_POINTS) -> int:
+    """The number of save times compiled for a request of `n`: `first` doubled until it holds
+    `n`. An eager run pads its save grid to this size (repeating the last time) and cuts the
+    histories back (:func:`padded_times`, :func:`cut_rows`), so that a user who changes the
+    number of save points or the times themselves reuses the compiled run within a bucket.
+    :func:`jaxtree.simulate` starts at :data:`FIRST_BUCKET` (its work per padded row is a
+    dense-output evaluation and a decoded state: microseconds; its diagnostics skip them),
+    :func:`jaxtree.simulate_hybrid` at the default number of save points (its truncation estimate
+    evaluates Eq. 1 on every row)."""
+    size = first
     while size < n:
         size *= 2
     return size
@@ -239,10 +246,10 @@ def grid_times(t0, t1, n: int, dtype) -> np.ndarray:
     return np.where(step < 1, a * (1 - step) + b * step, b).astype(dtype)
 
 
-def padded_times(ts) -> jax.Array:
+def padded_times(ts, first: int = DEFAULT_SAVE_POINTS) -> jax.Array:
     """Save times `ts` (concrete, 1-D, not empty) padded with their last to :func:`save_bucket`."""
     ts = np.asarray(ts)
-    padded = np.concatenate([ts, np.full(save_bucket(ts.shape[0]) - ts.shape[0], ts[-1], ts.dtype)])
+    padded = np.concatenate([ts, np.full(save_bucket(ts.shape[0], first) - ts.shape[0], ts[-1], ts.dtype)])
     return jax.device_put(padded)  # (jnp.asarray would compile a copy per shape)
 
 

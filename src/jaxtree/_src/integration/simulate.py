@@ -36,6 +36,7 @@ from .autosolver import choose_checked, given
 from .core import (
     DEFAULT_MAX_STEPS,
     DEFAULT_SAVE_POINTS,
+    FIRST_BUCKET,
     check_state,
     check_times,
     cut_rows,
@@ -334,9 +335,9 @@ def simulate(
     - `saveat`: a :class:`diffrax.SaveAt` (used as is; the final state is its last saved row),
       a number of evenly spaced save times (default 101), or an array of times (from `t0`
       toward `t1`, within the run; checked before tracing, as are finite `t0` and `t1`). An
-      eager call compiles its run for a bucket of save times (101, 202, 404, ...: the grid is
-      padded with its last time and the histories cut back), so that another number of save
-      points or other times in the same bucket compile nothing. Values
+      eager call compiles its run for a bucket of save times (up to 1024, 2048, 4096, ...: the
+      grid is padded with its last time and the histories cut back), so that another number of
+      save points or other times in the same bucket compile nothing. Values
       between steps come from the solver's dense output; Dopri8's (a degree-6 polynomial)
       is 2-3x less accurate than the steps at tight tolerances (fig4_free over 10 s at rtol =
       atol = 2e-10: 1.2e-9 at the save times, 3.9e-10 at the steps). For step accuracy at
@@ -435,7 +436,10 @@ def simulate(
     run = _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, div)
     with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
         sol = _solve(problem, y0, run, opts)
-    sol = _with_diagnostics(sol, model, law, controller, params) if diagnostics else _without_diagnostics(sol, model)
+    if diagnostics:
+        sol = _with_diagnostics(sol, model, law, controller, params, n_saved)
+    else:
+        sol = _without_diagnostics(sol, model)
     sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
     if n_saved is not None:
         sol = _cut(sol, n_saved)
@@ -489,12 +493,12 @@ def _bucketed(saveat, grid, exact: bool, dtype):
     if exact:
         return saveat, grid, None, None
     if grid is not None:
-        return None, save_bucket(grid), jax.device_put(np.asarray(grid - 1, dtype)), grid
+        return None, save_bucket(grid, FIRST_BUCKET), jax.device_put(np.asarray(grid - 1, dtype)), grid
     ts = np.asarray(saveat, dtype)
     n = ts.shape[0]
     if n == 0:
         return saveat, grid, None, None
-    return padded_times(ts), None, None, n
+    return padded_times(ts, FIRST_BUCKET), None, None, n
 
 
 _HISTORIES = (
@@ -528,8 +532,9 @@ def _without_diagnostics(sol: Solution, model: Model) -> Solution:
     return eqx.tree_at(lambda s: (s.energy, s.angular_momentum, s.hold_torque), sol, diag, is_leaf=lambda x: x is None)
 
 
-def _with_diagnostics(sol: Solution, model: Model, law, controller, params) -> Solution:
-    """`sol` with its energy, angular momentum and hold torques (see :func:`run_diagnostics`)."""
+def _with_diagnostics(sol: Solution, model: Model, law, controller, params, count=None) -> Solution:
+    """`sol` with its energy, angular momentum and hold torques (see :func:`run_diagnostics`); of
+    its first `count` rows alone when given (a padded save grid)."""
     needs_law = model.prescription is not None
     diag = run_diagnostics(
         model,
@@ -539,5 +544,6 @@ def _with_diagnostics(sol: Solution, model: Model, law, controller, params) -> S
         sol.ts,
         State(sol.dcm, sol.omega0, sol.gamma, sol.gamma_dot),
         sol.control_state if needs_law else None,
+        count=None if count is None else jax.device_put(np.asarray(count, np.int32)),
     )
     return eqx.tree_at(lambda s: (s.energy, s.angular_momentum, s.hold_torque), sol, diag, is_leaf=lambda x: x is None)

@@ -144,8 +144,11 @@ def histories_of(problem: Problem, ts, ys):
 
 
 @program_jit
-def run_diagnostics(model: Model, law, controller, params, ts, states: State, zs):
-    """Energy, angular momentum and hold torques of the saved states.
+def run_diagnostics(model: Model, law, controller, params, ts, states: State, zs, count=None):
+    """Energy, angular momentum and hold torques of the saved states; with `count` (an integer
+    array) of the first `count` rows alone, the others NaN: one program for every number of rows
+    up to the arrays' length, at the cost of those rows (a save grid padded to its bucket,
+    :func:`.core.save_bucket`).
 
     Compiled apart from the solve, and keyed on the model alone when it has no prescribed hinges
     (the hold torques need the hinge law only then): runs that differ in attitude variables,
@@ -172,13 +175,29 @@ def run_diagnostics(model: Model, law, controller, params, ts, states: State, zs
         return energy, H, solve_accelerations(model, state, t, tau).hold_torque
 
     rows = (ts, states, zs)
-    out = jax.lax.map(row, rows) if jax.default_backend() == "cpu" else jax.vmap(row)(rows)
+    if count is not None:
+        out = _first_rows(row, rows, count, ts.shape[0])
+    else:
+        out = jax.lax.map(row, rows) if jax.default_backend() == "cpu" else jax.vmap(row)(rows)
     if held:
         return out
     energy, H = out[0], out[1]
     # no hinge held: no column (and none through lax.map, whose batched form fails to reshape a
     # zero-sized axis)
     return energy, H, jnp.zeros((ts.shape[0], 0), states.gamma.dtype)
+
+
+def _first_rows(row, rows, count, size):
+    """``row`` over the first `count` of `size` rows, one after the other (a loop whose trip count
+    is a value, not a shape), the other rows NaN."""
+    shapes = jax.eval_shape(row, jax.tree.map(lambda x: x[0], rows))
+    out = jax.tree.map(lambda s: jnp.full((size, *s.shape), jnp.nan, s.dtype), shapes)
+
+    def body(i, out):
+        values = row(jax.tree.map(lambda x: x[i], rows))
+        return jax.tree.map(lambda o, v: o.at[i].set(v), out, values)
+
+    return jax.lax.fori_loop(0, count, body, out)
 
 
 def rhs_evaluations(solver, stats, dt0_given: bool):
