@@ -18,6 +18,7 @@ from jaxtree._src.campaigns.campaign import monte_carlo
 
 N, CHUNK, T1, SAVES, TOL, MAX_STEPS = 6, 4, 1.0, 11, 1e-8, 3000
 KEY = 7
+EPS = float(np.finfo(np.float64).eps)
 LOCK = 0.3  # share of members whose inner gimbal starts at 90 deg: gimbal lock
 # a batched member against the lone run of its vehicle, two integrations at TOL: batched and single kernels
 # round differently, which can flip an accept/reject decision and give another step sequence, so they
@@ -95,12 +96,15 @@ def test_dataset_holds_each_member_as_run_alone_and_failed_members_apart(campaig
     ok = ~locked
     assert set(ds.status.values[ok]) == {"successful"} and set(ds.failure.values[ok]) == {""}
     assert np.all(ds.steps.values > 0) and np.all(ds.t_final.values[ok] == T1)
-    # the dispersed parameters are recorded: they are sample(key_i, model)
+    # the dispersed parameters are recorded: they are sample(key_i, model), here run op by op,
+    # there compiled as one program (XLA's fused arithmetic: equal to a few units of round-off)
     keys = jax.random.split(jax.random.key(KEY), N)
     for i in range(N):
         m = sample(keys[i], model)
-        np.testing.assert_array_equal(ds["param.mass"].values[i], np.asarray(m.mass))
-        np.testing.assert_array_equal(ds["param.initial.omega0"].values[i], np.asarray(m.initial.omega0))
+        np.testing.assert_allclose(ds["param.mass"].values[i], np.asarray(m.mass), rtol=4 * EPS, atol=0)
+        np.testing.assert_allclose(
+            ds["param.initial.omega0"].values[i], np.asarray(m.initial.omega0), rtol=4 * EPS, atol=4 * EPS * 1e-2
+        )
     # a successful member equals the run of its vehicle alone (one lone simulate, independent of the batch)
     i = int(np.flatnonzero(ok)[-1])
     # two integrations at TOL: they agree to its integration error, not to round-off (SAME_RUN)
