@@ -164,13 +164,16 @@ class _Run(NamedTuple):
     event: Any
     progress_meter: Any
     grid_div: Any = None  # with a bucketed grid: the requested number of save times less one
+    packed: Any = None  # (flat start, flat state at rest) packed before the solve, or None
 
 
 @program_jit
 def _solve(problem: Problem, y0: State, run: _Run, opts: _Options):
     dtype = jnp.result_type(problem.model.mass)
-    y = problem.pack(y0, None, run.X0, run.Xd0)
-    start_ok, singular_start, rest = _start(problem, y, run.t0, opts.check_start)
+    # an eager call packs the start and the state at rest in a small program of their own: the
+    # quaternion from C is then no part of the solve's program
+    y, rest = run.packed if run.packed is not None else (problem.pack(y0, None, run.X0, run.Xd0), None)
+    start_ok, singular_start, rest = _start(problem, y, run.t0, opts.check_start, rest)
     controller, dt0 = run.controller, run.dt0
     if controller is None:
         controller = default_controller(run.rtol, run.atol, run.t0, run.t1)
@@ -216,7 +219,14 @@ def _grid(t0, t1, size, div, dtype):
     return jnp.where(step < 1, t0 * (1 - step) + t1 * step, t1)
 
 
-def _start(problem: Problem, y, t0, check: bool = True):
+def _at_rest(model: Model, dtype, xp=jnp) -> State:
+    """The vehicle at rest in its reference configuration (`xp`: numpy outside a trace, where
+    each jax.numpy constructor would compile a program of its own)."""
+    n, z3 = model.n, xp.zeros(3, dtype)
+    return State(xp.eye(3, dtype=dtype), z3, xp.zeros(n, dtype), xp.zeros(n, dtype))
+
+
+def _start(problem: Problem, y, t0, check: bool = True, rest=None):
     """``(start_ok, singular_start, rest)`` of a flat start `y`.
 
     A non-finite start cannot be integrated: NaN error estimates give NaN steps until max_steps
@@ -232,8 +242,8 @@ def _start(problem: Problem, y, t0, check: bool = True):
         singular_start = finite_start & _singular(problem, t0, jax.lax.stop_gradient(y))
     else:
         singular_start = jnp.zeros((), bool)
-    n, z3 = problem.model.n, jnp.zeros(3, dtype)
-    rest = problem.pack(State(jnp.eye(3, dtype=dtype), z3, jnp.zeros(n, dtype), jnp.zeros(n, dtype)))
+    if rest is None:
+        rest = problem.pack(_at_rest(problem.model, dtype))
     return finite_start & ~singular_start, singular_start, rest
 
 
@@ -416,6 +426,7 @@ def simulate(
     elif translation and model.orbit is not None:  # start on the scene's orbit
         X0, Xd0 = model.orbit.position(jnp.asarray(t0, dtype)), model.orbit.velocity(jnp.asarray(t0, dtype))
     problem = make_problem(model, att, law, controller, params, bool(translation))
+    y_flat = None
     if solver is None or isinstance(solver, str):
         y_flat = packed_start(problem, y0, X0, Xd0)
         solver, choice = choose_checked(
@@ -433,7 +444,11 @@ def simulate(
     opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced), bool(diagnostics))
     as_array = lambda x: None if x is None else jnp.asarray(x, dtype)
     arrays = (as_array(X0), as_array(Xd0), as_array(t0), as_array(t1), as_array(rtol), as_array(atol), as_array(dt0))
-    run = _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, div)
+    packed = None
+    if not traced:
+        y_flat = packed_start(problem, y0, X0, Xd0) if y_flat is None else y_flat
+        packed = (y_flat, packed_start(problem, _at_rest(model, np.dtype(dtype), np)))
+    run = _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, div, packed)
     with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
         sol = _solve(problem, y0, run, opts)
     if diagnostics:
