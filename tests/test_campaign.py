@@ -194,14 +194,71 @@ np.savez({str(tmp_path / "two.npz")!r}, omega0=ds.omega0.values, gamma=ds.gamma.
     assert list(two["failure"]) == list(campaign.failure.values)
 
 
-def test_a_dask_local_cluster_of_two_processes_gives_the_same_numbers(campaign):
+def test_a_dask_local_cluster_of_two_processes_gives_the_same_numbers_with_a_worker_killed(campaign):
+    """The campaign on a Dask cluster of two worker processes, one of them killed with SIGKILL
+    while it holds a chunk: the scheduler gives the chunk to the other (and the nanny starts a
+    new worker), and the campaign returns, bit for bit, the numbers of the in-process run."""
+    import signal
+    import threading
+    import time
+
     import distributed  # the test extra's dask[distributed]
+
+    killed = []
+
+    def kill_a_busy_worker(client, pids, stop):
+        while not stop.is_set() and not killed:
+            busy = [w for w, tasks in client.processing().items() if tasks and w in pids]
+            if busy:
+                time.sleep(0.3)  # inside the chunk: compiling or integrating
+                os.kill(pids[busy[0]], signal.SIGKILL)
+                killed.append(busy[0])
+            time.sleep(0.02)
 
     with (
         distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cl,
         distributed.Client(cl) as client,
     ):
-        ds = run(client=client)
+        pids = client.run(os.getpid)  # worker address -> its process
+        stop = threading.Event()
+        killer = threading.Thread(target=kill_a_busy_worker, args=(client, pids, stop), daemon=True)
+        killer.start()
+        try:
+            ds = run(client=client)
+        finally:
+            stop.set()
+            killer.join(timeout=10)
+    assert killed, "no worker was killed: the check below would prove nothing"
     assert ds.attrs["where"] == "dask"
+    for v in campaign.data_vars:
+        np.testing.assert_array_equal(ds[v].values, campaign[v].values, err_msg=v)
+
+
+def test_a_campaign_whose_process_is_killed_resumes_from_its_store(campaign, tmp_path):
+    """A campaign process killed with SIGKILL after its first chunk reached the store (a real kill:
+    no exception, no cleanup): the rerun in this process runs the second chunk alone and returns,
+    bit for bit, the numbers of the uninterrupted run."""
+    out = tmp_path / "killed.zarr"
+    script = f"""
+import os, signal
+import jaxtree._src.campaigns.campaign as C
+from test_campaign import run
+real, calls = C.run_chunk, []
+def dies_on_the_second(*args, **kw):
+    calls.append(1)
+    if len(calls) == 2:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return real(*args, **kw)
+C.run_chunk = dies_on_the_second
+run(out={str(out)!r})
+"""
+    env = dict(
+        os.environ,
+        PYTHONPATH=os.pathsep.join(filter(None, [str(pathlib.Path(__file__).parent), os.environ.get("PYTHONPATH")])),
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, env=env)
+    assert proc.returncode == -9, (proc.returncode, proc.stderr[-3000:])  # killed, not finished
+    ds = run(out=out)
+    assert ds.attrs["chunks_run"] == 1  # the first chunk was not run again
     for v in campaign.data_vars:
         np.testing.assert_array_equal(ds[v].values, campaign[v].values, err_msg=v)
