@@ -48,25 +48,25 @@ import numpy as np
 
 import jaxtree
 
-from ..bench import CASES as BENCH_CASES
-from ..bench import SOLVERS as BENCH_SOLVERS
-from ..bench import BenchReport, bench_case, work_precision
-from . import programs
-from .appendage.files import scene_appendages
-from .campaigns.chunked import ChunkedRunError, chunked_config, parse_hinges, simulate_to_file
-from .campaigns.chunked import solver_named as solver_named
-from .hybrid.linear import linearize
-from .identify import command as identify_command
-from .integration.autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
-from .integration.simulate import simulate
-from .io import output, plots
-from .io.drift import change_text, drift_causes, near_zero
-from .io.results import command_line, load_result, modes_dataset, save_result, to_solution, versions, write_netcdf
-from .io.results import model_of as result_model
-from .linear.linearize import structure
-from .linear.modes import ModalError, modes
-from .scene.check import check_scene
-from .scene.scene import SceneError, list_scenes, load_scene
+from ...bench import CASES as BENCH_CASES
+from ...bench import SOLVERS as BENCH_SOLVERS
+from ...bench import BenchReport, bench_case, work_precision
+from .. import programs
+from ..appendage.files import scene_appendages
+from ..campaigns.chunked import ChunkedRunError, chunked_config, parse_hinges, simulate_to_file
+from ..campaigns.chunked import solver_named as solver_named
+from ..hybrid.linear import linearize
+from ..identify import command as identify_command
+from ..integration.autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
+from ..integration.simulate import simulate
+from ..io import output, plots
+from ..io.drift import change_text, drift_causes, near_zero
+from ..io.results import command_line, load_result, modes_dataset, save_result, to_solution, versions, write_netcdf
+from ..io.results import model_of as result_model
+from ..linear.linearize import structure
+from ..linear.modes import ModalError, modes
+from ..scene.check import check_scene
+from ..scene.scene import SceneError, list_scenes, load_scene
 
 SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "identify", "bench", "sample")
 EXIT_USAGE, EXIT_FAILED, EXIT_INTERRUPTED = 2, 1, 130
@@ -1005,7 +1005,7 @@ def cmd_modes(args) -> int:
 # ----------------------------------------------------------------------------- animate, plot
 def _viewer():
     try:
-        from .io import viewer  # looked up when used: an installation may lack it (a test stands one in)
+        from ..io import viewer  # looked up when used: an installation may lack it (a test stands one in)
     except ImportError:
         raise UserError("the 3D viewer (jaxtree.write_animation) is not available in this installation") from None
     return viewer
@@ -1103,7 +1103,7 @@ def cmd_plot(args) -> int:
 
 # ----------------------------------------------------------------------------- sample
 # `python -m jaxtree` runs jaxtree/__main__.py: the sample problem is named so there
-_MAIN_FILE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "__main__.py")
+_MAIN_FILE = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "__main__.py")
 SAMPLE_DESCRIPTION = "``python -m jaxtree``: the sample problem of Sec. II E (Fig. 4) end to end."
 
 
