@@ -27,14 +27,11 @@ exits with status 130.
 
 from __future__ import annotations
 
-import argparse
 import concurrent.futures
 import contextlib
 import dataclasses
-import math
 import os
 import pathlib
-import re
 import signal
 import sys
 import threading
@@ -48,12 +45,11 @@ import numpy as np
 
 import jaxtree
 
-from ...bench import CASES as BENCH_CASES
 from ...bench import SOLVERS as BENCH_SOLVERS
 from ...bench import BenchReport, bench_case, work_precision
 from .. import programs
 from ..appendage.files import scene_appendages
-from ..campaigns.chunked import ChunkedRunError, chunked_config, parse_hinges, simulate_to_file
+from ..campaigns.chunked import ChunkedRunError, chunked_config, simulate_to_file
 from ..campaigns.chunked import solver_named as solver_named
 from ..hybrid.linear import linearize
 from ..identify import command as identify_command
@@ -61,421 +57,39 @@ from ..integration.autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER
 from ..integration.simulate import simulate
 from ..io import output, plots
 from ..io.drift import change_text, drift_causes, near_zero
-from ..io.results import command_line, load_result, modes_dataset, save_result, to_solution, versions, write_netcdf
-from ..io.results import model_of as result_model
+from ..io.results import command_line, modes_dataset, save_result, to_solution, versions, write_netcdf
 from ..linear.linearize import structure
 from ..linear.modes import ModalError, modes
 from ..scene.check import check_scene
-from ..scene.scene import SceneError, list_scenes, load_scene
+from ..scene.scene import SceneError
+from .common import (
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_USAGE,
+    SOLVERS,
+    SUBCOMMANDS,
+    UserError,
+)
+from .common import Parser as _Parser
+from .common import existing as _existing
+from .common import fast_cpu_compiler as _fast_cpu_compiler
+from .common import hinges as _hinges
+from .common import model_of as _model_of
+from .common import open_result as _load_result
+from .common import open_scene as _load_scene
+from .common import say as _say
+from .common import start_warming as _warming
+from .common import use_matplotlib as _matplotlib
+from .common import wrote as _wrote
+from .parser import parser as _parser
 
-SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "identify", "bench", "sample")
-EXIT_USAGE, EXIT_FAILED, EXIT_INTERRUPTED = 2, 1, 130
 # Seconds to sleep after each part of `simulate` is written: lets a test interrupt a run
 # between parts deterministically. Not for users.
 CHUNK_DELAY_ENV = "JAXTREE_CHUNK_DELAY"
 
-SOLVERS = {
-    "auto": "auto",
-    "dopri8": "Dopri8",
-    "dopri5": "Dopri5",
-    "tsit5": "Tsit5",
-    "bosh3": "Bosh3",
-    "heun": "Heun",
-    "kvaerno3": "Kvaerno3",
-    "kvaerno4": "Kvaerno4",
-    "kvaerno5": "Kvaerno5",
-    "kencarp4": "KenCarp4",
-    "radau5": "Radau5",
-}
-ATTITUDES = ("quaternion", "dcm", "euler123")
-
-
-class UserError(Exception):
-    """A mistake in the command: printed as one line, exit status 2."""
-
-    def __init__(self, message, prog=None):
-        super().__init__(message)
-        self.prog = prog
-
 
 class _Interrupted(KeyboardInterrupt):
     """SIGTERM, handled like Ctrl-C."""
-
-
-class _Parser(argparse.ArgumentParser):
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        # argparse takes "-1e-6" for an option (its pattern of negative numbers has no exponent),
-        # so "--rtol -1e-6" failed as "expected one argument": a number in any float syntax is a
-        # value, which the option's own check then accepts or refuses
-        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$", re.I)
-
-    def error(self, message):
-        raise UserError(f"{message} (see '{self.prog} --help')", prog=self.prog)
-
-
-def _fast_cpu_compiler():
-    # XLA:CPU's older LLVM emitters compile these many small fusions about twice as fast as the
-    # default fusion emitters, with the same run time. Only effective before JAX starts its CPU
-    # backend, which importing jaxtree does not do; an explicit XLA_FLAGS setting wins.
-    flag = "--xla_cpu_use_fusion_emitters=false"
-    current = os.environ.get("XLA_FLAGS", "")
-    if "xla_cpu_use_fusion_emitters" not in current:
-        os.environ["XLA_FLAGS"] = f"{current} {flag}".strip()
-
-
-def _say(*args):
-    print(*args, file=sys.stderr, flush=True)
-
-
-# ----------------------------------------------------------------------------- argument types
-def _number(convert, ok, need):
-    """An argparse type: the number `convert` reads from the text, where `ok` holds of it."""
-    kind = "an integer" if convert is int else "a number"
-
-    def parse(text):
-        try:
-            x = convert(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be {kind}, got {text!r}") from None
-        if not ok(x):
-            raise argparse.ArgumentTypeError(f"must be {need}, got {x if convert is int else repr(text)}")
-        return x
-
-    return parse
-
-
-def _positive():
-    return _number(float, lambda x: math.isfinite(x) and x > 0, "a positive number")
-
-
-def _finite():
-    return _number(float, math.isfinite, "finite")
-
-
-def _count(least=1):
-    return _number(int, lambda x: x >= least, f"at least {least}")
-
-
-def _modes_arg(text):
-    """``--modes``: a count (at least 1) or 'auto'."""
-    if text.strip().lower() == "auto":
-        return "auto"
-    return _count()(text)
-
-
-def _vector3():
-    def parse(text):
-        parts = [p for p in text.replace(" ", ",").split(",") if p]
-        try:
-            v = [float(p) for p in parts]
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be numbers, got {text!r}") from None
-        if len(v) == 1:
-            v = [0.0, 0.0, v[0]]
-        if len(v) != 3 or not all(math.isfinite(x) for x in v):
-            raise argparse.ArgumentTypeError(
-                f"must be one number (about b0's axis 3) or three finite numbers wx,wy,wz, got {text!r}"
-            )
-        return v
-
-    return parse
-
-
-def _hinges(model, text, option):
-    """Hinges named in `text`: 'all', or comma-separated indices 1..n, body names or ranges a-b."""
-    try:
-        return parse_hinges(model, text)
-    except ValueError as e:
-        raise UserError(f"{option}: {e}") from None
-
-
-def _load_scene(path):
-    p = pathlib.Path(path)
-    try:
-        return load_scene(path)
-    except FileNotFoundError:
-        if p.suffix == "" and p.parent == pathlib.Path("."):
-            raise UserError(
-                f"scene {path!r}: no such file, and no bundled scene of that name (bundled: {', '.join(list_scenes())})"
-            ) from None
-        raise UserError(f"scene file {str(path)!r} does not exist") from None
-    except IsADirectoryError:
-        raise UserError(f"scene {str(path)!r} is a folder, not a scene file") from None
-    except PermissionError:
-        raise UserError(f"scene file {str(path)!r} cannot be read (permission denied)") from None
-    except UnicodeDecodeError:
-        raise UserError(f"scene file {str(path)!r} is not a text (JSON) file") from None
-    except SceneError as e:
-        text = str(e)
-        raise UserError(text if text.startswith(str(p)) else f"invalid scene {str(path)!r}: {text}") from None
-
-
-def _load_result(path):
-    try:
-        return load_result(path, as_dataset=True)
-    except FileNotFoundError:
-        raise UserError(f"result file {str(path)!r} does not exist") from None
-    except IsADirectoryError:
-        raise UserError(f"result {str(path)!r} is a folder, not a result file") from None
-    except ValueError as e:
-        raise UserError(str(e)) from None
-    except OSError as e:
-        raise UserError(f"result file {str(path)!r} cannot be read as NetCDF ({e.__class__.__name__}: {e})") from None
-
-
-def _model_of(ds, path):
-    try:
-        return result_model(ds)
-    except (ValueError, KeyError) as e:
-        raise UserError(f"{path}: {e}") from None
-
-
-def _matplotlib():
-    try:
-        import matplotlib  # optional (jaxtree[plot]) and slow to import: only where a plot is drawn
-
-        matplotlib.use("Agg")
-        return True
-    except ImportError:
-        return False
-
-
-# ----------------------------------------------------------------------------- parser
-def _parser():
-    p = _Parser(
-        prog="jaxtree",
-        description="Dynamics of hinge-connected rigid-body trees (Likins, JPL TR 32-1565).",
-        epilog="With no subcommand (or with options only), runs the seed's sample problem: "
-        "see 'jaxtree sample --help'.",
-    )
-    p.add_argument("--version", action="store_true", help="print the versions and exit")
-    sub = p.add_subparsers(dest="command", metavar="SUBCOMMAND", parser_class=_Parser)
-    for add in (
-        _simulate_parser,
-        _modes_parser,
-        _animate_parser,
-        _check_parser,
-        _plot_parser,
-        _identify_parser,
-        _bench_parser,
-    ):
-        add(sub)
-    sub.add_parser("sample", help="the seed's sample problem (the default without a subcommand)", add_help=False)
-    return p
-
-
-# the subcommands: one-line help (in `jaxtree --help`) and description (in their own help)
-_COMMANDS = {
-    "simulate": (
-        "integrate a scene and write a NetCDF result",
-        "Integrate Eq. (1) (or the hybrid-coordinate equations with --hybrid-small) "
-        "and write the time histories to a NetCDF result file, in parts as the run "
-        "goes (an interrupted run is readable and --resume continues it).",
-    ),
-    "modes": (
-        "modes of the linearized small hinges: table, result file, shape plot",
-        "Linearize the small hinges about a nominal motion (Eqs. 40-44) and print their "
-        "modes (Eqs. 70-104): frequencies, damping, the coordinates that dominate each; "
-        "write a modes result file and a plot of the mode shapes.",
-    ),
-    "animate": (
-        "an HTML page animating a result",
-        "Write an HTML page animating a simulation result, or one mode of a modes result.",
-    ),
-    "check": (
-        "validate a scene and describe it",
-        "Validate a scene; print its tree, the seed's Tables 1-2 (network and path "
-        "elements), masses and the condition number of Eq. (1) at the initial state.",
-    ),
-    "plot": (
-        "plots of a result file",
-        "Plot a result: time histories and drift (simulation) or mode shapes (modes).",
-    ),
-    "identify": ("estimate parameters from a record of sensor readings", identify_command.DESCRIPTION),
-    "bench": (
-        "error against run time: solvers, formulations and peers",
-        "Work-precision report: for each case, formulation (full Eq. 1, Eq. 30, hybrid) and solver, "
-        "the error against a tight reference by a different solver and the run time, with the installed peers "
-        "(Pinocchio + scipy, MuJoCo, Basilisk) in the same run. Writes OUT/work_precision.csv, .md and one "
-        "PNG per case. Cases: " + ", ".join(BENCH_CASES) + " (default: all; --quick: wings).",
-    ),
-}
-
-
-def _subparser(sub, name):
-    short, description = _COMMANDS[name]
-    return sub.add_parser(name, help=short, description=description)
-
-
-def _simulate_parser(sub):
-    s = _subparser(sub, "simulate")
-    s.add_argument("scene", metavar="SCENE", help="scene JSON file (jaxtree-scene/1) or a bundled scene name")
-    s.add_argument("--t1", type=_finite(), required=True, help="end time (s)")
-    s.add_argument("--t0", type=_finite(), default=0.0, help="start time (s; default 0)")
-    s.add_argument(
-        "--points",
-        type=_count(2),
-        help="number of evenly spaced save times (default: 20 per period of the fastest sprung hinge that "
-        "still rings, at least 101)",
-    )
-    s.add_argument("--rtol", type=_positive(), help="relative tolerance (default 1e-9)")
-    s.add_argument("--atol", type=_positive(), help="absolute tolerance (default 1e-9)")
-    s.add_argument(
-        "--solver",
-        default="auto",
-        type=str.lower,
-        choices=sorted(SOLVERS),
-        help="solver (default auto: dopri8 or radau5, whichever is predicted to reach the tolerance in "
-        "less run time from the linearized equations at the start; radau5, kvaerno3/4/5 and kencarp4 "
-        "are implicit)",
-    )
-    s.add_argument(
-        "--attitude",
-        default="quaternion",
-        type=str.lower,
-        choices=ATTITUDES,
-        help="attitude variables of b0 (default quaternion)",
-    )
-    s.add_argument("--max-steps", type=_count(), default=200_000, help="step limit of each part (default 200000)")
-    _hybrid_options(s)
-    s.add_argument(
-        "--out", "-o", metavar="RESULT", help="result file (NetCDF; default SCENENAME.nc in the current folder)"
-    )
-    s.add_argument("--csv", metavar="FILE", help="also export the histories as CSV")
-    s.add_argument(
-        "--plot",
-        metavar="PREFIX",
-        help="plots PREFIX_histories.png and PREFIX_drift.png (default: the result's name without .nc)",
-    )
-    s.add_argument("--no-plot", action="store_true", help="write no plots")
-    s.add_argument("--chunks", type=_count(), default=10, help="number of parts the run is written in (default 10)")
-    s.add_argument(
-        "--resume",
-        action="store_true",
-        help="continue an interrupted run of the same command from its last written part",
-    )
-    s.add_argument(
-        "--no-error-estimate", action="store_true", help="skip the error estimate (a second run at 10x the tolerances)"
-    )
-    s.add_argument("--no-progress", action="store_true", help="no progress bar")
-
-
-def _hybrid_options(s):
-    """The options of `simulate` --hybrid-small."""
-    s.add_argument(
-        "--hybrid-small",
-        metavar="HINGES",
-        help="hybrid coordinates (Eqs. 105-123): the small hinges (indices, names, ranges a-b, or 'all') "
-        "replaced by truncated modal coordinates; 'none' for the scene's finite-element appendages alone "
-        "(a scene's appendages are always in modal coordinates here)",
-    )
-    s.add_argument(
-        "--modes",
-        type=_modes_arg,
-        metavar="K",
-        help="with --hybrid-small: modes retained per substructure (each connected group of small "
-        "hinges, e.g. one wing; the lowest first, a repeated frequency kept whole), or 'auto': per "
-        "substructure the fewest whose neglected share of the quasi-static response to the base's "
-        "motion is at most --modes-tol (default all)",
-    )
-    s.add_argument(
-        "--modes-tol",
-        type=_positive(),
-        metavar="TOL",
-        help="with --modes auto: the neglected share allowed (default 0.01)",
-    )
-    s.add_argument("--cutoff", type=_positive(), help="with --hybrid-small: retain modes up to this frequency (rad/s)")
-    _nominal_options(
-        s,
-        "--modal-damping",
-        spin="with --hybrid-small: nominal omega0 of the modes, wx,wy,wz in {b0} (rad/s; default the "
-        "scene's initial omega0)",
-        damping="with --hybrid-small: modal damping ratio of the retained modes",
-    )
-
-
-def _nominal_options(p, damping_flag, *, spin, damping):
-    """--spin and a damping ratio: the nominal motion of modes (`modes`, `simulate --hybrid-small`)."""
-    p.add_argument("--spin", type=_vector3(), help=spin)
-    p.add_argument(damping_flag, type=_finite(), metavar="ZETA", help=damping)
-
-
-def _modes_parser(sub):
-    m = _subparser(sub, "modes")
-    m.add_argument("scene", metavar="SCENE", help="scene JSON file or a bundled scene name")
-    m.add_argument(
-        "--small",
-        default="all",
-        metavar="HINGES",
-        help="the small hinges: indices, names, ranges a-b, or 'all' (default: every hinge that is not "
-        "prescribed or inert), or 'none'; a scene's finite-element appendages join with their modal coordinates",
-    )
-    _nominal_options(
-        m,
-        "--damping",
-        spin="nominal omega0, one number (about b0's axis 3) or wx,wy,wz in {b0} (rad/s; default 0)",
-        damping="modal damping ratio added to every mode (Eq. 104)",
-    )
-    m.add_argument("--out", "-o", metavar="RESULT", help="modes result file (default SCENENAME_modes.nc)")
-    m.add_argument("--plot", metavar="PNG", help="mode-shape plot (default: the result's name, .png)")
-    m.add_argument("--no-plot", action="store_true", help="write no plot")
-    m.add_argument("--show", type=_count(), default=6, metavar="K", help="modes drawn in the plot (default 6)")
-
-
-def _animate_parser(sub):
-    a = _subparser(sub, "animate")
-    a.add_argument("result", metavar="RESULT", help="result file of 'jaxtree simulate' or 'jaxtree modes'")
-    a.add_argument("-o", "--out", required=True, metavar="PAGE", help="HTML file to write")
-    a.add_argument(
-        "--mode", type=_count(), metavar="K", help="with a modes result: the mode to animate (1 = lowest; default 1)"
-    )
-    a.add_argument("--amplitude", type=_positive(), help="with --mode: largest hinge angle of the oscillation (rad)")
-    a.add_argument("--title", help="page title")
-    a.add_argument(
-        "--scale",
-        type=_positive(),
-        default=1.0,
-        metavar="FACTOR",
-        help="finite-element appendages' output nodes drawn at FACTOR times their displacement (default 1)",
-    )
-
-
-def _check_parser(sub):
-    c = _subparser(sub, "check")
-    c.add_argument("scene", metavar="SCENE", help="scene JSON file or a bundled scene name")
-    c.add_argument("--tables", action="store_true", help="print Tables 1-2 for any number of hinges")
-
-
-def _plot_parser(sub):
-    pl = _subparser(sub, "plot")
-    pl.add_argument("result", metavar="RESULT", help="result file")
-    pl.add_argument("-o", "--out", metavar="PREFIX", help="file name prefix (default: RESULT without .nc)")
-
-
-def _identify_parser(sub):
-    identify_command.add_arguments(_subparser(sub, "identify"))
-
-
-def _bench_parser(sub):
-    b = _subparser(sub, "bench")
-    b.add_argument("cases", metavar="CASE", nargs="*", help="bench cases (see above), or stiff_<scale>")
-    b.add_argument(
-        "-o", "--out", default="work_precision", metavar="DIR", help="output folder (default work_precision)"
-    )
-    b.add_argument("--quick", action="store_true", help="a short run: wings, four solvers, two tolerances")
-    b.add_argument("--solvers", nargs="+", metavar="NAME", help="solver names (default all)")
-    b.add_argument("--tols", nargs="+", type=_positive(), metavar="TOL", help="tolerance ladder")
-    b.add_argument("--no-peers", action="store_true", help="leave the peers out")
-    b.add_argument("--no-plots", action="store_true", help="CSV and Markdown only")
-    b.add_argument("--repeats", type=_count(1), help="timed calls after the first (default 3)")
-    b.add_argument("--no-progress", action="store_true", help="no progress bar")
-    b.add_argument(
-        "--merge",
-        nargs="+",
-        metavar="DIR",
-        help="merge the reports saved in these folders (runs of parts of the cases) into --out; runs nothing",
-    )
 
 
 # ----------------------------------------------------------------------------- main
@@ -542,16 +156,6 @@ def _main(argv) -> int:
 
 
 # ----------------------------------------------------------------------------- bench
-def _wrote(paths, existed) -> str:
-    """``wrote a, b`` with the files that were there before named as overwritten."""
-    over = [str(q) for q in paths if str(q) in existed]
-    return f"wrote {', '.join(str(q) for q in paths)}" + (f" (overwrote {', '.join(over)})" if over else "")
-
-
-def _existing(paths) -> set[str]:
-    return {str(q) for q in paths if pathlib.Path(q).exists()}
-
-
 def cmd_bench(args) -> int:
     cases = []
     for name in args.cases:
@@ -773,20 +377,6 @@ def _check_simulate_options(args):
                 raise UserError(f"{opt} needs --hybrid-small (the hinges in modal coordinates)")
     elif args.modes_tol is not None and args.modes != "auto":
         raise UserError("--modes-tol needs --modes auto")
-
-
-def _warming(plot: bool) -> threading.Thread:
-    """:func:`output.warm_writers` started on a thread of its own (join it before writing). Its
-    failure is not the run's: the writers themselves then import and fail (or not) with their own
-    message. A daemon: an interrupted run does not wait for it."""
-
-    def warm():
-        with contextlib.suppress(Exception):
-            output.warm_writers(plot=plot)
-
-    thread = threading.Thread(target=warm, name="jaxtree-warm-writers", daemon=True)
-    thread.start()
-    return thread
 
 
 def _option_error(e: ChunkedRunError) -> UserError:
