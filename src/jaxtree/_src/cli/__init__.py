@@ -23,279 +23,41 @@ A user's mistake (a missing file, an invalid scene, a bad option) prints one lin
 is wrong and exits with status 2; a run that fails numerically prints its diagnosis (time,
 state) and exits with status 1; an interrupted run (Ctrl-C, SIGTERM) keeps what it computed and
 exits with status 130.
+
+The package, one module per verb over the shared ones: :mod:`.common` (exit statuses,
+:class:`UserError`, argument types, loading scenes and results), :mod:`.parser` (the argparse
+parser of every subcommand), :mod:`.dispatch` (:func:`main`); :mod:`.simulation` (``simulate``),
+:mod:`.modes`, :mod:`.animate` (``animate`` and ``plot``), :mod:`.check` (``check``, and
+``identify``, whose work is in :mod:`jaxtree._src.identify.command`), :mod:`.bench` and
+:mod:`.sample_problem` (``sample``). The modules of ``main``, ``simulate`` and ``sample`` are named
+otherwise: ``cli.main``, ``cli.simulate`` and ``cli.sample`` are functions, which a submodule of
+the same name would replace when first imported.
 """
 
 from __future__ import annotations
 
-import concurrent.futures
-import contextlib
-import os
-import sys
-import threading
-import time
-import warnings
-from typing import Any
-
-import jax
-import numpy as np
-
-import jaxtree
-
-from .. import programs
-from ..campaigns.chunked import solver_named as solver_named
-from ..integration.autosolver import save_points
+from ..campaigns.chunked import solver_named
 from ..integration.simulate import simulate
-from ..io import output
-from ..io.results import command_line, save_result, versions
-from .animate import cmd_animate, cmd_plot
-from .bench import cmd_bench
-from .check import cmd_check, cmd_identify
-from .common import EXIT_FAILED as EXIT_FAILED
-from .common import EXIT_INTERRUPTED as EXIT_INTERRUPTED
-from .common import EXIT_USAGE, SUBCOMMANDS, UserError
-from .common import SOLVERS as SOLVERS
-from .common import Parser as _Parser
-from .common import fast_cpu_compiler as _fast_cpu_compiler
-from .common import open_scene as _load_scene
-from .common import say as _say
-from .common import start_warming as _warming
-from .modes import cmd_modes
-from .parser import parser as _parser
-from .simulation import CHUNK_DELAY_ENV as CHUNK_DELAY_ENV
-from .simulation import cmd_simulate
-from .simulation import save_points_of as _save_points
+from .common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_USAGE, SOLVERS, SUBCOMMANDS, UserError
+from .dispatch import main, one_line_warnings
+from .sample_problem import elapsed, sample
+from .simulation import CHUNK_DELAY_ENV, save_points_of
 
-# the name the tests have used since the command line was one module, cli.py
-__all__ = ["_save_points"]
+__all__ = [
+    "CHUNK_DELAY_ENV",
+    "EXIT_FAILED",
+    "EXIT_INTERRUPTED",
+    "EXIT_USAGE",
+    "SOLVERS",
+    "SUBCOMMANDS",
+    "UserError",
+    "main",
+    "sample",
+    "simulate",
+    "solver_named",
+]
 
-
-# ----------------------------------------------------------------------------- main
-@contextlib.contextmanager
-def _one_line_warnings(command: str):
-    """Warnings printed as one line, ``<command>: warning: <message>``, without Python's source
-    location (which named the ``jaxtree`` launcher script, not the user's mistake)."""
-    saved = warnings.showwarning
-
-    def show(message, category, filename, lineno, file=None, line=None):
-        text = " ".join(str(message).split())
-        print(f"{command}: warning: {text}", file=file or sys.stderr, flush=True)
-
-    warnings.showwarning = show
-    try:
-        yield
-    finally:
-        warnings.showwarning = saved
-
-
-def main(argv=None) -> int:
-    """The ``jaxtree`` command: a subcommand, else the sample problem (:func:`sample`)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    name = f"jaxtree {argv[0]}" if argv and argv[0] in SUBCOMMANDS else "jaxtree"
-    with _one_line_warnings(name):
-        return _main(argv)
-
-
-def _main(argv) -> int:
-    if not argv or (argv[0].startswith("-") and argv[0] not in ("-h", "--help", "--version")):
-        argv = ["sample"] + argv
-    if argv[0] == "sample":
-        try:
-            return sample(argv[1:])
-        except UserError as e:
-            _say(f"{e.prog or 'python -m jaxtree'}: error: {e}")
-            return EXIT_USAGE
-    command = f"jaxtree {argv[0]}" if argv[0] in SUBCOMMANDS else "jaxtree"
-    try:
-        args = _parser().parse_args(argv)
-        args.argv = argv
-        if args.version:
-            _fast_cpu_compiler()
-            print(
-                " ".join(f"{k.removesuffix('_version')} {v}" for k, v in versions().items() if k.endswith("_version"))
-            )
-            return 0
-        if args.command is None:
-            _parser().print_help()
-            return EXIT_USAGE
-        _fast_cpu_compiler()
-        return {
-            "simulate": cmd_simulate,
-            "modes": cmd_modes,
-            "animate": cmd_animate,
-            "check": cmd_check,
-            "plot": cmd_plot,
-            "identify": cmd_identify,
-            "bench": cmd_bench,
-        }[args.command](args)
-    except UserError as e:
-        _say(f"{e.prog or command}: error: {e}")
-        return EXIT_USAGE
-
-
-@contextlib.contextmanager
-def _elapsed(label: str, show: bool):
-    """On a terminal (`show`), ``label: N s`` on stderr, redrawn every half second while the block
-    runs and erased when it ends; elsewhere nothing. Drawn by a thread of this process (XLA
-    releases Python's lock while it compiles and integrates), not by a progress meter inside the
-    integration: that is a host callback, and a program with one can be neither exported nor
-    kept in the compilation cache, so every process would trace and compile it again."""
-    if not show:
-        yield
-        return
-    stop = threading.Event()
-    start = time.perf_counter()
-
-    def draw():
-        while not stop.wait(0.5):
-            sys.stderr.write(f"\r   {label}: {time.perf_counter() - start:.0f} s elapsed")
-            sys.stderr.flush()
-
-    ticker = threading.Thread(target=draw, name="jaxtree-elapsed", daemon=True)
-    ticker.start()
-    try:
-        yield
-    finally:
-        stop.set()
-        ticker.join()
-        sys.stderr.write("\r\033[K")
-        sys.stderr.flush()
-
-
-# ----------------------------------------------------------------------------- sample
-# `python -m jaxtree` runs jaxtree/__main__.py: the sample problem is named so there
-_MAIN_FILE = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "__main__.py")
-SAMPLE_DESCRIPTION = "``python -m jaxtree``: the sample problem of Sec. II E (Fig. 4) end to end."
-
-
-def _sample_parser():
-    # the name it was started by: `python -m jaxtree` runs this file, the `jaxtree` script the command line
-    started_here = os.path.abspath(sys.argv[0]) == _MAIN_FILE
-    prog = "python -m jaxtree" if started_here else "jaxtree sample"
-    p = _Parser(prog=prog, description=SAMPLE_DESCRIPTION)
-    p.add_argument("--scene", default="fig4", help="bundled scene name or path to a scene JSON (default: fig4)")
-    p.add_argument("--duration", type=float, default=100.0, help="simulated time in seconds (default: 100)")
-    p.add_argument(
-        "--points",
-        type=int,
-        default=None,
-        help="number of saved times (default: 20 per period of the fastest sprung hinge, at least 101; 3384 for fig4)",
-    )
-    p.add_argument(
-        "--attitudes",
-        default="euler123,quaternion",
-        help="comma-separated attitude variables: euler123, quaternion, dcm (default: euler123,quaternion)",
-    )
-    p.add_argument("--rtol", type=float, default=1e-9, help="relative tolerance (default: 1e-9)")
-    p.add_argument("--atol", type=float, default=1e-9, help="absolute tolerance (default: 1e-9)")
-    p.add_argument("--out", default="results", help="output folder (default: ./results)")
-    p.add_argument(
-        "--no-progress",
-        action="store_true",
-        help="do not show each run's elapsed time as it goes (shown on a terminal only)",
-    )
-    p.add_argument("--no-plot", action="store_true", help="do not write the plot")
-    return p
-
-
-def sample(argv=None) -> int:
-    """The sample problem (``python -m jaxtree`` with no subcommand, or ``jaxtree sample``)."""
-    args = _sample_parser().parse_args(argv)
-    _fast_cpu_compiler()
-    start = time.perf_counter()
-
-    model = _load_scene(args.scene)
-    # each run's elapsed time on a terminal only: redrawn into a log it is kilobytes of noise
-    show_progress = not args.no_progress and sys.stderr.isatty()
-    attitudes = [a.strip() for a in args.attitudes.split(",") if a.strip()]
-    # save points that draw the fastest panel's oscillation as a smooth curve (numpy on the scene)
-    points = args.points if args.points is not None else save_points(model, args.duration)[0]
-    out = os.path.abspath(args.out)
-    print(
-        f"jaxtree {jaxtree.__version__}: scene {model.name!r} ({model.n + 1} bodies, prescribed hinges "
-        f"{list(model.prescribed)}), {args.duration:g} s ({points} save points), rtol {args.rtol:g}, atol {args.atol:g}, "
-        f"JAX {jax.__version__} on {jax.default_backend()}"
-    )
-    runs, times = {}, {}
-    # the writers' imports and first use on a thread meanwhile (output.warm_writers); the two
-    # attitudes run one after the other: side by side on two threads, each compile and each
-    # integration slowed down (XLA:CPU already spreads its compilation and some kernels over the
-    # cores; the first run took 55 s instead of 45-49 s, the second no less, measured on
-    # 2026-11-28 before the diagnostics loop of run_diagnostics)
-    warming = _warming(plot=not args.no_plot)
-    for att in attitudes:
-        kw: dict[str, Any] = dict(attitude=att, saveat=points, rtol=args.rtol, atol=args.atol)
-        print(f"-- {att}: running (the summary below splits program preparation from the run)", flush=True)
-        with programs.PREPARED.timing(), _elapsed(att, show_progress):
-            mark = programs.PREPARED.mark()
-            t0 = time.perf_counter()
-            sol = simulate(model, args.duration, **kw)
-            jax.block_until_ready(sol.gamma)
-            first = time.perf_counter() - t0
-        prepared, timed = programs.PREPARED.since(mark)
-        if timed:  # every program's preparation was timed: the run is the rest
-            wall = first - prepared
-        else:  # a program compiled inside its call (the kept programs off): again, compiled
-            t0 = time.perf_counter()
-            sol = simulate(model, args.duration, **kw)
-            jax.block_until_ready(sol.gamma)
-            wall = time.perf_counter() - t0
-        runs[att], times[att] = sol, (first, wall)
-
-    # The integration error: the same runs at 10x the tolerances (the tolerances are not compiled
-    # in: the same programs), over all saved times. They run one after the other on a worker
-    # thread (XLA releases Python's lock while it integrates) while this one writes the files and
-    # the plot on the other core (two workers: three busy threads on two cores, and the figure
-    # took 2.8-3.0 s instead of 2.2 on the 2-core reference machine).
-    def loose_run(att):
-        return simulate(model, args.duration, attitude=att, saveat=points, rtol=10 * args.rtol, atol=10 * args.atol)
-
-    with concurrent.futures.ThreadPoolExecutor(max_workers=1) as pool:
-        loose = {att: pool.submit(loose_run, att) for att in runs}
-        warming.join()
-        os.makedirs(out, exist_ok=True)
-        stem = model.name or "scene"
-        output.save_npz(os.path.join(out, f"{stem}_histories.npz"), runs)
-        written = [f"{stem}_histories.npz"]
-        for att, sol in runs.items():
-            # the result file of `jaxtree simulate` (jaxtree.load_result, `jaxtree plot` and
-            # `animate` read it), and the same histories as CSV
-            save_result(os.path.join(out, f"{stem}_{att}.nc"), sol, {"command": command_line()})
-            output.save_csv(os.path.join(out, f"{stem}_{att}.csv"), sol)
-            written += [f"{stem}_{att}.nc", f"{stem}_{att}.csv"]
-        plotted = None
-        if not args.no_plot:
-            title = f"{stem}: {args.duration:g} s, " + " vs ".join(runs)
-            plotted = output.save_plot(os.path.join(out, f"{stem}.png"), runs, title=title)
-            if plotted:
-                written.append(f"{stem}.png")
-        loose = {att: f.result() for att, f in loose.items()}
-
-    lines = []
-    for att, sol in runs.items():
-        other = loose[att]
-        estimate = {
-            "gamma": float(np.max(np.abs(np.asarray(other.gamma) - np.asarray(sol.gamma)))),
-            "rates": max(
-                float(np.max(np.abs(np.asarray(other.gamma_dot) - np.asarray(sol.gamma_dot)))),
-                float(np.max(np.abs(np.asarray(other.omega0) - np.asarray(sol.omega0)))),
-            ),
-            "dcm": float(np.max(np.abs(np.asarray(other.dcm) - np.asarray(sol.dcm)))),
-        }
-        first, wall = times[att]
-        lines.append(output.summary(att, sol, wall=wall, first=first, estimate=estimate))
-    print()
-    print("\n".join(lines))
-    if len(runs) > 1:
-        names = list(runs)
-        ref = runs[names[0]]
-        for other in names[1:]:
-            d = max(
-                float(np.max(np.abs(np.asarray(getattr(runs[other], f)) - np.asarray(getattr(ref, f)))))
-                for f in ("gamma", "omega0", "dcm")
-            )
-            print(f"max difference {other} vs {names[0]} (gamma, omega0, C over all saved times): {d:.3e}")
-    if plotted is False:
-        print("matplotlib is not installed: no plot (pip install matplotlib)")
-    print(f"wrote {', '.join(written)} to {out}")
-    print(f"total wall time {time.perf_counter() - start:.1f} s")
-    return 0 if all(s.ok for s in runs.values()) else 1
+# the names the tests have used since the command line was one module, cli.py
+_elapsed = elapsed
+_one_line_warnings = one_line_warnings
+_save_points = save_points_of
