@@ -241,9 +241,10 @@ def test_a_backward_interval_is_refused_in_one_line(capsys):
 def test_no_subcommand_runs_the_sample_problem(monkeypatch):
     """`python -m jaxtree` (no arguments) and its options-only forms still run the sample problem."""
     import jaxtree.__main__ as entry
+    from jaxtree._src.cli import dispatch  # main looks `sample` up there
 
     calls = []
-    monkeypatch.setattr(cli, "sample", lambda argv: calls.append(list(argv)) or 0)
+    monkeypatch.setattr(dispatch, "sample", lambda argv: calls.append(list(argv)) or 0)
     assert entry.main([]) == 0 and cli.main(["--duration", "5", "--no-plot"]) == 0 and cli.main(["sample"]) == 0
     assert calls == [[], ["--duration", "5", "--no-plot"], []]
 

@@ -792,10 +792,11 @@ def test_sample_problem_on_a_terminal_times_its_runs_outside_the_integration(tmp
     and compile it again, ~12 s of fig4's)."""
     from jaxtree.__main__ import main
     from jaxtree._src import cli
+    from jaxtree._src.cli import sample_problem  # the sample problem looks `simulate` up there
 
     calls = []
-    real = cli.simulate
-    monkeypatch.setattr(cli, "simulate", lambda *a, **kw: calls.append(kw) or real(*a, **kw))
+    real = sample_problem.simulate
+    monkeypatch.setattr(sample_problem, "simulate", lambda *a, **kw: calls.append(kw) or real(*a, **kw))
     monkeypatch.setenv("XLA_FLAGS", "")
     err = _Terminal()
     monkeypatch.setattr(sys, "stderr", err)
