@@ -110,9 +110,9 @@ def warm_writers(*, netcdf: bool = True, plot: bool = True) -> None:
         import os
         import tempfile
 
-        from .results import _xr, write_netcdf
+        from .results import write_netcdf, xarray_module
 
-        xr = _xr()
+        xr = xarray_module()
         ds = xr.Dataset({"x": ("t", np.zeros(2))}, coords={"t": np.arange(2.0)}, attrs={"warm": "up"})
         with tempfile.TemporaryDirectory(prefix="jaxtree-warm-") as folder:
             write_netcdf(ds, os.path.join(folder, "warm.nc"))
@@ -121,10 +121,10 @@ def warm_writers(*, netcdf: bool = True, plot: bool = True) -> None:
             import matplotlib  # noqa: F401
         except ImportError:
             return
-        from .plots import DPI, _figure, _style
+        from .plots import DPI, new_figure, plot_style
 
-        with _style():
-            fig = _figure(figsize=(3, 2), layout="constrained")
+        with plot_style():
+            fig = new_figure(figsize=(3, 2), layout="constrained")
             ax = fig.add_subplot(1, 2, 1)
             ax.plot([0.0, 1.0], [0.0, 1.0], label="$\\omega^0_1$")
             ax.set_title("$\\dot\\gamma_k$ (rad/s)")

@@ -46,14 +46,14 @@ _RC = {
 }
 
 
-def _style():
+def plot_style():
     """Font sizes that read at :data:`DPI` (matplotlib's rc settings for the figure being made)."""
     import matplotlib
 
     return matplotlib.rc_context(_RC)
 
 
-def _figure(**kw):
+def new_figure(**kw):
     """A new figure outside pyplot's state (a plot made here never becomes pyplot's current
     figure, and nothing is left open in pyplot)."""
     try:
@@ -429,8 +429,8 @@ def plot_histories(result, path=None, *, title: str | None = None, drift: bool =
         panels.append((None, lambda ax: _drift_panel(ax, runs, "energy")))
         panels.append((None, lambda ax: _drift_panel(ax, runs, "momentum")))
     rows = (len(panels) + 1) // 2
-    with _style():
-        fig = _figure(figsize=(13, 2.7 * rows + 0.5), layout="constrained")
+    with plot_style():
+        fig = new_figure(figsize=(13, 2.7 * rows + 0.5), layout="constrained")
         first = None
         for i, (head, draw) in enumerate(panels):
             ax = fig.add_subplot(rows, 2, i + 1, sharex=first)
@@ -468,8 +468,8 @@ def plot_drift(result, path=None, *, title: str | None = None):
     for s in runs.values():
         if s["energy"] is None or s["H"] is None:
             raise ValueError("plot_drift: the result has no energy or angular momentum")
-    with _style():
-        fig = _figure(figsize=(13, 3.6), layout="constrained")
+    with plot_style():
+        fig = new_figure(figsize=(13, 3.6), layout="constrained")
         axes = fig.subplots(1, 2, sharex=True)
         _drift_panel(axes[0], runs, "energy")
         _drift_panel(axes[1], runs, "momentum")
@@ -545,8 +545,8 @@ def plot_mode_shapes(
     modes = list(range(min(k, 6))) if modes is None else [int(j) for j in modes]
     cols = min(3, len(modes))
     rows = (len(modes) + cols - 1) // cols
-    with _style():
-        fig = _figure(figsize=(4.6 * cols, 4.6 * rows + 0.5))
+    with plot_style():
+        fig = new_figure(figsize=(4.6 * cols, 4.6 * rows + 0.5))
         _draw_modes(fig, model, shapes, g0, modes, rows, cols, amplitude, frequencies, labels)
         fig.suptitle(
             title
@@ -601,8 +601,8 @@ def plot_work_precision(
     length, e.g. one point per tolerance) or a mapping with keys ``"error"`` and ``"time"``.
     Points are joined in order of increasing time. Non-positive or non-finite points are skipped.
     """
-    with _style():
-        fig = _figure(figsize=(7, 5))
+    with plot_style():
+        fig = new_figure(figsize=(7, 5))
         ax = fig.subplots()
         markers = "osD^v<>ph*"
         for i, (name, pts) in enumerate(methods.items()):

@@ -58,13 +58,13 @@ from ..vehicle.model import Model, State
 from .files import atomic_write
 
 if TYPE_CHECKING:
-    import xarray  # annotations only: xarray is imported when a result is written or read (_xr)
+    import xarray  # annotations only: xarray is imported when a result is written or read (xarray_module)
 
 RESULT_FORMAT = "jaxtree-result/1"
 ENGINE = "h5netcdf"
 
 
-def _xr():
+def xarray_module():
     try:
         import xarray as xr
     except ImportError as e:  # pragma: no cover - a declared dependency
@@ -87,7 +87,7 @@ def versions() -> dict[str, str]:
         "jax_backend": jax.default_backend(),
     }
     try:
-        out["xarray_version"] = _xr().__version__
+        out["xarray_version"] = xarray_module().__version__
     except ImportError:  # pragma: no cover
         pass
     out["date"] = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
@@ -238,7 +238,7 @@ def simulation_dataset(
     (:func:`body_positions`, or given as that function's pair of arrays); `attrs`
     are stored as global attributes (with the format, the scene JSON and :func:`versions`).
     """
-    xr = _xr()
+    xr = xarray_module()
     ts = np.asarray(ts, float)
     keep = np.isfinite(ts)
     pick = lambda x: None if x is None else np.asarray(x)[keep]
@@ -393,7 +393,7 @@ def modes_dataset(model: Model, md, *, small=(), omega0=None, gamma=None, attrs:
     ``hinge_shape`` (hinge, mode) is each mode's shape on all hinges, zero off the small set,
     real (complex shapes turned so that their largest entry is real and positive).
     """
-    xr = _xr()
+    xr = xarray_module()
     n, nu = model.n, md.nu
     small = tuple(int(k) for k in small)
     shapes = np.asarray(md.shapes)
@@ -543,7 +543,7 @@ class ChunkedResult:
     ) -> xarray.Dataset | None:
         """The parts joined along ``time`` (resume variables dropped), or None without parts.
         `parts`: the part datasets when the caller holds them (default: read from disk)."""
-        xr = _xr()
+        xr = xarray_module()
         parts = self.load_parts() if parts is None else list(parts)
         if not parts:
             return None
@@ -642,7 +642,7 @@ def write_part_file(ds, path) -> pathlib.Path:
 
 def read_part_file(path) -> xarray.Dataset:
     """A part as written by :func:`write_part_file` (or, from an older jaxtree, a NetCDF part)."""
-    xr = _xr()
+    xr = xarray_module()
     path = pathlib.Path(path)
     if path.suffix == ".nc":
         return xr.load_dataset(path, engine=ENGINE, decode_timedelta=False, decode_times=False)
@@ -659,7 +659,7 @@ def read_part_file(path) -> xarray.Dataset:
 
 # ----------------------------------------------------------------------------- reading
 def _open(path):
-    xr = _xr()
+    xr = xarray_module()
     path = pathlib.Path(path)
     chunked = ChunkedResult(path)
     if path.is_file():
