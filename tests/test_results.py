@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree._src.io import results
+from jaxtree._src.io import result_files, results
 
 from helpers import TABLE_1, TABLE_2, table
 
@@ -194,11 +194,11 @@ def test_a_part_file_round_trips_bit_for_bit_as_the_netcdf_file_does(short_run, 
     refused, and a part of an older jaxtree (.nc) still reads."""
     ds = results.solution_to_dataset(short_run, {"solver": "Dopri8", "rtol": 1e-9, "small": np.arange(3)})
     ds["resume_gamma"] = ("hinge", np.asarray(short_run.gamma[-1]))
-    part = results.write_part_file(ds, tmp_path / "p" / "part-00000.npz")
+    part = result_files.write_part_file(ds, tmp_path / "p" / "part-00000.npz")
     assert [q.name for q in part.parent.iterdir()] == ["part-00000.npz"]  # no temporary file left
-    back = results.read_part_file(part)
-    nc = results.write_netcdf(ds, tmp_path / "p.nc")
-    via_nc = results.read_part_file(nc)
+    back = result_files.read_part_file(part)
+    nc = result_files.write_netcdf(ds, tmp_path / "p.nc")
+    via_nc = result_files.read_part_file(nc)
     assert set(back.coords) == set(ds.coords) and set(back.data_vars) == set(ds.data_vars)
     for name in [*ds.coords, *ds.data_vars]:
         assert back[name].dims == ds[name].dims, name
@@ -211,7 +211,7 @@ def test_a_part_file_round_trips_bit_for_bit_as_the_netcdf_file_does(short_run, 
         assert type(back.attrs[k]) is type(v) or isinstance(v, np.ndarray), k
     np.savez(tmp_path / "other.npz", header=np.asarray('{"format": "x"}'))
     with pytest.raises(ValueError, match="not a part of a jaxtree run"):
-        results.read_part_file(tmp_path / "other.npz")
+        result_files.read_part_file(tmp_path / "other.npz")
 
 
 def test_load_result_reports_missing_and_foreign_files(tmp_path):
@@ -228,7 +228,7 @@ def test_modes_result_round_trip(tmp_path):
     model = jaxtree.load_scene("fig4")
     small = (5, 6, 7, 8, 9, 10)
     md = jaxtree.modes(jaxtree.linearize(model, small, omega0=jnp.array([0.0, 0.0, 0.2])))
-    results.write_netcdf(results.modes_dataset(model, md, small=small, omega0=[0, 0, 0.2]), tmp_path / "m.nc")
+    result_files.write_netcdf(results.modes_dataset(model, md, small=small, omega0=[0, 0, 0.2]), tmp_path / "m.nc")
     back = jaxtree.load_result(tmp_path / "m.nc")
     assert isinstance(back, jaxtree.Modes) and back.kind == md.kind == "gyroscopic"
     for f in ("eigenvalues", "frequencies", "damping_ratios", "shapes", "right", "left", "P", "Q", "B"):

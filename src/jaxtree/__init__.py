@@ -258,10 +258,10 @@ from ._src.io.plots import (
 from ._src.io.plots import (
     plot_work_precision as plot_work_precision,
 )
-from ._src.io.results import (
+from ._src.io.result_files import (
     load_result as load_result,
 )
-from ._src.io.results import (
+from ._src.io.result_files import (
     save_result as save_result,
 )
 from ._src.io.viewer import (

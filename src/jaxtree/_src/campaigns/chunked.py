@@ -4,7 +4,7 @@
 (105)-(123) with ``hybrid_small``, over evenly spaced save times in ``chunks`` parts. Every part
 is one call of :func:`jaxtree.simulate` (:func:`jaxtree.simulate_hybrid`) padded to the same
 number of save times, so one compiled program runs them all. A part is written atomically as
-``RESULT.parts/part-NNNNN.npz`` (:class:`~jaxtree._src.io.results.ChunkedResult`) with the exact
+``RESULT.parts/part-NNNNN.npz`` (:class:`~jaxtree._src.io.result_files.ChunkedResult`) with the exact
 state where it ended, and the next part starts from that state as written: a run that was
 interrupted or killed reads back up to its last part, and ``resume=True`` continues it to the
 answer of the uninterrupted run, bit for bit. At the end the parts are merged into RESULT with
@@ -40,7 +40,8 @@ from ..integration.core import default_tolerance
 from ..integration.failures import KINDS, MESSAGES, SimulationError, failure_kind
 from ..integration.radau import Radau5
 from ..integration.simulate import simulate
-from ..io.results import ChunkedResult, body_positions, run_attrs, simulation_dataset
+from ..io.result_files import ChunkedResult
+from ..io.results import body_positions, run_attrs, simulation_dataset
 from ..linear.linearize import resolve_hinges
 from ..linear.modes import ModalError
 from ..vehicle.model import Model, State

@@ -15,8 +15,8 @@ import threading
 
 from ..campaigns.chunked import parse_hinges
 from ..io import output
-from ..io.results import load_result
-from ..io.results import model_of as result_model
+from ..io.result_files import load_result
+from ..io.result_files import model_of as result_model
 from ..scene.scene import SceneError, list_scenes, load_scene
 
 SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "identify", "bench", "sample")

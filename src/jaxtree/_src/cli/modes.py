@@ -11,7 +11,8 @@ import numpy as np
 from ..appendage.files import scene_appendages
 from ..hybrid.linear import linearize
 from ..io import plots
-from ..io.results import command_line, modes_dataset, write_netcdf
+from ..io.result_files import command_line, write_netcdf
+from ..io.results import modes_dataset
 from ..linear.linearize import structure
 from ..linear.modes import ModalError, modes
 from .common import UserError, existing, hinges, open_scene, say, use_matplotlib, wrote

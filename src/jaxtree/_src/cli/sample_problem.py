@@ -22,7 +22,7 @@ from .. import programs
 from ..integration.autosolver import save_points
 from ..integration.simulate import simulate
 from ..io import output
-from ..io.results import command_line, save_result
+from ..io.result_files import command_line, save_result
 from .common import Parser, fast_cpu_compiler, open_scene, start_warming
 
 # `python -m jaxtree` runs jaxtree/__main__.py: the sample problem is named so there

@@ -16,7 +16,7 @@ from ..campaigns.chunked import ChunkedRunError, chunked_config, simulate_to_fil
 from ..integration.autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
 from ..io import output, plots
 from ..io.drift import change_text, drift_causes, near_zero
-from ..io.results import command_line, to_solution
+from ..io.result_files import command_line, to_solution
 from .common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,

@@ -81,7 +81,7 @@ def load_record(path, model: Model, sensors=None) -> tuple[np.ndarray, dict]:
                 raise SceneError(f"{path}: no column of sensor {missing[0]!r}; the record has {', '.join(data)}")
             data = {s: data[s] for s in sensors}
         return times, data
-    from ..io.results import load_result
+    from ..io.result_files import load_result
 
     try:
         sol = load_result(path)

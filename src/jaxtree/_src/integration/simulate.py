@@ -442,12 +442,19 @@ def simulate(
         _check_finite_start(y0, X0, Xd0, t0, att)
     saveat, grid, div, n_saved = _bucketed(saveat, grid, user_saveat or traced, dtype)
     opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced), bool(diagnostics))
-    as_array = lambda x: None if x is None else jnp.asarray(x, dtype)
+
+    def as_array(x):  # (a Python or numpy number put on the device: no program compiled for it)
+        if x is None:
+            return None
+        if isinstance(x, (int, float, np.number, np.ndarray)):
+            return jax.device_put(np.asarray(x, dtype))
+        return jnp.asarray(x, dtype)
+
     arrays = (as_array(X0), as_array(Xd0), as_array(t0), as_array(t1), as_array(rtol), as_array(atol), as_array(dt0))
     packed = None
     if not traced:
         y_flat = packed_start(problem, y0, X0, Xd0) if y_flat is None else y_flat
-        packed = (y_flat, packed_start(problem, _at_rest(model, np.dtype(dtype), np)))
+        packed = (y_flat, packed_start(problem, jax.device_put(_at_rest(model, np.dtype(dtype), np)), None, None))
     run = _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, div, packed)
     with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
         sol = _solve(problem, y0, run, opts)

@@ -110,7 +110,8 @@ def warm_writers(*, netcdf: bool = True, plot: bool = True) -> None:
         import os
         import tempfile
 
-        from .results import write_netcdf, xarray_module
+        from .result_files import write_netcdf
+        from .results import xarray_module
 
         xr = xarray_module()
         ds = xr.Dataset({"x": ("t", np.zeros(2))}, coords={"t": np.arange(2.0)}, attrs={"warm": "up"})

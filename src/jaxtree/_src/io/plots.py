@@ -20,7 +20,7 @@ from ..equations.dynamics import configuration
 from ..vehicle.model import Model
 from .drift import drift_causes, near_zero
 from .files import atomic_write
-from .results import model_of
+from .result_files import model_of
 
 # Every PNG written here: at 120 dpi a 9 pt label is 15 px high.
 DPI = 120

@@ -306,6 +306,13 @@ def _initial(initial, n) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
 
 
 # ----------------------------------------------------------------------------- building
+def _device(x) -> jax.Array:
+    """`x` as a JAX array of JAX's canonical dtype (float64 under x64), put on the device without
+    compiling anything (``jnp.asarray`` of a numpy array compiles a copy per shape)."""
+    x = np.asarray(x)
+    return jax.device_put(x.astype(jax.dtypes.canonicalize_dtype(x.dtype), copy=False))
+
+
 def build_model(
     bodies: Sequence[Body | dict],
     initial: dict | State | None = None,
@@ -349,14 +356,14 @@ def build_model(
 
     # every check passed: only now make JAX arrays (nothing above touches JAX)
     return Model(
-        mass=jnp.asarray(fields.masses),
-        inertia=jnp.asarray(np.stack(fields.inertias)),
-        axis=jnp.asarray(np.reshape(np.asarray(fields.axes, dtype=float), (n, 3))),
-        hinge_on_parent=jnp.asarray(np.reshape(np.asarray(fields.on_parent, dtype=float), (n, 3))),
-        hinge_on_body=jnp.asarray(np.reshape(np.asarray(fields.on_body, dtype=float), (n, 3))),
-        stiffness=jnp.asarray(laws.stiffness),
-        damping=jnp.asarray(laws.damping),
-        initial=State(*(jnp.asarray(x) for x in state)),
+        mass=_device(fields.masses),
+        inertia=_device(np.stack(fields.inertias)),
+        axis=_device(np.reshape(np.asarray(fields.axes, dtype=float), (n, 3))),
+        hinge_on_parent=_device(np.reshape(np.asarray(fields.on_parent, dtype=float), (n, 3))),
+        hinge_on_body=_device(np.reshape(np.asarray(fields.on_body, dtype=float), (n, 3))),
+        stiffness=_device(laws.stiffness),
+        damping=_device(laws.damping),
+        initial=State(*(_device(x) for x in state)),
         prescription=_prescription(laws),
         loads=loads,
         topology=topology,
