@@ -2,23 +2,14 @@
 Eqs. 105-123): from the vehicle and its set A to a :class:`~.model.HybridModel`.
 
 The steps: the set A split into substructures (:func:`.substructure.substructures`), the basis and
-whether to precompute (:func:`.arguments.basis_and_precompute`), the nominal motion, each substructure's
-Taylor terms (:func:`.substructure.terms`), the systems ``I y'' + J y' + K y = 0`` whose modes are
-taken (Eq. 42 = Eq. 105 per group), their modes (:func:`jaxtree.modes`, Eqs. 70-104), the
-retained ones (:mod:`.basis`), and the assembly (:func:`_assemble_model`): each system's modal
-matrices placed in the global order of the modes (ascending frequency, :func:`_assemble`), the
-precomputed substructure terms projected on them (:func:`_build_pre`, the arrays of
-:class:`~.model.Precomputed`), ``a_bar`` of the small hinges, the truncation terms and the
-constant modal block's inverse.
-
-**Which modes.** By default (``basis="substructure"``) each substructure has its own modes, on its
-own held base (its base body moving on the nominal motion: cantilever modes, with centrifugal
-stiffening and Coriolis coupling when the nominal spins; :func:`.substructure.held_base`,
-:func:`_substructure_systems`), and the number kept is chosen per substructure, a group of repeated
-frequencies kept whole. ``basis="set"`` takes the modes of the whole set A with the large
-variables held (Eq. 42 for A, :func:`jaxtree.linearize`), the seed's single-appendage reading.
-With all modes retained both are Eq. (30) in other coordinates (exactly, to round-off);
-truncation removes the modes left out.
+whether to precompute (:func:`.arguments.basis_and_precompute`), the nominal motion, each
+substructure's Taylor terms (:func:`.substructure.terms`), the systems ``I y'' + J y' + K y = 0``
+whose modes are taken (Eq. 42 = Eq. 105 per group) and their modes (:func:`jaxtree.modes`, Eqs.
+70-104; :mod:`.systems`), the retained ones (:mod:`.basis`), and the assembly
+(:func:`_assemble_model`): each system's modal matrices placed in the global order of the modes
+(ascending frequency, :func:`_assemble`), the precomputed substructure terms projected on them
+(:func:`_build_pre`, the arrays of :class:`~.model.Precomputed`), ``a_bar`` of the small hinges,
+the truncation terms and the constant modal block's inverse.
 """
 
 from __future__ import annotations
@@ -30,11 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..equations.attitude import AbstractAttitude, get_attitude
-from ..equations.dynamics import configuration, mass_matrix
-from ..equations.kinematics import cross, full_precision, mv
+from ..equations.kinematics import full_precision
 from ..linear.linearize import linearize, resolve_hinges
-from ..linear.modes import modes as _modes
-from ..numerics import build_jit, is_traced
+from ..numerics import is_traced
 from ..vehicle.model import Model
 from . import substructure as _sub
 from .arguments import (
@@ -48,6 +37,7 @@ from .arguments import (
 )
 from .basis import base_loads, modal_matrices, put, retained_like, retained_modes, truncation_terms
 from .model import PAIRS, HybridModel, Precomputed, appendage_body, with_inverse
+from .systems import nominal_frames, substructure_systems, system_modes
 
 # the features psi of :class:`~.model.Precomputed`: the 21 products v_b v_c (b <= c), v, c and 1
 _FEATURES = len(PAIRS[0]) + 6 + 6 + 1
@@ -302,8 +292,8 @@ def hybrid_model(
         systems = [(tuple(range(len(S))), xp.asarray(lin.I), xp.asarray(lin.J), xp.asarray(lin.K), lin.coordinates)]
     else:
         assert tms is not None, "computed for the substructure basis"
-        systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom, apps)
-    mds = _system_modes(systems, like, rtol)
+        systems = substructure_systems(model, S, groups, tms, g_nom, w_nom, apps)
+    mds = system_modes(systems, like, rtol)
     kinds = [md.kind for md in mds]
     form = resolve_form(form, kinds)
     order = None
@@ -345,85 +335,6 @@ def hybrid_model(
         physical = eqx.tree_at(lambda h: h.attitude, physical, hm.attitude)
         hm = eqx.tree_at(lambda h: h.physical, hm, physical, is_leaf=lambda x: x is None)
     return hm
-
-
-def _system_modes(systems, like: HybridModel | None, rtol) -> list:
-    """The modes (:func:`jaxtree.modes`) of each system ``(rows, I, J, K, labels)``; in a traced
-    build (a differentiable one, with a reference build `like`) of the kind of `like`'s modes."""
-    if not is_traced(systems):
-        return [_modes(I, J, K, labels=lab, rtol=rtol) for (_, I, J, K, lab) in systems]
-    assert like is not None, "checked by hybrid_model"
-    lam_ref = np.asarray(like.truncation.lam_parts) if like.truncation is not None else np.zeros((0, 2))
-    if like.kind == "general" and np.any(np.abs(lam_ref[:, 1]) <= 1e-9 * np.abs(lam_ref).max(initial=1.0)):
-        raise ValueError(
-            "hybrid_model: a traced build of general (damped) modes needs every mode underdamped (complex "
-            "pairs); the reference build has an overdamped mode (a pair of real eigenvalues)"
-        )
-    return [_modes(I, J, K, kind=like.kind, rtol=rtol) for (_, I, J, K, _lab) in systems]
-
-
-@build_jit
-def _nominal_frames(model: Model, g_nom, w_nom, bases: tuple, small: tuple, carriers: tuple = (), added=None):
-    """The nominal vehicle at angles `g_nom` spinning at `w_nom` about its mass center, large and
-    prescribed hinges held: each base's spatial velocity ``(p, 6)`` in its frame about its mass
-    center (:func:`.precomputed._large_frame`'s convention), and ``a_bar`` of the small hinges
-    (Eq. 36d, the small rows and columns of Eq. 1's matrix), in one compilation for the build.
-
-    The vehicle's mass center includes the finite-element appendages fixed to the bodies
-    `carriers`: `added` ``(mass (a,), first moment (a, 3))``, each about its body's mass center in
-    the body's frame (the rigid appendage, modes at rest)."""
-    cfg = configuration(model, g_nom)
-    b = np.asarray(bases, np.int64)
-    r = cfg.rho[b] - cfg.rho[0]  # the bases' mass centers from b_0's, {b^0}
-    E = jnp.swapaxes(cfg.R[b], -1, -2)  # {b^0} -> the base's frame
-    center = jnp.zeros(3, cfg.rho.dtype)  # the vehicle's mass center from the tree's, {b^0}
-    if carriers:
-        assert added is not None, "carriers come with their masses and first moments"
-        c = np.asarray(carriers, np.int64)
-        mass, first = added
-        moment = jnp.sum(mass[:, None] * cfg.rho[c] + mv(cfg.R[c], first), 0)
-        center = moment / (jnp.sum(model.mass.astype(mass.dtype)) + jnp.sum(mass))
-    u0 = cross(center - cfg.rho[0], w_nom)  # b_0's mass center in the spin about the vehicle's
-    vb = jnp.concatenate([mv(E, w_nom), mv(E, u0 + cross(w_nom, r))], -1)
-    S = np.asarray(small, np.int64) + 2
-    return vb, mass_matrix(model, g_nom)[np.ix_(S, S)], cfg.R[b]
-
-
-def _substructure_systems(model: Model, S, groups, tms, g_nom, w_nom, apps=()) -> list:
-    """Eq. (42) of each substructure on its held base in the nominal spin about the system mass
-    center: ``(rows in A, I, J, K, coordinate names)`` per substructure, then per finite-element
-    appendage (its rows after the small hinges', its modal stiffness and damping)."""
-    bases = tuple(g.base for g in groups) + tuple(appendage_body(model, ap) for ap in apps)
-    carriers = tuple(appendage_body(model, ap) for ap in apps)
-    added = (
-        (jnp.stack([ap.mass for ap in apps]), jnp.stack([ap.first_moment + ap.mass * ap.point for ap in apps]))
-        if apps
-        else None
-    )
-    vb, _, _ = _nominal_frames(model, g_nom, w_nom, bases, tuple(S), carriers, added)
-    # numpy for a concrete model; jnp where a parameter is traced (a differentiable build)
-    xp = jnp if is_traced((model, tms, vb, apps)) else np
-    vb = xp.asarray(vb)
-    sprung = np.zeros(model.n)
-    sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
-    stiffness, damping = xp.asarray(model.stiffness) * sprung, xp.asarray(model.damping) * sprung
-    systems = []
-    for grp, tm, vg in zip(groups, tms, vb):
-        h = np.asarray(grp.hinges, np.int64) - 1
-        # steady spin: no spatial acceleration of the base
-        I, J, K = _sub.held_base(tm, vg, xp.zeros(6), stiffness[h], damping[h], xp=xp)
-        rows = tuple(S.index(k) for k in grp.hinges)
-        systems.append((rows, I, J, K, tuple(model.names[k] for k in grp.hinges)))
-    o = len(S)
-    for i, (ap, vg) in enumerate(zip(apps, vb[len(groups) :])):
-        k = ap.n_modes
-        I, J, K = _sub.held_base(
-            ap.terms, vg, xp.zeros(6), xp.asarray(ap.stiffness), xp.asarray(ap.modal_damping), xp=xp
-        )
-        name = f"{model.names[appendage_body(model, ap)]}.appendage{i}"
-        systems.append((tuple(range(o, o + k)), I, J, K, tuple(f"{name}.q{j + 1}" for j in range(k))))
-        o += k
-    return systems
 
 
 def _assemble_model(
@@ -477,7 +388,7 @@ def _assemble_model(
     )
     bases = tuple(g.base for g in groups) + tuple(appendage_body(model, ap) for ap in apps)
     one_base = len(set(bases)) == 1
-    _, inertia, R_bases = _nominal_frames(model, g_nom, w_nom, bases, tuple(S))
+    _, inertia, R_bases = nominal_frames(model, g_nom, w_nom, bases, tuple(S))
     if apps:
         inertia = _with_appendages(model, S, groups, tms, apps, xp.asarray(inertia), xp.asarray(R_bases), xp)
     n_hinge_systems = len(groups)
@@ -552,7 +463,7 @@ def physical_model(model: Model, S: tuple[int, ...], apps, w_nom, g_nom, built=N
         groups = _sub.substructures(model, S) if S else ()
         basis_and_precompute(model, S, groups, "substructure", True)
         tms = [_sub.terms(model, g, g_nom) for g in groups] + [ap.terms for ap in apps]
-        systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom, apps)
+        systems = substructure_systems(model, S, groups, tms, g_nom, w_nom, apps)
     else:
         groups, tms, systems = built
     blocks, picked, order = [], [], []
