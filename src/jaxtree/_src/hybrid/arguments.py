@@ -1,13 +1,17 @@
 """The arguments of :func:`~.assembly.hybrid_model` (Likins 1972, Sec. III E, Eqs. 105-123),
 checked and resolved: the set A and its substructures (:func:`.substructure.substructures`), the
-finite-element appendages (:func:`appendage_args`), the basis and whether to precompute
-(:func:`basis_and_precompute`), the form of the equations (Eq. 118 or 121), the modal damping
-(Sec. III E), the nominal motion and a reference build `like`.
+finite-element appendages (:func:`appendage_args`; resolved once into :class:`ResolvedAppendage`),
+the basis and whether to precompute (:func:`basis_and_precompute`), the form of the equations
+(Eq. 118 or 121), the modal damping (Sec. III E), the nominal motion and a reference build `like`.
+
+What they resolve to travels as one record, :class:`SmallSet`: the vehicle, the set A, its
+substructures and their Taylor terms (:func:`.substructure.terms`), the appendages, the nominal
+motion.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
@@ -19,7 +23,58 @@ from ..linear.modes import ModalError, check_modal_damping, tolerance
 from ..numerics import is_traced
 from ..values import as_float, as_int
 from ..vehicle.model import Model
-from .model import HybridModel
+from . import substructure as _sub
+from .model import HybridModel, appendage_body
+
+
+class ResolvedAppendage(NamedTuple):
+    """A finite-element appendage of :func:`~.assembly.hybrid_model`, resolved once
+    (:func:`resolve_appendages`): the body it is fixed to, its rigid invariants about that body's
+    mass center (the rigid appendage, modes at rest), and its place among the small coordinates
+    (after the small hinges') and among the systems whose modes are taken (after the hinge
+    substructures')."""
+
+    appendage: Any  # the jaxtree.Appendage (duck-typed, see appendage_args)
+    body: int  # the body it is fixed to (appendage_body)
+    mass: Any  # its mass
+    first_moment: Any  # its first moment about the body's mass center, in the body's frame
+    rows: range  # its modal coordinates among the small coordinates
+    system: int  # its system (a substructure of its own)
+    label: str  # "<body>.appendage<i>": the prefix of its coordinates' names
+
+    @property
+    def n_modes(self) -> int:
+        return self.appendage.n_modes
+
+    @property
+    def terms(self):
+        """Its Taylor terms (:class:`~.substructure.Terms`) in its body's frame."""
+        return self.appendage.terms
+
+
+class SmallSet(NamedTuple):
+    """The set A of :func:`~.assembly.hybrid_model` resolved: the vehicle, its small hinges, their
+    substructures and Taylor terms, the finite-element appendages and the nominal motion."""
+
+    model: Model
+    small: tuple[int, ...]  # the small hinges, ascending (S)
+    groups: tuple  # their substructures (substructure.Substructure)
+    terms: list | None  # each substructure's Taylor terms; None where neither basis nor precomputation needs them
+    appendages: tuple[ResolvedAppendage, ...]
+    w_nom: Any  # omega0 of the nominal motion
+    g_nom: Any  # the hinge angles of the nominal motion
+
+    @property
+    def bases(self) -> tuple[int, ...]:
+        """The base body of each substructure, then the body of each appendage."""
+        return tuple(g.base for g in self.groups) + tuple(ra.body for ra in self.appendages)
+
+
+def small_set(model: Model, S, groups, apps, w_nom, g_nom, with_terms: bool) -> SmallSet:
+    """The :class:`SmallSet` of the checked arguments: the substructures' Taylor terms at the
+    nominal angles when `with_terms`, the appendages `apps` resolved."""
+    tms = [_sub.terms(model, g, g_nom) for g in groups] if with_terms else None
+    return SmallSet(model, tuple(S), tuple(groups), tms, resolve_appendages(model, S, groups, apps), w_nom, g_nom)
 
 
 def appendage_args(model, appendages, name: str = "hybrid_model") -> tuple:
@@ -44,6 +99,20 @@ def appendage_args(model, appendages, name: str = "hybrid_model") -> tuple:
         elif not (isinstance(b, (int, np.integer)) and 0 <= int(b) <= model.n):
             raise SceneError(f"{name}: appendages[{i}] is fixed to body {short(b)}, not in 0..{model.n}")
     return apps
+
+
+def resolve_appendages(model: Model, S, groups, apps) -> tuple[ResolvedAppendage, ...]:
+    """The appendages `apps` (checked by :func:`appendage_args`) of the set `S` of substructures
+    `groups`: each one's body, rigid invariants, small coordinates after the hinges' and system
+    after the substructures'."""
+    out, o = [], len(S)
+    for i, ap in enumerate(apps):
+        body, k = appendage_body(model, ap), ap.n_modes
+        first = ap.first_moment + ap.mass * ap.point
+        label = f"{model.names[body]}.appendage{i}"
+        out.append(ResolvedAppendage(ap, body, ap.mass, first, range(o, o + k), len(groups) + i, label))
+        o += k
+    return tuple(out)
 
 
 def nominal_motion(model, omega0, gamma, dcm):

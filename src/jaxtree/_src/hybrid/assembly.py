@@ -1,15 +1,20 @@
 """The construction of a hybrid model, :func:`hybrid_model` (Likins 1972, Sec. III E,
 Eqs. 105-123): from the vehicle and its set A to a :class:`~.model.HybridModel`.
 
-The steps: the set A split into substructures (:func:`.substructure.substructures`), the basis and
-whether to precompute (:func:`.arguments.basis_and_precompute`), the nominal motion, each
-substructure's Taylor terms (:func:`.substructure.terms`), the systems ``I y'' + J y' + K y = 0``
-whose modes are taken (Eq. 42 = Eq. 105 per group) and their modes (:func:`jaxtree.modes`, Eqs.
-70-104; :mod:`.systems`), the retained ones (:mod:`.basis`), and the assembly
-(:func:`_assemble_model`): each system's modal matrices placed in the global order of the modes
-(ascending frequency, :func:`_assemble`), the precomputed substructure terms projected on them
+The steps: the arguments checked and resolved (:mod:`.arguments`: the set A split into
+substructures, :func:`.substructure.substructures`, the basis and whether to precompute,
+:func:`.arguments.basis_and_precompute`, the nominal motion, each substructure's Taylor terms,
+:func:`.substructure.terms`), the systems ``I y'' + J y' + K y = 0`` whose modes are taken (Eq. 42
+= Eq. 105 per group), their modes (:func:`jaxtree.modes`, Eqs. 70-104) and the retained ones
+(:mod:`.systems`, :mod:`.basis`), and the assembly (:func:`_assemble_model`): each system's modal
+matrices placed in the global order of the modes (ascending frequency,
+:func:`_global_modal_matrices`), the precomputed substructure terms projected on them
 (:func:`_build_pre`, the arrays of :class:`~.model.Precomputed`), ``a_bar`` of the small hinges,
 the truncation terms and the constant modal block's inverse.
+
+:func:`physical_model` assembles Eq. (30) in the small coordinates themselves (unit "modal"
+matrices), for the linearization of a vehicle with finite-element appendages (:mod:`.linear`) and
+for the appendages' truncation estimate.
 """
 
 from __future__ import annotations
@@ -22,158 +27,26 @@ import numpy as np
 
 from ..equations.attitude import AbstractAttitude, get_attitude
 from ..equations.kinematics import full_precision
-from ..linear.linearize import linearize, resolve_hinges
+from ..linear.linearize import resolve_hinges
 from ..numerics import is_traced
 from ..vehicle.model import Model
 from . import substructure as _sub
 from .arguments import (
+    SmallSet,
     appendage_args,
     basis_and_precompute,
     hybrid_model_args,
     nominal_motion,
-    resolve_damping,
     resolve_form,
     resolve_options,
+    small_set,
 )
-from .basis import base_loads, modal_matrices, put, retained_like, retained_modes, truncation_terms
-from .model import PAIRS, HybridModel, Precomputed, appendage_body, with_inverse
-from .systems import nominal_frames, substructure_systems, system_modes
+from .basis import modal_matrices, put, truncation_terms
+from .model import PAIRS, HybridModel, Precomputed, with_inverse
+from .systems import Retained, hybrid_systems, nominal_frames, retained, substructure_systems, system_modes
 
 # the features psi of :class:`~.model.Precomputed`: the 21 products v_b v_c (b <= c), v, c and 1
 _FEATURES = len(PAIRS[0]) + 6 + 6 + 1
-
-
-def _stacked_terms(t: dict, xp=np) -> dict:
-    """The arrays of :class:`Precomputed` from the per-term stacks of :func:`_build_pre`
-    (numpy, leading axis p)."""
-    p, uS, mS = t["w1"].shape
-    z = lambda *shape: xp.zeros((p, *shape))
-    iu, ju = PAIRS
-
-    def pairs(g):  # g : v v / 2 over the 21 products v_b v_c, b <= c
-        return (
-            0.5
-            * (g[:, :, iu, ju] + g[:, :, ju, iu])
-            * np.where(iu == ju, 0.5, 1.0).reshape((1, 1, -1) + (1,) * (g.ndim - 4))
-        )
-
-    a0 = xp.concatenate([pairs(t["g0a"]), z(6, 6), t["aa0"], z(6, 1)], 2)
-    w0 = xp.concatenate([pairs(t["g0w"]), z(uS, 6), t["wa0"], t["w0"][:, :, None]], 2)
-    a1 = xp.concatenate([pairs(t["g1a"]), t["g2a"], t["aa1"], z(6, 1, mS)], 2)
-    w1 = xp.concatenate([pairs(t["g1w"]), t["g2w"], t["wa1"], t["w1"][:, :, None, :]], 2)
-    return {
-        "bias0": xp.concatenate([a0, w0], 1),
-        "bias1": xp.concatenate([a1, w1], 1).reshape(p, 6 + uS, _FEATURES * mS),
-        "mat0": xp.concatenate([t["aa0"], t["wa0"]], 1),
-        "mat1": xp.concatenate([t["aa1"], t["wa1"]], 1),
-        "aw0": t["aw0"],
-    }
-
-
-def _assemble(blocks, nu, form, order=None):
-    """Global modal matrices from per-group blocks ``(rows of the set A, sigma, parts)``: the modes
-    of all groups ordered by frequency (or as `order` gives, ``(_, group, local index)``: a traced
-    build keeps its reference build's order); returns the matrices, the order ``(group, local
-    index)`` and each group's global modal coordinates and rows."""
-    xp = jnp if is_traced(blocks) else np
-    if order is None:
-        order = sorted(((float(sig[j]), g, j) for g, (_, sig, _) in enumerate(blocks) for j in range(len(sig))))
-    k = len(order)
-    u = k if form == "real" else 2 * k
-    pos = {(g, j): q for q, (_, g, j) in enumerate(order)}
-    out = dict(
-        positions=xp.zeros((nu, 2 * k)),
-        rates=xp.zeros((nu, 2 * k)),
-        accel=xp.zeros((nu, u)),
-        rows=xp.zeros((nu, u)),
-        kin=xp.zeros((u, u)),
-        kin_rhs=xp.zeros((u, 2 * k)),
-        project=xp.zeros((2 * k, 2 * nu)),
-    )
-    mmaps, umaps = [], []
-    for g, (rows, sig, p) in enumerate(blocks):
-        kg = len(sig)
-        q = np.asarray([pos[(g, j)] for j in range(kg)], np.int64)
-        mm_ = np.concatenate([q, k + q])
-        um = q if form == "real" else mm_
-        r = np.asarray(rows, np.int64)
-        at = {
-            "positions": np.ix_(r, mm_),
-            "rates": np.ix_(r, mm_),
-            "accel": np.ix_(r, um),
-            "rows": np.ix_(r, um),
-            "kin": np.ix_(um, um),
-            "kin_rhs": np.ix_(um, mm_),
-            "project": np.ix_(mm_, np.concatenate([r, nu + r])),
-        }
-        for key, idx in at.items():
-            out[key] = put(xp, out[key], idx, p[key])
-        mmaps.append(mm_)
-        umaps.append(um)
-    return out, [(g, j) for _, g, j in order], mmaps, umaps
-
-
-def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u, m, apps=()):
-    """The precomputed substructure terms (:class:`Precomputed`), projected on the modes: the
-    substructures of the small hinges, then the finite-element appendages `apps` (their rows of
-    the small coordinates after the hinges', their modal stiffness and damping in place of the
-    hinge springs)."""
-    xp = jnp if is_traced((model, tms, parts, apps)) else np
-    ms, us = max(len(x) for x in mmaps), max(len(x) for x in umaps)
-    keys = ("aa0", "aa1", "wa0", "wa1", "aw0", "g0a", "g1a", "g2a", "g0w", "g1w", "g2w", "w0", "w1")
-    acc = {k: [] for k in keys}
-    ww0 = xp.zeros((u, u))
-    sprung = np.zeros(model.n)
-    sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
-    stiff = xp.asarray(model.stiffness) * sprung
-    damp = xp.asarray(model.damping) * sprung
-    entries = []  # (rows of the small coordinates, stiffness, damping, preload angles)
-    for grp in groups:
-        h = np.asarray(grp.hinges, np.int64) - 1
-        entries.append(([small.index(k) for k in grp.hinges], stiff[h], damp[h], xp.asarray(gamma_nominal)[h]))
-    o = len(small)
-    for ap in apps:
-        k = ap.n_modes
-        entries.append((list(range(o, o + k)), xp.asarray(ap.stiffness), xp.asarray(ap.modal_damping), xp.zeros(k)))
-        o += k
-    for (rows, k_s, d_s, gbar), tm, mc, uc in zip(entries, tms, mmaps, umaps):
-        idx = np.asarray(rows, np.int64)
-        P = parts["positions"][np.ix_(idx, mc)]
-        Q = parts["rates"][np.ix_(idx, mc)]
-        Acc = parts["accel"][np.ix_(idx, uc)]
-        Rw = parts["rows"][np.ix_(idx, uc)]
-        A0, A1, G0, G1, G2 = (xp.asarray(x) for x in (tm.A0, tm.A1, tm.G0, tm.G1, tm.G2))
-        pad_m = lambda x: xp.concatenate([x, xp.zeros(x.shape[:-1] + (ms - x.shape[-1],))], -1)
-
-        def pad_u(x, axis=0):
-            width = [(0, 0)] * x.ndim
-            width[axis] = (0, us - x.shape[axis])
-            return xp.pad(x, width)
-
-        acc["aa0"].append(A0[:6, :6])
-        acc["aa1"].append(pad_m(A1[:6, :6] @ P))
-        acc["wa0"].append(pad_u(Rw.T @ A0[6:, :6]))
-        acc["wa1"].append(pad_u(pad_m(xp.einsum("ju,jak,km->uam", Rw, A1[6:, :6], P))))
-        acc["aw0"].append(pad_u(A0[:6, 6:] @ Acc, 1))
-        acc["g0a"].append(G0[:6])
-        acc["g1a"].append(pad_m(G1[:6] @ P))
-        acc["g2a"].append(pad_m(G2[:6] @ Q))
-        acc["g0w"].append(pad_u(xp.einsum("ju,jbc->ubc", Rw, G0[6:])))
-        acc["g1w"].append(pad_u(pad_m(xp.einsum("ju,jbck,km->ubcm", Rw, G1[6:], P))))
-        acc["g2w"].append(pad_u(pad_m(xp.einsum("ju,jbk,km->ubm", Rw, G2[6:], Q))))
-        acc["w0"].append(pad_u(Rw.T @ (k_s * gbar)))  # -tau_S at y = 0 (a spring preload)
-        acc["w1"].append(pad_u(pad_m(Rw.T @ (k_s[:, None] * P + d_s[:, None] * Q))))
-        ww0 = put(xp, ww0, np.ix_(uc, uc), Rw.T @ A0[6:, 6:] @ Acc, add=True)
-    dtype = jnp.result_type(model.mass)
-    pad_idx = lambda x, n, width: tuple(tuple(int(i) for i in c) + (n,) * (width - len(c)) for c in x)
-    return Precomputed(
-        **{k: jnp.asarray(v, dtype) for k, v in _stacked_terms({k: xp.stack(v) for k, v in acc.items()}, xp).items()},
-        ww0=jnp.asarray(ww0, dtype),
-        mcols=pad_idx(mmaps, m, ms),
-        ucols=pad_idx(umaps, u, us),
-        bases=tuple(g.base for g in groups) + tuple(appendage_body(model, ap) for ap in apps),
-        added_mass=jnp.asarray(sum(xp.asarray(ap.mass) for ap in apps), dtype) if apps else None,
-    )
 
 
 @full_precision
@@ -283,86 +156,51 @@ def hybrid_model(
         model, S, groups, apps, like, (omega0, gamma, dcm), basis=basis, precompute=precompute, form=form
     )
     w_nom, g_nom, _ = nominal_motion(model, omega0, gamma, dcm)
-    tms = [_sub.terms(model, g, g_nom) for g in groups] if (precompute or basis == "substructure") else None
-    if tms is not None:
-        tms = tms + [ap.terms for ap in apps]
-    if basis == "set":
-        lin = linearize(model, S, omega0=omega0, gamma=gamma, dcm=dcm)
-        xp = jnp if is_traced(lin) else np
-        systems = [(tuple(range(len(S))), xp.asarray(lin.I), xp.asarray(lin.J), xp.asarray(lin.K), lin.coordinates)]
-    else:
-        assert tms is not None, "computed for the substructure basis"
-        systems = substructure_systems(model, S, groups, tms, g_nom, w_nom, apps)
+    setup = small_set(model, S, groups, apps, w_nom, g_nom, with_terms=precompute or basis == "substructure")
+    systems = hybrid_systems(setup, basis, omega0=omega0, gamma=gamma, dcm=dcm)
     mds = system_modes(systems, like, rtol)
-    kinds = [md.kind for md in mds]
-    form = resolve_form(form, kinds)
-    order = None
-    if like is not None:
-        blocks, picked, order = retained_like(like, systems, mds)
-    else:
-        loads = None
-        if isinstance(n_modes, str):  # "auto"
-            tms_all = tms if tms is not None else [_sub.terms(model, g, g_nom) for g in groups]
-            loads = base_loads(model, S, groups, tms_all, g_nom, basis)
-        blocks, picked = retained_modes(model, groups, systems, mds, n_modes, cutoff, form, basis, loads, float(tol))
-    zeta = resolve_damping(
-        damping,
-        sum(len(b[1]) for b in blocks),
-        kinds[0] if len(set(kinds)) == 1 else "general" if "general" in kinds else kinds[0],
+    form = resolve_form(form, [md.kind for md in mds])
+    kept = retained(
+        setup, systems, mds, like, n_modes=n_modes, cutoff=cutoff, form=form, basis=basis, tol=tol, damping=damping
     )
     hm = _assemble_model(
-        model,
-        S,
-        groups,
-        tms,
-        w_nom,
-        g_nom,
-        blocks,
-        picked,
-        zeta,
-        form,
-        kinds[0],
-        precompute,
-        basis,
-        attitude,
-        systems,
-        mds,
-        order,
-        apps,
+        setup=setup,
+        retained=kept,
+        systems=systems,
+        mds=mds,
+        form=form,
+        kind=mds[0].kind,
+        precompute=precompute,
+        basis=basis,
+        attitude=attitude,
     )
     if apps:  # the appendages' unbalanced force, for their truncation estimate
-        physical = physical_model(model, S, apps, w_nom, g_nom, (groups, tms, systems))
+        physical = _identity_model(setup, systems)
         physical = eqx.tree_at(lambda h: h.attitude, physical, hm.attitude)
         hm = eqx.tree_at(lambda h: h.physical, hm, physical, is_leaf=lambda x: x is None)
     return hm
 
 
 def _assemble_model(
-    model,
-    S,
-    groups,
-    tms,
-    w_nom,
-    g_nom,
-    blocks,
-    picked,
-    zeta,
-    form,
-    kind,
-    precompute,
-    basis,
-    attitude,
+    *,
+    setup: SmallSet,
+    retained: Retained,
     systems,
     mds,
-    order=None,
-    apps=(),
+    form: str,
+    kind: str,
+    precompute: bool,
+    basis: str,
+    attitude,
     truncation: bool = True,
 ):
     """The :class:`HybridModel` of the retained modes: their modal matrices assembled over the set
-    A in ascending frequency (or in `order`, ``(_, block, local index)``, that of a reference
-    build), the modal damping `zeta` (in that order), the precomputed terms, and the truncation
-    terms unless `truncation` is False."""
-    nu = len(S) + sum(ap.n_modes for ap in apps)
+    A in ascending frequency (or in `retained.order`, ``(_, block, local index)``, that of a
+    reference build), the modal damping `retained.zeta` (in that order), the precomputed terms, and
+    the truncation terms of the `systems` and their modes `mds` unless `truncation` is False."""
+    model, S, groups, apps = setup.model, setup.small, setup.groups, setup.appendages
+    blocks, picked, zeta, order = retained.blocks, retained.picked, retained.zeta, retained.order
+    nu = len(S) + sum(ra.n_modes for ra in apps)
     dtype = jnp.result_type(model.mass)
     xp = jnp if is_traced((blocks, apps)) else np
     # modal damping follows the global (frequency) order of the modes: split it by group afterwards
@@ -375,27 +213,23 @@ def _assemble_model(
         (rows, sig, modal_matrices(md, I, K, cand, form, zg[g], xp))
         for g, (rows, sig, cand, md, I, K) in enumerate(blocks)
     ]
-    parts, mode_order, mmaps, umaps = _assemble(parts_g, nu, form, order)
+    parts, mode_order, mmaps, umaps = _global_modal_matrices(parts_g, nu, form, order)
     mode_index = tuple(int(blocks[g][2][j]) for g, j in mode_order)
     group_of = [picked[g][0] for g in range(len(blocks))]
     owners = {(group_of[g], int(blocks[g][2][j])): q for q, (g, j) in enumerate(mode_order)}
     f = lambda x: jnp.asarray(x, dtype)
     u = parts["accel"].shape[1]
-    pre = (
-        _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, umaps, basis, apps)
-        if precompute
-        else None
-    )
-    bases = tuple(g.base for g in groups) + tuple(appendage_body(model, ap) for ap in apps)
-    one_base = len(set(bases)) == 1
-    _, inertia, R_bases = nominal_frames(model, g_nom, w_nom, bases, tuple(S))
+    pre = _precomputed_terms(setup, parts, group_of, mmaps, umaps, basis) if precompute else None
+    one_base = len(set(setup.bases)) == 1
+    _, inertia, R_bases = nominal_frames(model, setup.g_nom, setup.w_nom, setup.bases, tuple(S))
     if apps:
-        inertia = _with_appendages(model, S, groups, tms, apps, xp.asarray(inertia), xp.asarray(R_bases), xp)
-    n_hinge_systems = len(groups)
+        inertia = _with_appendages(setup, xp.asarray(inertia), xp.asarray(R_bases), xp)
+    app_systems = [ra.system for ra in apps]
+    hinge_systems = [s for s in range(len(systems)) if s not in app_systems]
     hm = HybridModel(
         model=model,
-        gamma_nominal=g_nom,
-        omega0_nominal=w_nom,
+        gamma_nominal=setup.g_nom,
+        omega0_nominal=setup.w_nom,
         inertia=f(inertia),
         frequencies=f(xp.stack([blocks[g][1][j] for g, j in mode_order])),
         damping_ratios=f(np.asarray([zg[g][j] for g, j in mode_order])),
@@ -418,29 +252,28 @@ def _assemble_model(
         mode_group=tuple(int(group_of[g]) for g, _ in mode_order),
         groups=groups,
         basis=basis,
-        truncation=truncation_terms(
-            systems[:n_hinge_systems],
-            mds[:n_hinge_systems],
-            form,
-            {key: q for key, q in owners.items() if key[0] < n_hinge_systems},
-            len(S),
-            dtype,
-        )
-        if truncation
-        else None,
-        appendages=tuple(apps),
-        appendage_truncation=truncation_terms(
-            systems[n_hinge_systems:],
-            mds[n_hinge_systems:],
-            form,
-            {(key[0] - n_hinge_systems, key[1]): q for key, q in owners.items() if key[0] >= n_hinge_systems},
-            nu - len(S),
-            dtype,
-        )
+        truncation=_truncation(systems, mds, hinge_systems, owners, form, len(S), dtype) if truncation else None,
+        appendages=tuple(ra.appendage for ra in apps),
+        appendage_truncation=_truncation(systems, mds, app_systems, owners, form, nu - len(S), dtype)
         if (truncation and apps)
         else None,
     )
     return with_inverse(hm)
+
+
+def _truncation(systems, mds, which, owners, form, nu, dtype):
+    """:func:`.basis.truncation_terms` of the systems `which` (indices in `systems`: the
+    substructures of the small hinges, or the appendages), `nu` small coordinates;
+    `owners[(system, mode)]` is a retained mode's global index."""
+    local = {s: i for i, s in enumerate(which)}
+    return truncation_terms(
+        [systems[s] for s in which],
+        [mds[s] for s in which],
+        form,
+        {(local[key[0]], key[1]): q for key, q in owners.items() if key[0] in local},
+        nu,
+        dtype,
+    )
 
 
 class _Identity(NamedTuple):
@@ -450,22 +283,23 @@ class _Identity(NamedTuple):
     shapes: np.ndarray
 
 
-def physical_model(model: Model, S: tuple[int, ...], apps, w_nom, g_nom, built=None) -> HybridModel:
+def physical_model(model: Model, S: tuple[int, ...], apps, w_nom, g_nom) -> HybridModel:
     """Eq. (30) of the set A and the appendages' held-interface coordinates in those coordinates
     themselves: a :class:`HybridModel` in the real form whose "modal" matrices are unit matrices
     (every coordinate retained, none transformed), from the precomputed substructure terms. Its
     modal coordinates are the small coordinates in substructure order (``positions`` is that
     permutation). For the linearization of a vehicle with finite-element appendages
     (:mod:`.linear`), which Eq. (1) cannot carry. Needs every substructure terminal and no
-    external load on a small body (ValueError otherwise). `built`: ``(groups, terms, systems)`` of a
-    hybrid model of the same set and appendages, to reuse."""
-    if built is None:
-        groups = _sub.substructures(model, S) if S else ()
-        basis_and_precompute(model, S, groups, "substructure", True)
-        tms = [_sub.terms(model, g, g_nom) for g in groups] + [ap.terms for ap in apps]
-        systems = substructure_systems(model, S, groups, tms, g_nom, w_nom, apps)
-    else:
-        groups, tms, systems = built
+    external load on a small body (ValueError otherwise). :func:`hybrid_model` reuses its own
+    substructures, terms and systems (:func:`_identity_model`)."""
+    groups = _sub.substructures(model, S) if S else ()
+    basis_and_precompute(model, S, groups, "substructure", True)
+    setup = small_set(model, S, groups, apps, w_nom, g_nom, with_terms=True)
+    return _identity_model(setup, substructure_systems(setup))
+
+
+def _identity_model(setup: SmallSet, systems) -> HybridModel:
+    """:func:`physical_model` of the resolved set `setup` and its `systems`."""
     blocks, picked, order = [], [], []
     for gi, (rows, I, _J, K, _labels) in enumerate(systems):
         k = len(rows)
@@ -473,64 +307,161 @@ def physical_model(model: Model, S: tuple[int, ...], apps, w_nom, g_nom, built=N
         blocks.append((rows, md.frequencies, list(range(k)), md, I, K))
         picked.append((gi, list(range(k))))
         order.extend((0.0, gi, j) for j in range(k))
-    zeta = np.zeros(len(order))
-    hm = _assemble_model(
-        model,
-        S,
-        groups,
-        tms,
-        w_nom,
-        g_nom,
-        blocks,
-        picked,
-        zeta,
-        "real",
-        "real",
-        True,
-        "substructure",
-        "quaternion",
-        systems,
-        None,
-        order,
-        tuple(apps),
+    return _assemble_model(
+        setup=setup,
+        retained=Retained(blocks, picked, order, np.zeros(len(order))),
+        systems=systems,
+        mds=None,
+        form="real",
+        kind="real",
+        precompute=True,
+        basis="substructure",
+        attitude="quaternion",
         truncation=False,
     )
-    return hm
 
 
-def _with_appendages(model, S, groups, tms, apps, a_bar, R_bases, xp):
-    """The small coordinates' inertia (Eq. 36d's ``a_bar``, the small rows and columns of Eq. 1's
-    matrix) with the appendages' modal coordinates after the hinges: each substructure's own block
-    (``A0`` of its Taylor terms) less ``p p^T / M`` of the translational momenta ``p`` (in {b^0})
-    over the vehicle's mass M, the elimination of b_0's translation as in Eq. (1). The hinges'
-    block is Eq. (1)'s, with the tree's mass replaced by the vehicle's."""
-    nh = len(S)
-    nu = nh + sum(ap.n_modes for ap in apps)
-    m_tree = xp.sum(xp.asarray(model.mass))
-    m_all = m_tree + sum(xp.asarray(ap.mass) for ap in apps)
-    P = xp.zeros((nu, 3))
-    own = xp.zeros((nu, nu))
-    o = nh
-    for i, tm in enumerate(tms):
-        A0 = xp.asarray(tm.A0)
-        if i < len(groups):
-            rows = np.asarray([S.index(k) for k in groups[i].hinges], np.int64)
-        else:
-            rows = np.arange(o, o + A0.shape[0] - 6)
-            o += rows.size
-            own = put(xp, own, np.ix_(rows, rows), A0[6:, 6:])
-        P = put(xp, P, rows, (R_bases[i] @ A0[3:6, 6:]).T)
-    hinge_block = xp.zeros((nu, nu))
-    hinge_block = put(xp, hinge_block, np.ix_(np.arange(nh), np.arange(nh)), a_bar + (P[:nh] @ P[:nh].T) / m_tree)
-    return hinge_block + own - (P @ P.T) / m_all
+def _stacked_terms(t: dict, xp=np) -> dict:
+    """The arrays of :class:`Precomputed` from the per-term stacks of :func:`_build_pre`
+    (numpy, leading axis p)."""
+    p, uS, mS = t["w1"].shape
+    z = lambda *shape: xp.zeros((p, *shape))
+    iu, ju = PAIRS
+
+    def pairs(g):  # g : v v / 2 over the 21 products v_b v_c, b <= c
+        return (
+            0.5
+            * (g[:, :, iu, ju] + g[:, :, ju, iu])
+            * np.where(iu == ju, 0.5, 1.0).reshape((1, 1, -1) + (1,) * (g.ndim - 4))
+        )
+
+    a0 = xp.concatenate([pairs(t["g0a"]), z(6, 6), t["aa0"], z(6, 1)], 2)
+    w0 = xp.concatenate([pairs(t["g0w"]), z(uS, 6), t["wa0"], t["w0"][:, :, None]], 2)
+    a1 = xp.concatenate([pairs(t["g1a"]), t["g2a"], t["aa1"], z(6, 1, mS)], 2)
+    w1 = xp.concatenate([pairs(t["g1w"]), t["g2w"], t["wa1"], t["w1"][:, :, None, :]], 2)
+    return {
+        "bias0": xp.concatenate([a0, w0], 1),
+        "bias1": xp.concatenate([a1, w1], 1).reshape(p, 6 + uS, _FEATURES * mS),
+        "mat0": xp.concatenate([t["aa0"], t["wa0"]], 1),
+        "mat1": xp.concatenate([t["aa1"], t["wa1"]], 1),
+        "aw0": t["aw0"],
+    }
 
 
-def _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, umaps, basis, apps=()):
+def _global_modal_matrices(blocks, nu, form, order=None):
+    """Global modal matrices from per-group blocks ``(rows of the set A, sigma, parts)``: the modes
+    of all groups ordered by frequency (or as `order` gives, ``(_, group, local index)``: a traced
+    build keeps its reference build's order); returns the matrices, the order ``(group, local
+    index)`` and each group's global modal coordinates and rows."""
+    xp = jnp if is_traced(blocks) else np
+    if order is None:
+        order = sorted(((float(sig[j]), g, j) for g, (_, sig, _) in enumerate(blocks) for j in range(len(sig))))
+    k = len(order)
+    u = k if form == "real" else 2 * k
+    pos = {(g, j): q for q, (_, g, j) in enumerate(order)}
+    out = dict(
+        positions=xp.zeros((nu, 2 * k)),
+        rates=xp.zeros((nu, 2 * k)),
+        accel=xp.zeros((nu, u)),
+        rows=xp.zeros((nu, u)),
+        kin=xp.zeros((u, u)),
+        kin_rhs=xp.zeros((u, 2 * k)),
+        project=xp.zeros((2 * k, 2 * nu)),
+    )
+    mmaps, umaps = [], []
+    for g, (rows, sig, p) in enumerate(blocks):
+        kg = len(sig)
+        q = np.asarray([pos[(g, j)] for j in range(kg)], np.int64)
+        mm_ = np.concatenate([q, k + q])
+        um = q if form == "real" else mm_
+        r = np.asarray(rows, np.int64)
+        at = {
+            "positions": np.ix_(r, mm_),
+            "rates": np.ix_(r, mm_),
+            "accel": np.ix_(r, um),
+            "rows": np.ix_(r, um),
+            "kin": np.ix_(um, um),
+            "kin_rhs": np.ix_(um, mm_),
+            "project": np.ix_(mm_, np.concatenate([r, nu + r])),
+        }
+        for key, idx in at.items():
+            out[key] = put(xp, out[key], idx, p[key])
+        mmaps.append(mm_)
+        umaps.append(um)
+    return out, [(g, j) for _, g, j in order], mmaps, umaps
+
+
+def _build_pre(setup: SmallSet, parts, mmaps, umaps, u, m):
+    """The precomputed substructure terms (:class:`Precomputed`), projected on the modes: the
+    substructures of the small hinges, then the finite-element appendages (their rows of the small
+    coordinates after the hinges', their modal stiffness and damping in place of the hinge
+    springs)."""
+    model, small, groups, apps = setup.model, setup.small, setup.groups, setup.appendages
+    assert setup.terms is not None, "computed for the precomputed terms"
+    xp = jnp if is_traced((model, setup.terms, parts, apps)) else np
+    ms, us = max(len(x) for x in mmaps), max(len(x) for x in umaps)
+    keys = ("aa0", "aa1", "wa0", "wa1", "aw0", "g0a", "g1a", "g2a", "g0w", "g1w", "g2w", "w0", "w1")
+    acc = {k: [] for k in keys}
+    ww0 = xp.zeros((u, u))
+    sprung = np.zeros(model.n)
+    sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
+    stiff = xp.asarray(model.stiffness) * sprung
+    damp = xp.asarray(model.damping) * sprung
+    entries = []  # (rows of the small coordinates, stiffness, damping, preload angles, Taylor terms)
+    for grp, tm in zip(groups, setup.terms):
+        h = np.asarray(grp.hinges, np.int64) - 1
+        entries.append(([small.index(k) for k in grp.hinges], stiff[h], damp[h], xp.asarray(setup.g_nom)[h], tm))
+    for ra in apps:
+        ap = ra.appendage
+        entries.append(
+            (list(ra.rows), xp.asarray(ap.stiffness), xp.asarray(ap.modal_damping), xp.zeros(ra.n_modes), ra.terms)
+        )
+    for (rows, k_s, d_s, gbar, tm), mc, uc in zip(entries, mmaps, umaps):
+        idx = np.asarray(rows, np.int64)
+        P = parts["positions"][np.ix_(idx, mc)]
+        Q = parts["rates"][np.ix_(idx, mc)]
+        Acc = parts["accel"][np.ix_(idx, uc)]
+        Rw = parts["rows"][np.ix_(idx, uc)]
+        A0, A1, G0, G1, G2 = (xp.asarray(x) for x in (tm.A0, tm.A1, tm.G0, tm.G1, tm.G2))
+        pad_m = lambda x: xp.concatenate([x, xp.zeros(x.shape[:-1] + (ms - x.shape[-1],))], -1)
+
+        def pad_u(x, axis=0):
+            width = [(0, 0)] * x.ndim
+            width[axis] = (0, us - x.shape[axis])
+            return xp.pad(x, width)
+
+        acc["aa0"].append(A0[:6, :6])
+        acc["aa1"].append(pad_m(A1[:6, :6] @ P))
+        acc["wa0"].append(pad_u(Rw.T @ A0[6:, :6]))
+        acc["wa1"].append(pad_u(pad_m(xp.einsum("ju,jak,km->uam", Rw, A1[6:, :6], P))))
+        acc["aw0"].append(pad_u(A0[:6, 6:] @ Acc, 1))
+        acc["g0a"].append(G0[:6])
+        acc["g1a"].append(pad_m(G1[:6] @ P))
+        acc["g2a"].append(pad_m(G2[:6] @ Q))
+        acc["g0w"].append(pad_u(xp.einsum("ju,jbc->ubc", Rw, G0[6:])))
+        acc["g1w"].append(pad_u(pad_m(xp.einsum("ju,jbck,km->ubcm", Rw, G1[6:], P))))
+        acc["g2w"].append(pad_u(pad_m(xp.einsum("ju,jbk,km->ubm", Rw, G2[6:], Q))))
+        acc["w0"].append(pad_u(Rw.T @ (k_s * gbar)))  # -tau_S at y = 0 (a spring preload)
+        acc["w1"].append(pad_u(pad_m(Rw.T @ (k_s[:, None] * P + d_s[:, None] * Q))))
+        ww0 = put(xp, ww0, np.ix_(uc, uc), Rw.T @ A0[6:, 6:] @ Acc, add=True)
+    dtype = jnp.result_type(model.mass)
+    pad_idx = lambda x, n, width: tuple(tuple(int(i) for i in c) + (n,) * (width - len(c)) for c in x)
+    return Precomputed(
+        **{k: jnp.asarray(v, dtype) for k, v in _stacked_terms({k: xp.stack(v) for k, v in acc.items()}, xp).items()},
+        ww0=jnp.asarray(ww0, dtype),
+        mcols=pad_idx(mmaps, m, ms),
+        ucols=pad_idx(umaps, u, us),
+        bases=setup.bases,
+        added_mass=jnp.asarray(sum(xp.asarray(ra.mass) for ra in apps), dtype) if apps else None,
+    )
+
+
+def _precomputed_terms(setup: SmallSet, parts, group_of, mmaps, umaps, basis):
     """:func:`_build_pre` with each substructure's modal columns: every substructure (and
     appendage), also one with no retained mode (its mass still moves with its base)."""
     u, m = parts["accel"].shape[1], parts["positions"].shape[1]
     gm, gu = [], []
-    for gi in range(len(groups) + len(apps)):
+    for gi in range(len(setup.groups) + len(setup.appendages)):
         if gi in group_of:
             gm.append(mmaps[group_of.index(gi)])
             gu.append(umaps[group_of.index(gi)])
@@ -538,6 +469,33 @@ def _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, uma
             gm.append(np.zeros(0, np.int64))
             gu.append(np.zeros(0, np.int64))
     if basis == "set":  # the set's modes span every substructure
-        gm = [np.arange(m)] * len(groups)
-        gu = [np.arange(u)] * len(groups)
-    return _build_pre(model, groups, tms, S, g_nom, parts, gm, gu, u, m, apps)
+        gm = [np.arange(m)] * len(setup.groups)
+        gu = [np.arange(u)] * len(setup.groups)
+    return _build_pre(setup, parts, gm, gu, u, m)
+
+
+def _with_appendages(setup: SmallSet, a_bar, R_bases, xp):
+    """The small coordinates' inertia (Eq. 36d's ``a_bar``, the small rows and columns of Eq. 1's
+    matrix) with the appendages' modal coordinates after the hinges: each substructure's own block
+    (``A0`` of its Taylor terms) less ``p p^T / M`` of the translational momenta ``p`` (in {b^0})
+    over the vehicle's mass M, the elimination of b_0's translation as in Eq. (1). The hinges'
+    block is Eq. (1)'s, with the tree's mass replaced by the vehicle's."""
+    model, S, apps = setup.model, setup.small, setup.appendages
+    assert setup.terms is not None, "computed for the precomputed terms"
+    nh = len(S)
+    nu = nh + sum(ra.n_modes for ra in apps)
+    m_tree = xp.sum(xp.asarray(model.mass))
+    m_all = m_tree + sum(xp.asarray(ra.mass) for ra in apps)
+    P = xp.zeros((nu, 3))
+    own = xp.zeros((nu, nu))
+    for i, (grp, tm) in enumerate(zip(setup.groups, setup.terms)):
+        rows = np.asarray([S.index(k) for k in grp.hinges], np.int64)
+        P = put(xp, P, rows, (R_bases[i] @ xp.asarray(tm.A0)[3:6, 6:]).T)
+    for ra in apps:
+        A0 = xp.asarray(ra.terms.A0)
+        rows = np.asarray(ra.rows, np.int64)
+        own = put(xp, own, np.ix_(rows, rows), A0[6:, 6:])
+        P = put(xp, P, rows, (R_bases[ra.system] @ A0[3:6, 6:]).T)
+    hinge_block = xp.zeros((nu, nu))
+    hinge_block = put(xp, hinge_block, np.ix_(np.arange(nh), np.arange(nh)), a_bar + (P[:nh] @ P[:nh].T) / m_tree)
+    return hinge_block + own - (P @ P.T) / m_all

@@ -1,10 +1,10 @@
 """The systems whose modes are taken in a hybrid model (Likins 1972, Sec. III E, Eqs. 105-123):
 ``I y'' + J y' + K y = 0`` (Eq. 42 = Eq. 105 per group), their modes (:func:`jaxtree.modes`,
-Eqs. 70-104); which of them are retained is :mod:`.basis`'s.
+Eqs. 70-104) and the retained ones (:mod:`.basis`, :class:`Retained`).
 
 The systems follow the basis: one per substructure on its held base in the nominal spin
 (:func:`substructure_systems`, with the finite-element appendages as substructures of their own
-after the small hinges'), or the whole set A (:func:`jaxtree.linearize`). :func:`nominal_frames`
+after the small hinges'), or the whole set A (:func:`hybrid_systems`). :func:`nominal_frames`
 gives the bases' motion and ``a_bar`` of the small hinges (Eq. 36d) for them and for the assembly
 (:mod:`.assembly`).
 
@@ -20,16 +20,21 @@ removes the modes left out.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax.numpy as jnp
 import numpy as np
 
 from ..equations.dynamics import configuration, mass_matrix
 from ..equations.kinematics import cross, mv
+from ..linear.linearize import linearize
 from ..linear.modes import modes as _modes
 from ..numerics import build_jit, is_traced
 from ..vehicle.model import Model
 from . import substructure as _sub
-from .model import HybridModel, appendage_body
+from .arguments import SmallSet, resolve_damping
+from .basis import base_loads, retained_like, retained_modes
+from .model import HybridModel
 
 
 @build_jit
@@ -59,18 +64,15 @@ def nominal_frames(model: Model, g_nom, w_nom, bases: tuple, small: tuple, carri
     return vb, mass_matrix(model, g_nom)[np.ix_(S, S)], cfg.R[b]
 
 
-def substructure_systems(model: Model, S, groups, tms, g_nom, w_nom, apps=()) -> list:
+def substructure_systems(setup: SmallSet) -> list:
     """Eq. (42) of each substructure on its held base in the nominal spin about the system mass
     center: ``(rows in A, I, J, K, coordinate names)`` per substructure, then per finite-element
     appendage (its rows after the small hinges', its modal stiffness and damping)."""
-    bases = tuple(g.base for g in groups) + tuple(appendage_body(model, ap) for ap in apps)
-    carriers = tuple(appendage_body(model, ap) for ap in apps)
-    added = (
-        (jnp.stack([ap.mass for ap in apps]), jnp.stack([ap.first_moment + ap.mass * ap.point for ap in apps]))
-        if apps
-        else None
-    )
-    vb, _, _ = nominal_frames(model, g_nom, w_nom, bases, tuple(S), carriers, added)
+    model, S, groups, tms, apps = setup.model, setup.small, setup.groups, setup.terms, setup.appendages
+    assert tms is not None, "computed for the substructure basis"
+    carriers = tuple(ra.body for ra in apps)
+    added = (jnp.stack([ra.mass for ra in apps]), jnp.stack([ra.first_moment for ra in apps])) if apps else None
+    vb, _, _ = nominal_frames(model, setup.g_nom, setup.w_nom, setup.bases, tuple(S), carriers, added)
     # numpy for a concrete model; jnp where a parameter is traced (a differentiable build)
     xp = jnp if is_traced((model, tms, vb, apps)) else np
     vb = xp.asarray(vb)
@@ -84,16 +86,27 @@ def substructure_systems(model: Model, S, groups, tms, g_nom, w_nom, apps=()) ->
         I, J, K = _sub.held_base(tm, vg, xp.zeros(6), stiffness[h], damping[h], xp=xp)
         rows = tuple(S.index(k) for k in grp.hinges)
         systems.append((rows, I, J, K, tuple(model.names[k] for k in grp.hinges)))
-    o = len(S)
-    for i, (ap, vg) in enumerate(zip(apps, vb[len(groups) :])):
-        k = ap.n_modes
+    for ra in apps:
+        ap = ra.appendage
         I, J, K = _sub.held_base(
-            ap.terms, vg, xp.zeros(6), xp.asarray(ap.stiffness), xp.asarray(ap.modal_damping), xp=xp
+            ra.terms, vb[ra.system], xp.zeros(6), xp.asarray(ap.stiffness), xp.asarray(ap.modal_damping), xp=xp
         )
-        name = f"{model.names[appendage_body(model, ap)]}.appendage{i}"
-        systems.append((tuple(range(o, o + k)), I, J, K, tuple(f"{name}.q{j + 1}" for j in range(k))))
-        o += k
+        systems.append((tuple(ra.rows), I, J, K, tuple(f"{ra.label}.q{j + 1}" for j in range(ra.n_modes))))
     return systems
+
+
+def hybrid_systems(setup: SmallSet, basis: str, *, omega0, gamma, dcm) -> list:
+    """The systems ``(rows in A, I, J, K, coordinate names)`` whose modes are taken: one per
+    substructure and appendage (:func:`substructure_systems`), or with ``basis="set"`` the whole
+    set A with the large variables held at the nominal motion ``(omega0, gamma, dcm)`` (Eq. 42
+    for A, :func:`jaxtree.linearize`)."""
+    if basis == "set":
+        lin = linearize(setup.model, setup.small, omega0=omega0, gamma=gamma, dcm=dcm)
+        xp = jnp if is_traced(lin) else np
+        return [
+            (tuple(range(len(setup.small))), xp.asarray(lin.I), xp.asarray(lin.J), xp.asarray(lin.K), lin.coordinates)
+        ]
+    return substructure_systems(setup)
 
 
 def system_modes(systems, like: HybridModel | None, rtol) -> list:
@@ -109,3 +122,38 @@ def system_modes(systems, like: HybridModel | None, rtol) -> list:
             "pairs); the reference build has an overdamped mode (a pair of real eigenvalues)"
         )
     return [_modes(I, J, K, kind=like.kind, rtol=rtol) for (_, I, J, K, _lab) in systems]
+
+
+class Retained(NamedTuple):
+    """The retained modes: `blocks` ``(rows, sigma, indices, modes, I, K)`` of the systems that
+    keep some and `picked` ``(system, indices)`` of each (:func:`.basis.retained_modes`), the
+    global order of a reference build's modes, ``(_, block, local index)``
+    (:func:`.basis.retained_like`; None: ascending frequency), and the modal damping ratios
+    `zeta` in the global order."""
+
+    blocks: list
+    picked: list
+    order: list | None
+    zeta: np.ndarray
+
+
+def retained(setup: SmallSet, systems, mds, like, *, n_modes, cutoff, form, basis, tol, damping) -> Retained:
+    """The retained modes of the systems and their modal damping: those of `like`, or chosen by
+    `n_modes`, `cutoff` (``"auto"``: by the quasi-static share of the base loads, `tol`)."""
+    model, S, groups, g_nom = setup.model, setup.small, setup.groups, setup.g_nom
+    order = None
+    if like is not None:
+        blocks, picked, order = retained_like(like, systems, mds)
+    else:
+        loads = None
+        if isinstance(n_modes, str):  # "auto"
+            tms = setup.terms if setup.terms is not None else [_sub.terms(model, g, g_nom) for g in groups]
+            loads = base_loads(model, S, groups, tms + [ra.terms for ra in setup.appendages], g_nom, basis)
+        blocks, picked = retained_modes(model, groups, systems, mds, n_modes, cutoff, form, basis, loads, float(tol))
+    kinds = [md.kind for md in mds]
+    zeta = resolve_damping(
+        damping,
+        sum(len(b[1]) for b in blocks),
+        kinds[0] if len(set(kinds)) == 1 else "general" if "general" in kinds else kinds[0],
+    )
+    return Retained(blocks, picked, order, zeta)
