@@ -17,6 +17,8 @@ The modules, along the stages of the computation (``README.md`` beside them tell
 - :mod:`.model`: :class:`HybridModel` (its arrays and state layout, Eqs. 111-112);
 - :mod:`.basis`: which modes are retained, their modal matrices (Eqs. 106-123), the truncation
   terms;
+- :mod:`.arguments`: the arguments of :func:`hybrid_model`, checked and resolved;
+- :mod:`.systems`: the systems whose modes are taken, their modes, the retained ones;
 - :mod:`.assembly`: :func:`hybrid_model`, from the vehicle to a :class:`HybridModel`;
 - :mod:`.precomputed`: Eq. (30) from the precomputed substructure terms;
 - :mod:`.rhs`: the projected system (Eqs. 115-118, 121), :func:`hybrid_equations`,

@@ -1,24 +1,20 @@
 """The construction of a hybrid model, :func:`hybrid_model` (Likins 1972, Sec. III E,
 Eqs. 105-123): from the vehicle and its set A to a :class:`~.model.HybridModel`.
 
-The steps: the set A split into substructures (:func:`.substructure.substructures`), the basis and
-whether to precompute (:func:`_basis_and_precompute`), the nominal motion, each substructure's
-Taylor terms (:func:`.substructure.terms`), the systems ``I y'' + J y' + K y = 0`` whose modes are
-taken (Eq. 42 = Eq. 105 per group), their modes (:func:`jaxtree.modes`, Eqs. 70-104), the
-retained ones (:mod:`.basis`), and the assembly (:func:`_assemble_model`): each system's modal
-matrices placed in the global order of the modes (ascending frequency, :func:`_assemble`), the
-precomputed substructure terms projected on them (:func:`_build_pre`, the arrays of
-:class:`~.model.Precomputed`), ``a_bar`` of the small hinges, the truncation terms and the
-constant modal block's inverse.
+The steps: the arguments checked and resolved (:mod:`.arguments`: the set A split into
+substructures, :func:`.substructure.substructures`, the basis and whether to precompute,
+:func:`.arguments.basis_and_precompute`, the nominal motion, each substructure's Taylor terms,
+:func:`.substructure.terms`), the systems ``I y'' + J y' + K y = 0`` whose modes are taken (Eq. 42
+= Eq. 105 per group), their modes (:func:`jaxtree.modes`, Eqs. 70-104) and the retained ones
+(:mod:`.systems`, :mod:`.basis`), and the assembly (:func:`_assemble_model`): each system's modal
+matrices placed in the global order of the modes (ascending frequency,
+:func:`_global_modal_matrices`), the precomputed substructure terms projected on them
+(:func:`_build_pre`, the arrays of :class:`~.model.Precomputed`), ``a_bar`` of the small hinges,
+the truncation terms and the constant modal block's inverse.
 
-**Which modes.** By default (``basis="substructure"``) each substructure has its own modes, on its
-own held base (its base body moving on the nominal motion: cantilever modes, with centrifugal
-stiffening and Coriolis coupling when the nominal spins; :func:`.substructure.held_base`,
-:func:`_substructure_systems`), and the number kept is chosen per substructure, a group of repeated
-frequencies kept whole. ``basis="set"`` takes the modes of the whole set A with the large
-variables held (Eq. 42 for A, :func:`jaxtree.linearize`), the seed's single-appendage reading.
-With all modes retained both are Eq. (30) in other coordinates (exactly, to round-off);
-truncation removes the modes left out.
+:func:`physical_model` assembles Eq. (30) in the small coordinates themselves (unit "modal"
+matrices), for the linearization of a vehicle with finite-element appendages (:mod:`.linear`) and
+for the appendages' truncation estimate.
 """
 
 from __future__ import annotations
@@ -29,262 +25,28 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ..equations.attitude import AbstractAttitude, attitude_argument, get_attitude
-from ..equations.dynamics import configuration, mass_matrix
-from ..equations.kinematics import cross, full_precision, mv
-from ..errors import SceneError, SceneTypeError, short
-from ..linear.linearize import linearize, linearize_args, resolve_hinges
-from ..linear.modes import ModalError, check_modal_damping, tolerance
-from ..linear.modes import modes as _modes
-from ..numerics import build_jit, is_traced
-from ..values import as_float, as_int
+from ..equations.attitude import AbstractAttitude, get_attitude
+from ..equations.kinematics import full_precision
+from ..linear.linearize import resolve_hinges
+from ..numerics import is_traced
 from ..vehicle.model import Model
 from . import substructure as _sub
-from .basis import base_loads, modal_matrices, put, retained_like, retained_modes, truncation_terms
-from .model import PAIRS, HybridModel, Precomputed, appendage_body, with_inverse
+from .arguments import (
+    SmallSet,
+    appendage_args,
+    basis_and_precompute,
+    hybrid_model_args,
+    nominal_motion,
+    resolve_form,
+    resolve_options,
+    small_set,
+)
+from .basis import modal_matrices, put, truncation_terms
+from .model import PAIRS, HybridModel, Precomputed, with_inverse
+from .systems import Retained, hybrid_systems, nominal_frames, retained, substructure_systems, system_modes
 
 # the features psi of :class:`~.model.Precomputed`: the 21 products v_b v_c (b <= c), v, c and 1
 _FEATURES = len(PAIRS[0]) + 6 + 6 + 1
-
-
-def _stacked_terms(t: dict, xp=np) -> dict:
-    """The arrays of :class:`Precomputed` from the per-term stacks of :func:`_build_pre`
-    (numpy, leading axis p)."""
-    p, uS, mS = t["w1"].shape
-    z = lambda *shape: xp.zeros((p, *shape))
-    iu, ju = PAIRS
-
-    def pairs(g):  # g : v v / 2 over the 21 products v_b v_c, b <= c
-        return (
-            0.5
-            * (g[:, :, iu, ju] + g[:, :, ju, iu])
-            * np.where(iu == ju, 0.5, 1.0).reshape((1, 1, -1) + (1,) * (g.ndim - 4))
-        )
-
-    a0 = xp.concatenate([pairs(t["g0a"]), z(6, 6), t["aa0"], z(6, 1)], 2)
-    w0 = xp.concatenate([pairs(t["g0w"]), z(uS, 6), t["wa0"], t["w0"][:, :, None]], 2)
-    a1 = xp.concatenate([pairs(t["g1a"]), t["g2a"], t["aa1"], z(6, 1, mS)], 2)
-    w1 = xp.concatenate([pairs(t["g1w"]), t["g2w"], t["wa1"], t["w1"][:, :, None, :]], 2)
-    return {
-        "bias0": xp.concatenate([a0, w0], 1),
-        "bias1": xp.concatenate([a1, w1], 1).reshape(p, 6 + uS, _FEATURES * mS),
-        "mat0": xp.concatenate([t["aa0"], t["wa0"]], 1),
-        "mat1": xp.concatenate([t["aa1"], t["wa1"]], 1),
-        "aw0": t["aw0"],
-    }
-
-
-def _zeta(damping, k, kind):
-    if damping is not None and np.ndim(damping) and np.shape(damping) != (k,):
-        raise ValueError(
-            f"hybrid_model: damping has {np.size(damping)} ratios for {k} retained modes "
-            "(give a scalar or one per retained mode)"
-        )
-    zeta = np.zeros(k) if damping is None else np.broadcast_to(np.asarray(damping, float), (k,)).copy()
-    if damping is not None:
-        check_modal_damping(zeta, kind, "hybrid_model", "Sec. III E", "the modes of this set A already have")
-    return zeta
-
-
-def _assemble(blocks, nu, form, order=None):
-    """Global modal matrices from per-group blocks ``(rows of the set A, sigma, parts)``: the modes
-    of all groups ordered by frequency (or as `order` gives, ``(_, group, local index)``: a traced
-    build keeps its reference build's order); returns the matrices, the order ``(group, local
-    index)`` and each group's global modal coordinates and rows."""
-    xp = jnp if is_traced(blocks) else np
-    if order is None:
-        order = sorted(((float(sig[j]), g, j) for g, (_, sig, _) in enumerate(blocks) for j in range(len(sig))))
-    k = len(order)
-    u = k if form == "real" else 2 * k
-    pos = {(g, j): q for q, (_, g, j) in enumerate(order)}
-    out = dict(
-        positions=xp.zeros((nu, 2 * k)),
-        rates=xp.zeros((nu, 2 * k)),
-        accel=xp.zeros((nu, u)),
-        rows=xp.zeros((nu, u)),
-        kin=xp.zeros((u, u)),
-        kin_rhs=xp.zeros((u, 2 * k)),
-        project=xp.zeros((2 * k, 2 * nu)),
-    )
-    mmaps, umaps = [], []
-    for g, (rows, sig, p) in enumerate(blocks):
-        kg = len(sig)
-        q = np.asarray([pos[(g, j)] for j in range(kg)], np.int64)
-        mm_ = np.concatenate([q, k + q])
-        um = q if form == "real" else mm_
-        r = np.asarray(rows, np.int64)
-        at = {
-            "positions": np.ix_(r, mm_),
-            "rates": np.ix_(r, mm_),
-            "accel": np.ix_(r, um),
-            "rows": np.ix_(r, um),
-            "kin": np.ix_(um, um),
-            "kin_rhs": np.ix_(um, mm_),
-            "project": np.ix_(mm_, np.concatenate([r, nu + r])),
-        }
-        for key, idx in at.items():
-            out[key] = put(xp, out[key], idx, p[key])
-        mmaps.append(mm_)
-        umaps.append(um)
-    return out, [(g, j) for _, g, j in order], mmaps, umaps
-
-
-def _build_pre(model, groups, tms, small, gamma_nominal, parts, mmaps, umaps, u, m, apps=()):
-    """The precomputed substructure terms (:class:`Precomputed`), projected on the modes: the
-    substructures of the small hinges, then the finite-element appendages `apps` (their rows of
-    the small coordinates after the hinges', their modal stiffness and damping in place of the
-    hinge springs)."""
-    xp = jnp if is_traced((model, tms, parts, apps)) else np
-    ms, us = max(len(x) for x in mmaps), max(len(x) for x in umaps)
-    keys = ("aa0", "aa1", "wa0", "wa1", "aw0", "g0a", "g1a", "g2a", "g0w", "g1w", "g2w", "w0", "w1")
-    acc = {k: [] for k in keys}
-    ww0 = xp.zeros((u, u))
-    sprung = np.zeros(model.n)
-    sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
-    stiff = xp.asarray(model.stiffness) * sprung
-    damp = xp.asarray(model.damping) * sprung
-    entries = []  # (rows of the small coordinates, stiffness, damping, preload angles)
-    for grp in groups:
-        h = np.asarray(grp.hinges, np.int64) - 1
-        entries.append(([small.index(k) for k in grp.hinges], stiff[h], damp[h], xp.asarray(gamma_nominal)[h]))
-    o = len(small)
-    for ap in apps:
-        k = ap.n_modes
-        entries.append((list(range(o, o + k)), xp.asarray(ap.stiffness), xp.asarray(ap.modal_damping), xp.zeros(k)))
-        o += k
-    for (rows, k_s, d_s, gbar), tm, mc, uc in zip(entries, tms, mmaps, umaps):
-        idx = np.asarray(rows, np.int64)
-        P = parts["positions"][np.ix_(idx, mc)]
-        Q = parts["rates"][np.ix_(idx, mc)]
-        Acc = parts["accel"][np.ix_(idx, uc)]
-        Rw = parts["rows"][np.ix_(idx, uc)]
-        A0, A1, G0, G1, G2 = (xp.asarray(x) for x in (tm.A0, tm.A1, tm.G0, tm.G1, tm.G2))
-        pad_m = lambda x: xp.concatenate([x, xp.zeros(x.shape[:-1] + (ms - x.shape[-1],))], -1)
-
-        def pad_u(x, axis=0):
-            width = [(0, 0)] * x.ndim
-            width[axis] = (0, us - x.shape[axis])
-            return xp.pad(x, width)
-
-        acc["aa0"].append(A0[:6, :6])
-        acc["aa1"].append(pad_m(A1[:6, :6] @ P))
-        acc["wa0"].append(pad_u(Rw.T @ A0[6:, :6]))
-        acc["wa1"].append(pad_u(pad_m(xp.einsum("ju,jak,km->uam", Rw, A1[6:, :6], P))))
-        acc["aw0"].append(pad_u(A0[:6, 6:] @ Acc, 1))
-        acc["g0a"].append(G0[:6])
-        acc["g1a"].append(pad_m(G1[:6] @ P))
-        acc["g2a"].append(pad_m(G2[:6] @ Q))
-        acc["g0w"].append(pad_u(xp.einsum("ju,jbc->ubc", Rw, G0[6:])))
-        acc["g1w"].append(pad_u(pad_m(xp.einsum("ju,jbck,km->ubcm", Rw, G1[6:], P))))
-        acc["g2w"].append(pad_u(pad_m(xp.einsum("ju,jbk,km->ubm", Rw, G2[6:], Q))))
-        acc["w0"].append(pad_u(Rw.T @ (k_s * gbar)))  # -tau_S at y = 0 (a spring preload)
-        acc["w1"].append(pad_u(pad_m(Rw.T @ (k_s[:, None] * P + d_s[:, None] * Q))))
-        ww0 = put(xp, ww0, np.ix_(uc, uc), Rw.T @ A0[6:, 6:] @ Acc, add=True)
-    dtype = jnp.result_type(model.mass)
-    pad_idx = lambda x, n, width: tuple(tuple(int(i) for i in c) + (n,) * (width - len(c)) for c in x)
-    return Precomputed(
-        **{k: jnp.asarray(v, dtype) for k, v in _stacked_terms({k: xp.stack(v) for k, v in acc.items()}, xp).items()},
-        ww0=jnp.asarray(ww0, dtype),
-        mcols=pad_idx(mmaps, m, ms),
-        ucols=pad_idx(umaps, u, us),
-        bases=tuple(g.base for g in groups) + tuple(appendage_body(model, ap) for ap in apps),
-        added_mass=jnp.asarray(sum(xp.asarray(ap.mass) for ap in apps), dtype) if apps else None,
-    )
-
-
-def _appendage_args(model, appendages, name: str = "hybrid_model") -> tuple:
-    """`appendages` of :func:`hybrid_model` (or of the function `name`) as a tuple, each fixed to a
-    body of `model`."""
-    # (duck-typed: the appendage package builds on this one, not the other way round)
-    apps = tuple(appendages or ())
-    for i, ap in enumerate(apps):
-        if not all(hasattr(ap, a) for a in ("terms", "frequencies", "modal_damping", "body", "mass")):
-            raise SceneTypeError(f"{name}: appendages[{i}] must be a jaxtree.Appendage, got {type(ap).__name__}")
-        b = ap.body
-        if isinstance(b, str):
-            if b not in model.names:
-                raise SceneError(f"{name}: appendages[{i}] is fixed to {b!r}, which is not a body: {model.names}")
-        elif not (isinstance(b, (int, np.integer)) and 0 <= int(b) <= model.n):
-            raise SceneError(f"{name}: appendages[{i}] is fixed to body {short(b)}, not in 0..{model.n}")
-    return apps
-
-
-def _nominal_motion(model, omega0, gamma, dcm):
-    dtype = jnp.result_type(model.mass)
-    # numpy defaults: an eager jnp.zeros compiles a program on a build's first call
-    w = np.zeros(3, dtype) if omega0 is None else omega0
-    g = np.zeros(model.n, dtype) if gamma is None else gamma
-    C = np.eye(3, dtype=dtype) if dcm is None else dcm
-    return tuple(x.astype(dtype) if is_traced(x) else jnp.asarray(np.asarray(x, dtype)) for x in (w, g, C))
-
-
-def _hybrid_model_args(
-    model,
-    small,
-    n_modes=None,
-    *,
-    cutoff=None,
-    omega0=None,
-    gamma=None,
-    dcm=None,
-    damping=None,
-    form=None,
-    precompute=None,
-    attitude: object = "quaternion",
-    rtol=1e-9,
-    basis=None,
-    tol=1e-2,
-    extra: int = 0,
-):
-    """Arguments of :func:`jaxtree.hybrid_model`, checked before the linearization is traced
-    (`extra`: the appendages' modal coordinates, small coordinates beside the hinges)."""
-    name = "hybrid_model"
-    linearize_args(name, model, small, omega0=omega0, gamma=gamma, dcm=dcm)
-    if getattr(model, "law", None) is not None or getattr(model, "controller", None) is not None:
-        raise SceneError(
-            f"{name}: the model carries hinge control laws (model.law / model.controller, from its scene's "
-            "'control'), which the hybrid equations do not include; drop them with model.with_control(None, None)"
-        )
-    if basis is not None and basis not in ("substructure", "set"):
-        raise SceneError(f"{name}: basis must be 'substructure', 'set' or None, got {short(basis)}")
-    t = float(as_float(tol, f"{name}: tol", ()))
-    if not t > 0.0:
-        raise SceneError(f"{name}: tol must be positive (the neglected share of the quasi-static response), got {t}")
-    if isinstance(n_modes, str):
-        if n_modes != "auto":
-            raise SceneError(
-                f"{name}: n_modes must be an integer, a sequence of integers, 'auto' or None, got {short(n_modes)}"
-            )
-    elif n_modes is not None:
-        if isinstance(n_modes, (list, tuple)):  # one number per substructure
-            if not n_modes:
-                raise SceneError(f"{name}: n_modes is an empty sequence")
-            for i, m in enumerate(n_modes):
-                as_int(m, f"{name}: n_modes[{i}]", minimum=1)
-        else:
-            as_int(n_modes, f"{name}: n_modes", minimum=1)
-    if cutoff is not None:
-        c = float(as_float(cutoff, f"{name}: cutoff", ()))
-        if c < 0:
-            raise SceneError(f"{name}: cutoff must be >= 0 (a frequency in rad/s), got {c}")
-    if damping is not None:
-        z = as_float(damping, f"{name}: damping")
-        nu = extra + (
-            0 if small is None else len((small,) if isinstance(small, (str, int, np.integer)) else list(small))
-        )
-        # at most one mode per small hinge is retained (the exact number is known after the modes)
-        if z.ndim > 1 or (z.ndim == 1 and z.shape[0] != 1 and z.shape[0] > nu):
-            raise SceneError(
-                f"{name}: damping must be a scalar or one ratio per retained mode (at most {nu}), got shape {z.shape}"
-            )
-        if np.any(z < 0):
-            raise SceneError(f"{name}: modal damping ratios must be >= 0, got {z.tolist()}")
-    if form is not None and form not in ("real", "first_order"):
-        raise SceneError(f"{name}: form must be 'real', 'first_order' or None, got {short(form)}")
-    if precompute is not None and not isinstance(precompute, (bool, np.bool_)):
-        raise SceneTypeError(f"{name}: precompute must be True, False or None, got {short(precompute)}")
-    attitude_argument(name, attitude)
-    tolerance(name, rtol)
 
 
 @full_precision
@@ -369,15 +131,9 @@ def hybrid_model(
 
     **Returns:** :class:`HybridModel`.
     """
-    if appendages is None and getattr(model, "appendages", ()):
-        raise SceneError(
-            f"hybrid_model: the scene declares finite-element appendages "
-            f"({', '.join(a.name for a in model.appendages)}); pass appendages=jaxtree.scene_appendages(model) "
-            "to include them, or appendages=() to leave them out"
-        )
-    apps = _appendage_args(model, appendages)
+    apps = appendage_args(model, appendages)
     no_hinges = apps and (small is None or (isinstance(small, (list, tuple)) and len(small) == 0))
-    _hybrid_model_args(
+    hybrid_model_args(
         model,
         None if no_hinges else small,
         n_modes,
@@ -396,233 +152,55 @@ def hybrid_model(
     )
     S = () if no_hinges else resolve_hinges(model, small)
     groups = _sub.substructures(model, S) if S else ()
-    if like is not None:
-        _check_like(like, S, groups, apps)
-        basis, precompute, form = like.basis, like.precomputed, like.form
-    elif is_traced((model, omega0, gamma, dcm)):
-        raise ValueError(
-            "hybrid_model: the model or the nominal motion is traced (jax.grad, jvp, vmap): pass "
-            "like=<hybrid_model of the same vehicle built from concrete values> to fix the retained modes"
-        )
-    basis, precompute = _basis_and_precompute(model, S, groups, basis, precompute)
-    if apps and (basis != "substructure" or not precompute):
-        raise SceneError(
-            "hybrid_model: finite-element appendages need basis='substructure' and the precomputed terms "
-            "(every substructure terminal, no external load on a small body)"
-        )
-    if form not in (None, "real", "first_order"):
-        raise ValueError(f"hybrid_model: form must be 'real' or 'first_order', got {form!r}")
-    w_nom, g_nom, _ = _nominal_motion(model, omega0, gamma, dcm)
-    tms = [_sub.terms(model, g, g_nom) for g in groups] if (precompute or basis == "substructure") else None
-    if tms is not None:
-        tms = tms + [ap.terms for ap in apps]
-    if basis == "set":
-        lin = linearize(model, S, omega0=omega0, gamma=gamma, dcm=dcm)
-        xp = jnp if is_traced(lin) else np
-        systems = [(tuple(range(len(S))), xp.asarray(lin.I), xp.asarray(lin.J), xp.asarray(lin.K), lin.coordinates)]
-    else:
-        assert tms is not None, "computed for the substructure basis"
-        systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom, apps)
-    mds = _system_modes(systems, like, rtol)
-    kinds = [md.kind for md in mds]
-    form = _form(form, kinds)
-    order = None
-    if like is not None:
-        blocks, picked, order = retained_like(like, systems, mds)
-    else:
-        loads = None
-        if isinstance(n_modes, str):  # "auto"
-            tms_all = tms if tms is not None else [_sub.terms(model, g, g_nom) for g in groups]
-            loads = base_loads(model, S, groups, tms_all, g_nom, basis)
-        blocks, picked = retained_modes(model, groups, systems, mds, n_modes, cutoff, form, basis, loads, float(tol))
-    zeta = _zeta(
-        damping,
-        sum(len(b[1]) for b in blocks),
-        kinds[0] if len(set(kinds)) == 1 else "general" if "general" in kinds else kinds[0],
+    basis, precompute, form = resolve_options(
+        model, S, groups, apps, like, (omega0, gamma, dcm), basis=basis, precompute=precompute, form=form
+    )
+    w_nom, g_nom, _ = nominal_motion(model, omega0, gamma, dcm)
+    setup = small_set(model, S, groups, apps, w_nom, g_nom, with_terms=precompute or basis == "substructure")
+    systems = hybrid_systems(setup, basis, omega0=omega0, gamma=gamma, dcm=dcm)
+    mds = system_modes(systems, like, rtol)
+    form = resolve_form(form, [md.kind for md in mds])
+    kept = retained(
+        setup, systems, mds, like, n_modes=n_modes, cutoff=cutoff, form=form, basis=basis, tol=tol, damping=damping
     )
     hm = _assemble_model(
-        model,
-        S,
-        groups,
-        tms,
-        w_nom,
-        g_nom,
-        blocks,
-        picked,
-        zeta,
-        form,
-        kinds[0],
-        precompute,
-        basis,
-        attitude,
-        systems,
-        mds,
-        order,
-        apps,
+        setup=setup,
+        retained=kept,
+        systems=systems,
+        mds=mds,
+        form=form,
+        kind=mds[0].kind,
+        precompute=precompute,
+        basis=basis,
+        attitude=attitude,
     )
     if apps:  # the appendages' unbalanced force, for their truncation estimate
-        physical = physical_model(model, S, apps, w_nom, g_nom, (groups, tms, systems))
+        physical = _identity_model(setup, systems)
         physical = eqx.tree_at(lambda h: h.attitude, physical, hm.attitude)
         hm = eqx.tree_at(lambda h: h.physical, hm, physical, is_leaf=lambda x: x is None)
     return hm
 
 
-def _system_modes(systems, like: HybridModel | None, rtol) -> list:
-    """The modes (:func:`jaxtree.modes`) of each system ``(rows, I, J, K, labels)``; in a traced
-    build (a differentiable one, with a reference build `like`) of the kind of `like`'s modes."""
-    if not is_traced(systems):
-        return [_modes(I, J, K, labels=lab, rtol=rtol) for (_, I, J, K, lab) in systems]
-    assert like is not None, "checked by hybrid_model"
-    lam_ref = np.asarray(like.truncation.lam_parts) if like.truncation is not None else np.zeros((0, 2))
-    if like.kind == "general" and np.any(np.abs(lam_ref[:, 1]) <= 1e-9 * np.abs(lam_ref).max(initial=1.0)):
-        raise ValueError(
-            "hybrid_model: a traced build of general (damped) modes needs every mode underdamped (complex "
-            "pairs); the reference build has an overdamped mode (a pair of real eigenvalues)"
-        )
-    return [_modes(I, J, K, kind=like.kind, rtol=rtol) for (_, I, J, K, _lab) in systems]
-
-
-def _form(form: str | None, kinds: list) -> str:
-    """The form of the equations: `form`, or by default real when every system's modes are real."""
-    if form is None:
-        return "real" if all(kd == "real" for kd in kinds) else "first_order"
-    if form == "real" and any(kd != "real" for kd in kinds):
-        bad = next(kd for kd in kinds if kd != "real")
-        raise ModalError(
-            f"hybrid_model: form='real' needs real modes (J = 0, K symmetric); the modes of the set A "
-            f"are {bad!r}. Use form='first_order' (Eq. 118)."
-        )
-    return form
-
-
-def _check_like(like, S, groups, apps=()) -> None:
-    """`like` of :func:`hybrid_model` describes the same set A, substructures and appendages."""
-    if not isinstance(like, HybridModel):
-        raise TypeError(f"hybrid_model: like must be a HybridModel, got {type(like).__name__}")
-    if [a.n_modes for a in like.appendages] != [a.n_modes for a in apps]:
-        raise ValueError("hybrid_model: like was built with other appendages (their number or modes differ)")
-    if tuple(like.small) != tuple(S) or tuple(like.groups) != tuple(groups):
-        raise ValueError(
-            f"hybrid_model: like was built for the small hinges {like.small}, not {tuple(S)} (or other substructures)"
-        )
-
-
-def _basis_and_precompute(model: Model, S, groups, basis: str | None, precompute: bool | None) -> tuple[str, bool]:
-    """The modal basis and whether to precompute the substructure terms (defaults and checks)."""
-    terminal = all(g.terminal for g in groups)
-    small_bodies = set(S)
-    loads_small = model.loads is not None and any(int(b) in small_bodies for b in model.loads.bodies)
-    if basis is None:
-        basis = "substructure" if terminal else "set"
-    if basis not in ("substructure", "set"):
-        raise ValueError(f"hybrid_model: basis must be 'substructure' or 'set', got {basis!r}")
-    if basis == "substructure" and not terminal:
-        raise ValueError(
-            "hybrid_model: basis='substructure' needs every substructure terminal (no large or "
-            "prescribed hinge outboard of a small one); use basis='set'"
-        )
-    possible = terminal and not loads_small
-    if precompute is None:
-        precompute = possible
-    if precompute and not possible:
-        raise ValueError(
-            "hybrid_model: precompute=True needs every substructure terminal (no large or prescribed "
-            "hinge outboard of a small one) and no external load on a small body"
-            + ("; the loads act on small bodies" if loads_small else "")
-        )
-    return basis, precompute
-
-
-@build_jit
-def _nominal_frames(model: Model, g_nom, w_nom, bases: tuple, small: tuple, carriers: tuple = (), added=None):
-    """The nominal vehicle at angles `g_nom` spinning at `w_nom` about its mass center, large and
-    prescribed hinges held: each base's spatial velocity ``(p, 6)`` in its frame about its mass
-    center (:func:`.precomputed._large_frame`'s convention), and ``a_bar`` of the small hinges
-    (Eq. 36d, the small rows and columns of Eq. 1's matrix), in one compilation for the build.
-
-    The vehicle's mass center includes the finite-element appendages fixed to the bodies
-    `carriers`: `added` ``(mass (a,), first moment (a, 3))``, each about its body's mass center in
-    the body's frame (the rigid appendage, modes at rest)."""
-    cfg = configuration(model, g_nom)
-    b = np.asarray(bases, np.int64)
-    r = cfg.rho[b] - cfg.rho[0]  # the bases' mass centers from b_0's, {b^0}
-    E = jnp.swapaxes(cfg.R[b], -1, -2)  # {b^0} -> the base's frame
-    center = jnp.zeros(3, cfg.rho.dtype)  # the vehicle's mass center from the tree's, {b^0}
-    if carriers:
-        assert added is not None, "carriers come with their masses and first moments"
-        c = np.asarray(carriers, np.int64)
-        mass, first = added
-        moment = jnp.sum(mass[:, None] * cfg.rho[c] + mv(cfg.R[c], first), 0)
-        center = moment / (jnp.sum(model.mass.astype(mass.dtype)) + jnp.sum(mass))
-    u0 = cross(center - cfg.rho[0], w_nom)  # b_0's mass center in the spin about the vehicle's
-    vb = jnp.concatenate([mv(E, w_nom), mv(E, u0 + cross(w_nom, r))], -1)
-    S = np.asarray(small, np.int64) + 2
-    return vb, mass_matrix(model, g_nom)[np.ix_(S, S)], cfg.R[b]
-
-
-def _substructure_systems(model: Model, S, groups, tms, g_nom, w_nom, apps=()) -> list:
-    """Eq. (42) of each substructure on its held base in the nominal spin about the system mass
-    center: ``(rows in A, I, J, K, coordinate names)`` per substructure, then per finite-element
-    appendage (its rows after the small hinges', its modal stiffness and damping)."""
-    bases = tuple(g.base for g in groups) + tuple(appendage_body(model, ap) for ap in apps)
-    carriers = tuple(appendage_body(model, ap) for ap in apps)
-    added = (
-        (jnp.stack([ap.mass for ap in apps]), jnp.stack([ap.first_moment + ap.mass * ap.point for ap in apps]))
-        if apps
-        else None
-    )
-    vb, _, _ = _nominal_frames(model, g_nom, w_nom, bases, tuple(S), carriers, added)
-    # numpy for a concrete model; jnp where a parameter is traced (a differentiable build)
-    xp = jnp if is_traced((model, tms, vb, apps)) else np
-    vb = xp.asarray(vb)
-    sprung = np.zeros(model.n)
-    sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
-    stiffness, damping = xp.asarray(model.stiffness) * sprung, xp.asarray(model.damping) * sprung
-    systems = []
-    for grp, tm, vg in zip(groups, tms, vb):
-        h = np.asarray(grp.hinges, np.int64) - 1
-        # steady spin: no spatial acceleration of the base
-        I, J, K = _sub.held_base(tm, vg, xp.zeros(6), stiffness[h], damping[h], xp=xp)
-        rows = tuple(S.index(k) for k in grp.hinges)
-        systems.append((rows, I, J, K, tuple(model.names[k] for k in grp.hinges)))
-    o = len(S)
-    for i, (ap, vg) in enumerate(zip(apps, vb[len(groups) :])):
-        k = ap.n_modes
-        I, J, K = _sub.held_base(
-            ap.terms, vg, xp.zeros(6), xp.asarray(ap.stiffness), xp.asarray(ap.modal_damping), xp=xp
-        )
-        name = f"{model.names[appendage_body(model, ap)]}.appendage{i}"
-        systems.append((tuple(range(o, o + k)), I, J, K, tuple(f"{name}.q{j + 1}" for j in range(k))))
-        o += k
-    return systems
-
-
 def _assemble_model(
-    model,
-    S,
-    groups,
-    tms,
-    w_nom,
-    g_nom,
-    blocks,
-    picked,
-    zeta,
-    form,
-    kind,
-    precompute,
-    basis,
-    attitude,
+    *,
+    setup: SmallSet,
+    retained: Retained,
     systems,
     mds,
-    order=None,
-    apps=(),
+    form: str,
+    kind: str,
+    precompute: bool,
+    basis: str,
+    attitude,
     truncation: bool = True,
 ):
     """The :class:`HybridModel` of the retained modes: their modal matrices assembled over the set
-    A in ascending frequency (or in `order`, ``(_, block, local index)``, that of a reference
-    build), the modal damping `zeta` (in that order), the precomputed terms, and the truncation
-    terms unless `truncation` is False."""
-    nu = len(S) + sum(ap.n_modes for ap in apps)
+    A in ascending frequency (or in `retained.order`, ``(_, block, local index)``, that of a
+    reference build), the modal damping `retained.zeta` (in that order), the precomputed terms, and
+    the truncation terms of the `systems` and their modes `mds` unless `truncation` is False."""
+    model, S, groups, apps = setup.model, setup.small, setup.groups, setup.appendages
+    blocks, picked, zeta, order = retained.blocks, retained.picked, retained.zeta, retained.order
+    nu = len(S) + sum(ra.n_modes for ra in apps)
     dtype = jnp.result_type(model.mass)
     xp = jnp if is_traced((blocks, apps)) else np
     # modal damping follows the global (frequency) order of the modes: split it by group afterwards
@@ -635,27 +213,23 @@ def _assemble_model(
         (rows, sig, modal_matrices(md, I, K, cand, form, zg[g], xp))
         for g, (rows, sig, cand, md, I, K) in enumerate(blocks)
     ]
-    parts, mode_order, mmaps, umaps = _assemble(parts_g, nu, form, order)
+    parts, mode_order, mmaps, umaps = _global_modal_matrices(parts_g, nu, form, order)
     mode_index = tuple(int(blocks[g][2][j]) for g, j in mode_order)
     group_of = [picked[g][0] for g in range(len(blocks))]
     owners = {(group_of[g], int(blocks[g][2][j])): q for q, (g, j) in enumerate(mode_order)}
     f = lambda x: jnp.asarray(x, dtype)
     u = parts["accel"].shape[1]
-    pre = (
-        _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, umaps, basis, apps)
-        if precompute
-        else None
-    )
-    bases = tuple(g.base for g in groups) + tuple(appendage_body(model, ap) for ap in apps)
-    one_base = len(set(bases)) == 1
-    _, inertia, R_bases = _nominal_frames(model, g_nom, w_nom, bases, tuple(S))
+    pre = _precomputed_terms(setup, parts, group_of, mmaps, umaps, basis) if precompute else None
+    one_base = len(set(setup.bases)) == 1
+    _, inertia, R_bases = nominal_frames(model, setup.g_nom, setup.w_nom, setup.bases, tuple(S))
     if apps:
-        inertia = _with_appendages(model, S, groups, tms, apps, xp.asarray(inertia), xp.asarray(R_bases), xp)
-    n_hinge_systems = len(groups)
+        inertia = _with_appendages(setup, xp.asarray(inertia), xp.asarray(R_bases), xp)
+    app_systems = [ra.system for ra in apps]
+    hinge_systems = [s for s in range(len(systems)) if s not in app_systems]
     hm = HybridModel(
         model=model,
-        gamma_nominal=g_nom,
-        omega0_nominal=w_nom,
+        gamma_nominal=setup.g_nom,
+        omega0_nominal=setup.w_nom,
         inertia=f(inertia),
         frequencies=f(xp.stack([blocks[g][1][j] for g, j in mode_order])),
         damping_ratios=f(np.asarray([zg[g][j] for g, j in mode_order])),
@@ -678,29 +252,28 @@ def _assemble_model(
         mode_group=tuple(int(group_of[g]) for g, _ in mode_order),
         groups=groups,
         basis=basis,
-        truncation=truncation_terms(
-            systems[:n_hinge_systems],
-            mds[:n_hinge_systems],
-            form,
-            {key: q for key, q in owners.items() if key[0] < n_hinge_systems},
-            len(S),
-            dtype,
-        )
-        if truncation
-        else None,
-        appendages=tuple(apps),
-        appendage_truncation=truncation_terms(
-            systems[n_hinge_systems:],
-            mds[n_hinge_systems:],
-            form,
-            {(key[0] - n_hinge_systems, key[1]): q for key, q in owners.items() if key[0] >= n_hinge_systems},
-            nu - len(S),
-            dtype,
-        )
+        truncation=_truncation(systems, mds, hinge_systems, owners, form, len(S), dtype) if truncation else None,
+        appendages=tuple(ra.appendage for ra in apps),
+        appendage_truncation=_truncation(systems, mds, app_systems, owners, form, nu - len(S), dtype)
         if (truncation and apps)
         else None,
     )
     return with_inverse(hm)
+
+
+def _truncation(systems, mds, which, owners, form, nu, dtype):
+    """:func:`.basis.truncation_terms` of the systems `which` (indices in `systems`: the
+    substructures of the small hinges, or the appendages), `nu` small coordinates;
+    `owners[(system, mode)]` is a retained mode's global index."""
+    local = {s: i for i, s in enumerate(which)}
+    return truncation_terms(
+        [systems[s] for s in which],
+        [mds[s] for s in which],
+        form,
+        {(local[key[0]], key[1]): q for key, q in owners.items() if key[0] in local},
+        nu,
+        dtype,
+    )
 
 
 class _Identity(NamedTuple):
@@ -710,22 +283,23 @@ class _Identity(NamedTuple):
     shapes: np.ndarray
 
 
-def physical_model(model: Model, S: tuple[int, ...], apps, w_nom, g_nom, built=None) -> HybridModel:
+def physical_model(model: Model, S: tuple[int, ...], apps, w_nom, g_nom) -> HybridModel:
     """Eq. (30) of the set A and the appendages' held-interface coordinates in those coordinates
     themselves: a :class:`HybridModel` in the real form whose "modal" matrices are unit matrices
     (every coordinate retained, none transformed), from the precomputed substructure terms. Its
     modal coordinates are the small coordinates in substructure order (``positions`` is that
     permutation). For the linearization of a vehicle with finite-element appendages
     (:mod:`.linear`), which Eq. (1) cannot carry. Needs every substructure terminal and no
-    external load on a small body (ValueError otherwise). `built`: ``(groups, terms, systems)`` of a
-    hybrid model of the same set and appendages, to reuse."""
-    if built is None:
-        groups = _sub.substructures(model, S) if S else ()
-        _basis_and_precompute(model, S, groups, "substructure", True)
-        tms = [_sub.terms(model, g, g_nom) for g in groups] + [ap.terms for ap in apps]
-        systems = _substructure_systems(model, S, groups, tms, g_nom, w_nom, apps)
-    else:
-        groups, tms, systems = built
+    external load on a small body (ValueError otherwise). :func:`hybrid_model` reuses its own
+    substructures, terms and systems (:func:`_identity_model`)."""
+    groups = _sub.substructures(model, S) if S else ()
+    basis_and_precompute(model, S, groups, "substructure", True)
+    setup = small_set(model, S, groups, apps, w_nom, g_nom, with_terms=True)
+    return _identity_model(setup, substructure_systems(setup))
+
+
+def _identity_model(setup: SmallSet, systems) -> HybridModel:
+    """:func:`physical_model` of the resolved set `setup` and its `systems`."""
     blocks, picked, order = [], [], []
     for gi, (rows, I, _J, K, _labels) in enumerate(systems):
         k = len(rows)
@@ -733,64 +307,161 @@ def physical_model(model: Model, S: tuple[int, ...], apps, w_nom, g_nom, built=N
         blocks.append((rows, md.frequencies, list(range(k)), md, I, K))
         picked.append((gi, list(range(k))))
         order.extend((0.0, gi, j) for j in range(k))
-    zeta = np.zeros(len(order))
-    hm = _assemble_model(
-        model,
-        S,
-        groups,
-        tms,
-        w_nom,
-        g_nom,
-        blocks,
-        picked,
-        zeta,
-        "real",
-        "real",
-        True,
-        "substructure",
-        "quaternion",
-        systems,
-        None,
-        order,
-        tuple(apps),
+    return _assemble_model(
+        setup=setup,
+        retained=Retained(blocks, picked, order, np.zeros(len(order))),
+        systems=systems,
+        mds=None,
+        form="real",
+        kind="real",
+        precompute=True,
+        basis="substructure",
+        attitude="quaternion",
         truncation=False,
     )
-    return hm
 
 
-def _with_appendages(model, S, groups, tms, apps, a_bar, R_bases, xp):
-    """The small coordinates' inertia (Eq. 36d's ``a_bar``, the small rows and columns of Eq. 1's
-    matrix) with the appendages' modal coordinates after the hinges: each substructure's own block
-    (``A0`` of its Taylor terms) less ``p p^T / M`` of the translational momenta ``p`` (in {b^0})
-    over the vehicle's mass M, the elimination of b_0's translation as in Eq. (1). The hinges'
-    block is Eq. (1)'s, with the tree's mass replaced by the vehicle's."""
-    nh = len(S)
-    nu = nh + sum(ap.n_modes for ap in apps)
-    m_tree = xp.sum(xp.asarray(model.mass))
-    m_all = m_tree + sum(xp.asarray(ap.mass) for ap in apps)
-    P = xp.zeros((nu, 3))
-    own = xp.zeros((nu, nu))
-    o = nh
-    for i, tm in enumerate(tms):
-        A0 = xp.asarray(tm.A0)
-        if i < len(groups):
-            rows = np.asarray([S.index(k) for k in groups[i].hinges], np.int64)
-        else:
-            rows = np.arange(o, o + A0.shape[0] - 6)
-            o += rows.size
-            own = put(xp, own, np.ix_(rows, rows), A0[6:, 6:])
-        P = put(xp, P, rows, (R_bases[i] @ A0[3:6, 6:]).T)
-    hinge_block = xp.zeros((nu, nu))
-    hinge_block = put(xp, hinge_block, np.ix_(np.arange(nh), np.arange(nh)), a_bar + (P[:nh] @ P[:nh].T) / m_tree)
-    return hinge_block + own - (P @ P.T) / m_all
+def _stacked_terms(t: dict, xp=np) -> dict:
+    """The arrays of :class:`Precomputed` from the per-term stacks of :func:`_build_pre`
+    (numpy, leading axis p)."""
+    p, uS, mS = t["w1"].shape
+    z = lambda *shape: xp.zeros((p, *shape))
+    iu, ju = PAIRS
+
+    def pairs(g):  # g : v v / 2 over the 21 products v_b v_c, b <= c
+        return (
+            0.5
+            * (g[:, :, iu, ju] + g[:, :, ju, iu])
+            * np.where(iu == ju, 0.5, 1.0).reshape((1, 1, -1) + (1,) * (g.ndim - 4))
+        )
+
+    a0 = xp.concatenate([pairs(t["g0a"]), z(6, 6), t["aa0"], z(6, 1)], 2)
+    w0 = xp.concatenate([pairs(t["g0w"]), z(uS, 6), t["wa0"], t["w0"][:, :, None]], 2)
+    a1 = xp.concatenate([pairs(t["g1a"]), t["g2a"], t["aa1"], z(6, 1, mS)], 2)
+    w1 = xp.concatenate([pairs(t["g1w"]), t["g2w"], t["wa1"], t["w1"][:, :, None, :]], 2)
+    return {
+        "bias0": xp.concatenate([a0, w0], 1),
+        "bias1": xp.concatenate([a1, w1], 1).reshape(p, 6 + uS, _FEATURES * mS),
+        "mat0": xp.concatenate([t["aa0"], t["wa0"]], 1),
+        "mat1": xp.concatenate([t["aa1"], t["wa1"]], 1),
+        "aw0": t["aw0"],
+    }
 
 
-def _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, umaps, basis, apps=()):
+def _global_modal_matrices(blocks, nu, form, order=None):
+    """Global modal matrices from per-group blocks ``(rows of the set A, sigma, parts)``: the modes
+    of all groups ordered by frequency (or as `order` gives, ``(_, group, local index)``: a traced
+    build keeps its reference build's order); returns the matrices, the order ``(group, local
+    index)`` and each group's global modal coordinates and rows."""
+    xp = jnp if is_traced(blocks) else np
+    if order is None:
+        order = sorted(((float(sig[j]), g, j) for g, (_, sig, _) in enumerate(blocks) for j in range(len(sig))))
+    k = len(order)
+    u = k if form == "real" else 2 * k
+    pos = {(g, j): q for q, (_, g, j) in enumerate(order)}
+    out = dict(
+        positions=xp.zeros((nu, 2 * k)),
+        rates=xp.zeros((nu, 2 * k)),
+        accel=xp.zeros((nu, u)),
+        rows=xp.zeros((nu, u)),
+        kin=xp.zeros((u, u)),
+        kin_rhs=xp.zeros((u, 2 * k)),
+        project=xp.zeros((2 * k, 2 * nu)),
+    )
+    mmaps, umaps = [], []
+    for g, (rows, sig, p) in enumerate(blocks):
+        kg = len(sig)
+        q = np.asarray([pos[(g, j)] for j in range(kg)], np.int64)
+        mm_ = np.concatenate([q, k + q])
+        um = q if form == "real" else mm_
+        r = np.asarray(rows, np.int64)
+        at = {
+            "positions": np.ix_(r, mm_),
+            "rates": np.ix_(r, mm_),
+            "accel": np.ix_(r, um),
+            "rows": np.ix_(r, um),
+            "kin": np.ix_(um, um),
+            "kin_rhs": np.ix_(um, mm_),
+            "project": np.ix_(mm_, np.concatenate([r, nu + r])),
+        }
+        for key, idx in at.items():
+            out[key] = put(xp, out[key], idx, p[key])
+        mmaps.append(mm_)
+        umaps.append(um)
+    return out, [(g, j) for _, g, j in order], mmaps, umaps
+
+
+def _build_pre(setup: SmallSet, parts, mmaps, umaps, u, m):
+    """The precomputed substructure terms (:class:`Precomputed`), projected on the modes: the
+    substructures of the small hinges, then the finite-element appendages (their rows of the small
+    coordinates after the hinges', their modal stiffness and damping in place of the hinge
+    springs)."""
+    model, small, groups, apps = setup.model, setup.small, setup.groups, setup.appendages
+    assert setup.terms is not None, "computed for the precomputed terms"
+    xp = jnp if is_traced((model, setup.terms, parts, apps)) else np
+    ms, us = max(len(x) for x in mmaps), max(len(x) for x in umaps)
+    keys = ("aa0", "aa1", "wa0", "wa1", "aw0", "g0a", "g1a", "g2a", "g0w", "g1w", "g2w", "w0", "w1")
+    acc = {k: [] for k in keys}
+    ww0 = xp.zeros((u, u))
+    sprung = np.zeros(model.n)
+    sprung[np.asarray(model.sprung, np.int64) - 1] = 1.0
+    stiff = xp.asarray(model.stiffness) * sprung
+    damp = xp.asarray(model.damping) * sprung
+    entries = []  # (rows of the small coordinates, stiffness, damping, preload angles, Taylor terms)
+    for grp, tm in zip(groups, setup.terms):
+        h = np.asarray(grp.hinges, np.int64) - 1
+        entries.append(([small.index(k) for k in grp.hinges], stiff[h], damp[h], xp.asarray(setup.g_nom)[h], tm))
+    for ra in apps:
+        ap = ra.appendage
+        entries.append(
+            (list(ra.rows), xp.asarray(ap.stiffness), xp.asarray(ap.modal_damping), xp.zeros(ra.n_modes), ra.terms)
+        )
+    for (rows, k_s, d_s, gbar, tm), mc, uc in zip(entries, mmaps, umaps):
+        idx = np.asarray(rows, np.int64)
+        P = parts["positions"][np.ix_(idx, mc)]
+        Q = parts["rates"][np.ix_(idx, mc)]
+        Acc = parts["accel"][np.ix_(idx, uc)]
+        Rw = parts["rows"][np.ix_(idx, uc)]
+        A0, A1, G0, G1, G2 = (xp.asarray(x) for x in (tm.A0, tm.A1, tm.G0, tm.G1, tm.G2))
+        pad_m = lambda x: xp.concatenate([x, xp.zeros(x.shape[:-1] + (ms - x.shape[-1],))], -1)
+
+        def pad_u(x, axis=0):
+            width = [(0, 0)] * x.ndim
+            width[axis] = (0, us - x.shape[axis])
+            return xp.pad(x, width)
+
+        acc["aa0"].append(A0[:6, :6])
+        acc["aa1"].append(pad_m(A1[:6, :6] @ P))
+        acc["wa0"].append(pad_u(Rw.T @ A0[6:, :6]))
+        acc["wa1"].append(pad_u(pad_m(xp.einsum("ju,jak,km->uam", Rw, A1[6:, :6], P))))
+        acc["aw0"].append(pad_u(A0[:6, 6:] @ Acc, 1))
+        acc["g0a"].append(G0[:6])
+        acc["g1a"].append(pad_m(G1[:6] @ P))
+        acc["g2a"].append(pad_m(G2[:6] @ Q))
+        acc["g0w"].append(pad_u(xp.einsum("ju,jbc->ubc", Rw, G0[6:])))
+        acc["g1w"].append(pad_u(pad_m(xp.einsum("ju,jbck,km->ubcm", Rw, G1[6:], P))))
+        acc["g2w"].append(pad_u(pad_m(xp.einsum("ju,jbk,km->ubm", Rw, G2[6:], Q))))
+        acc["w0"].append(pad_u(Rw.T @ (k_s * gbar)))  # -tau_S at y = 0 (a spring preload)
+        acc["w1"].append(pad_u(pad_m(Rw.T @ (k_s[:, None] * P + d_s[:, None] * Q))))
+        ww0 = put(xp, ww0, np.ix_(uc, uc), Rw.T @ A0[6:, 6:] @ Acc, add=True)
+    dtype = jnp.result_type(model.mass)
+    pad_idx = lambda x, n, width: tuple(tuple(int(i) for i in c) + (n,) * (width - len(c)) for c in x)
+    return Precomputed(
+        **{k: jnp.asarray(v, dtype) for k, v in _stacked_terms({k: xp.stack(v) for k, v in acc.items()}, xp).items()},
+        ww0=jnp.asarray(ww0, dtype),
+        mcols=pad_idx(mmaps, m, ms),
+        ucols=pad_idx(umaps, u, us),
+        bases=setup.bases,
+        added_mass=jnp.asarray(sum(xp.asarray(ra.mass) for ra in apps), dtype) if apps else None,
+    )
+
+
+def _precomputed_terms(setup: SmallSet, parts, group_of, mmaps, umaps, basis):
     """:func:`_build_pre` with each substructure's modal columns: every substructure (and
     appendage), also one with no retained mode (its mass still moves with its base)."""
     u, m = parts["accel"].shape[1], parts["positions"].shape[1]
     gm, gu = [], []
-    for gi in range(len(groups) + len(apps)):
+    for gi in range(len(setup.groups) + len(setup.appendages)):
         if gi in group_of:
             gm.append(mmaps[group_of.index(gi)])
             gu.append(umaps[group_of.index(gi)])
@@ -798,6 +469,33 @@ def _precomputed_terms(model, groups, tms, S, g_nom, parts, group_of, mmaps, uma
             gm.append(np.zeros(0, np.int64))
             gu.append(np.zeros(0, np.int64))
     if basis == "set":  # the set's modes span every substructure
-        gm = [np.arange(m)] * len(groups)
-        gu = [np.arange(u)] * len(groups)
-    return _build_pre(model, groups, tms, S, g_nom, parts, gm, gu, u, m, apps)
+        gm = [np.arange(m)] * len(setup.groups)
+        gu = [np.arange(u)] * len(setup.groups)
+    return _build_pre(setup, parts, gm, gu, u, m)
+
+
+def _with_appendages(setup: SmallSet, a_bar, R_bases, xp):
+    """The small coordinates' inertia (Eq. 36d's ``a_bar``, the small rows and columns of Eq. 1's
+    matrix) with the appendages' modal coordinates after the hinges: each substructure's own block
+    (``A0`` of its Taylor terms) less ``p p^T / M`` of the translational momenta ``p`` (in {b^0})
+    over the vehicle's mass M, the elimination of b_0's translation as in Eq. (1). The hinges'
+    block is Eq. (1)'s, with the tree's mass replaced by the vehicle's."""
+    model, S, apps = setup.model, setup.small, setup.appendages
+    assert setup.terms is not None, "computed for the precomputed terms"
+    nh = len(S)
+    nu = nh + sum(ra.n_modes for ra in apps)
+    m_tree = xp.sum(xp.asarray(model.mass))
+    m_all = m_tree + sum(xp.asarray(ra.mass) for ra in apps)
+    P = xp.zeros((nu, 3))
+    own = xp.zeros((nu, nu))
+    for i, (grp, tm) in enumerate(zip(setup.groups, setup.terms)):
+        rows = np.asarray([S.index(k) for k in grp.hinges], np.int64)
+        P = put(xp, P, rows, (R_bases[i] @ xp.asarray(tm.A0)[3:6, 6:]).T)
+    for ra in apps:
+        A0 = xp.asarray(ra.terms.A0)
+        rows = np.asarray(ra.rows, np.int64)
+        own = put(xp, own, np.ix_(rows, rows), A0[6:, 6:])
+        P = put(xp, P, rows, (R_bases[ra.system] @ A0[3:6, 6:]).T)
+    hinge_block = xp.zeros((nu, nu))
+    hinge_block = put(xp, hinge_block, np.ix_(np.arange(nh), np.arange(nh)), a_bar + (P[:nh] @ P[:nh].T) / m_tree)
+    return hinge_block + own - (P @ P.T) / m_all

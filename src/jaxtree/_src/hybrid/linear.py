@@ -27,30 +27,19 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..equations.kinematics import cross, full_precision, tilde
-from ..errors import SceneError
 from ..linear import linearize as _lin
 from ..linear.linearize import LinearSystem, _jacobian, _nominal, linearize_args
 from ..vehicle.model import Model
-from .assembly import _appendage_args, physical_model
+from .arguments import appendage_args
+from .assembly import physical_model
 from .model import HybridModel, _held_prescription, appendage_body
 from .rhs import _equations
-
-
-def _declared(name: str, model, appendages):
-    """`appendages` of `name`, or the error that a scene's declared appendages were not passed."""
-    if appendages is None and getattr(model, "appendages", ()):
-        raise SceneError(
-            f"{name}: the scene declares finite-element appendages "
-            f"({', '.join(a.name for a in model.appendages)}); pass appendages=jaxtree.scene_appendages(model) "
-            "to include them, or appendages=() to leave them out"
-        )
-    return _appendage_args(model, appendages, name)
 
 
 def _held_large(model: Model, apps) -> tuple[int, ...]:
     """The free hinges that Eq. (30) keeps large: those on the path to a body that carries an
     appendage or a load or that is prescribed (the small set's substructures must be terminal
-    and unloaded, :func:`.assembly._basis_and_precompute`)."""
+    and unloaded, :func:`.arguments.basis_and_precompute`)."""
     parents = model.topology.parents
     ends = {appendage_body(model, ap) for ap in apps} | set(model.prescribed)
     if model.loads is not None:
@@ -138,7 +127,7 @@ def linearize(model: Model, small, *, omega0=None, gamma=None, dcm=None, t=0.0, 
     ``K`` and 1e-5 of ``J`` for a beam of 40 elements, :mod:`jaxtree._src.appendage.model`): give
     :func:`jaxtree.modes` an `rtol` of that size, or it takes the system as general.
     """
-    apps = _declared("linearize", model, appendages)
+    apps = appendage_args(model, appendages, "linearize")
     if not apps:
         return _lin.linearize(model, small, omega0=omega0, gamma=gamma, dcm=dcm, t=t)
     empty = small is None or (isinstance(small, (list, tuple)) and len(small) == 0)
@@ -153,7 +142,7 @@ def linearize_vehicle(
     (:func:`jaxtree._src.linear.linearize.linearize_vehicle`, whose text applies): three small
     attitude angles of b_0 about a frame spinning at ``omega0``, every free hinge (or those of
     `small`), and the held-interface modal coordinates of `appendages` (see :func:`linearize`)."""
-    apps = _declared("linearize_vehicle", model, appendages)
+    apps = appendage_args(model, appendages, "linearize_vehicle")
     if not apps:
         return _lin.linearize_vehicle(model, omega0=omega0, gamma=gamma, dcm=dcm, t=t, small=small)
     hinges = linearize_args("linearize_vehicle", model, small, omega0=omega0, gamma=gamma, dcm=dcm, t=t)
