@@ -1014,3 +1014,25 @@ def test_truncation_estimate_of_the_appendages_neglected_modes():
     ratio = np.abs(est[1][forced]).max() / np.abs(true[1][forced]).max()
     assert 1 / 3 < ratio < 3, ratio
     assert np.abs(true[1]).max() > 10 * np.abs(true[3]).max()  # the error falls as modes are added
+
+
+def test_small_hinges_and_an_appendage_in_one_hybrid_model():
+    """A hybrid model with small hinges and a finite-element appendage together (the truncation
+    terms of the appendage were filled at its place among all small coordinates, past the end of
+    its own: an IndexError). It builds, and the neglected-mode terms are complete on their own
+    coordinates: every flexible mode of a system is in them, so taking a small motion's modal
+    content and rebuilding the coordinates from it gives the motion back, ``Re(c d0) = [U, 0]``,
+    for the appendage's coordinates and for the small hinges'; the run's estimate is finite."""
+    vehicle = jaxtree.load_scene("wings")
+    fe = jaxtree.beam(1.7, 6, E=7e10, rho=2700.0, area=1e-4, Iy=1e-8)
+    ap = appendage(fe, "hub", n_modes=2)
+    hm = jaxtree.hybrid_model(vehicle, tuple(range(1, 9)), 2, appendages=[ap])
+    for tr, nu in ((hm.appendage_truncation, 2), (hm.truncation, 8)):
+        assert tr is not None
+        c = np.asarray(tr.c_parts[..., 0]) + 1j * np.asarray(tr.c_parts[..., 1])
+        d0 = np.asarray(tr.d0_parts[..., 0]) + 1j * np.asarray(tr.d0_parts[..., 1])
+        assert c.shape[0] == nu
+        whole = np.concatenate([np.eye(nu), np.zeros((nu, nu))], 1)
+        np.testing.assert_allclose(np.real(c @ d0), whole, rtol=0, atol=1e-9)
+    sol = jaxtree.simulate_hybrid(hm, 0.5, saveat=6)
+    assert sol.appendage_truncation is not None and np.all(np.isfinite(sol.appendage_truncation))

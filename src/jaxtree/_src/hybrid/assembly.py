@@ -254,20 +254,24 @@ def _assemble_model(
         basis=basis,
         truncation=_truncation(systems, mds, hinge_systems, owners, form, len(S), dtype) if truncation else None,
         appendages=tuple(ra.appendage for ra in apps),
-        appendage_truncation=_truncation(systems, mds, app_systems, owners, form, nu - len(S), dtype)
+        appendage_truncation=_truncation(systems, mds, app_systems, owners, form, nu - len(S), dtype, len(S))
         if (truncation and apps)
         else None,
     )
     return with_inverse(hm)
 
 
-def _truncation(systems, mds, which, owners, form, nu, dtype):
+def _truncation(systems, mds, which, owners, form, nu, dtype, first=0):
     """:func:`.basis.truncation_terms` of the systems `which` (indices in `systems`: the
-    substructures of the small hinges, or the appendages), `nu` small coordinates;
-    `owners[(system, mode)]` is a retained mode's global index."""
+    substructures of the small hinges, or the appendages), `nu` small coordinates from the
+    `first` (the appendages' coordinates follow the small hinges': their terms are over the
+    appendages' coordinates alone); `owners[(system, mode)]` is a retained mode's global index."""
     local = {s: i for i, s in enumerate(which)}
+    picked = [systems[s] for s in which]
+    if first:
+        picked = [(np.asarray(rows, np.int64) - first, *rest) for rows, *rest in picked]
     return truncation_terms(
-        [systems[s] for s in which],
+        picked,
         [mds[s] for s in which],
         form,
         {(local[key[0]], key[1]): q for key, q in owners.items() if key[0] in local},
