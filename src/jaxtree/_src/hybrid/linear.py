@@ -28,12 +28,12 @@ import numpy as np
 
 from ..equations.kinematics import cross, full_precision, tilde
 from ..linear import linearize as _lin
-from ..linear.linearize import LinearSystem, _jacobian, _nominal, linearize_args
+from ..linear.linearize import LinearSystem, linearize_args, nominal_state, small_jacobian
 from ..vehicle.model import Model
 from .arguments import appendage_args
 from .assembly import physical_model
-from .model import HybridModel, _held_prescription, appendage_body
-from .rhs import _equations
+from .model import HybridModel, appendage_body, held_prescription
+from .rhs import equations_of_parts
 
 
 def _held_large(model: Model, apps) -> tuple[int, ...]:
@@ -70,11 +70,11 @@ def _vehicle(hm: HybridModel, dcm, omega0, t):
         att = hm.attitude.from_dcm((jnp.eye(3, dtype=dtype) - tilde(th)) @ dcm)
         gL = hm.gamma_nominal[L] + q[3 : 3 + nL]
         s = jnp.concatenate([P.T @ q[3 + nL :], P.T @ qd[3 + nL :]])
-        mat, rhs = _equations(hm, t, (att, w, gL, qd[3 : 3 + nL], s))
+        mat, rhs = equations_of_parts(hm, t, (att, w, gL, qd[3 : 3 + nL], s))
         r = mat @ jnp.concatenate([wd, qdd[3 : 3 + nL], P.T @ qdd[3 + nL :]]) - rhs
         return jnp.concatenate([r[: 3 + nL], P @ r[3 + nL :]])
 
-    value, jac = _jacobian(residual, 3 * m)
+    value, jac = small_jacobian(residual, 3 * m)
     return jac[:, 2 * m :], jac[:, m : 2 * m], jac[:, :m], -value
 
 
@@ -85,10 +85,10 @@ def appendage_linearization(
     """``I y'' + J y' + K y = bias`` of the vehicle with the finite-element appendages `apps`
     (module docstring), coordinates ``y = [theta (with `attitude`), the hinges of `hinges`
     ascending, each appendage's modal coordinates]``; arguments checked by the caller."""
-    w, g, C = _nominal(model, omega0, gamma, dcm)
+    w, g, C = nominal_state(model, omega0, gamma, dcm)
     large = _held_large(model, apps)
     S = tuple(k for k in model.unknown_hinges if k not in large)
-    hm = _held_prescription(physical_model(model, S, apps, w, g))
+    hm = held_prescription(physical_model(model, S, apps, w, g))
     I, J, K, bias = _vehicle(hm, C, w, jnp.asarray(t, g.dtype))
     # to [theta, hinges ascending, appendage coordinates]
     at = {k: 3 + i for i, k in enumerate(hm.large)} | {k: 3 + len(hm.large) + i for i, k in enumerate(S)}

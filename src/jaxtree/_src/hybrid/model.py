@@ -389,7 +389,7 @@ class _HeldPrescription(eqx.Module):
         return self.value, z, z
 
 
-def _held_prescription(hm: HybridModel) -> HybridModel:
+def held_prescription(hm: HybridModel) -> HybridModel:
     """The same hybrid model with its prescribed hinges held at their nominal angles, as
     :func:`jaxtree.linearize` holds them for the modes."""
     model = hm.model

@@ -95,10 +95,10 @@ def hybrid_equations(hybrid: HybridModel, t, y):
     ``(matrix, rhs)`` for the unknowns ``[omega0_dot, gamma_ddot_L, modal]`` (modal: ``eta_r''``
     or ``Y_r'``), masked modes included as ``1 * x = 0`` rows. For inspection and tests; the
     right-hand side :func:`hybrid_rhs` solves the same system."""
-    return _equations(hybrid, t, hybrid.unpack(y))
+    return equations_of_parts(hybrid, t, hybrid.unpack(y))
 
 
-def _equations(hm: HybridModel, t, parts):
+def equations_of_parts(hm: HybridModel, t, parts):
     """:func:`hybrid_equations` of the state's parts (``hm.unpack(y)``)."""
     if hm.pre is not None:
         mat, rhs = pre_system(hm, t, parts)
@@ -117,7 +117,7 @@ def solve(hm: HybridModel, t, parts):
     nx = 3 + len(hm.large)
     dtype = parts[1].dtype
     if hm.modal_inverse is None:
-        mat, rhs = _equations(hm, t, parts)
+        mat, rhs = equations_of_parts(hm, t, parts)
         x = jnp.linalg.solve(mat, rhs)
         return x[:3], x[3:nx], x[nx:]
     # constant modal block: a Schur complement on the large unknowns

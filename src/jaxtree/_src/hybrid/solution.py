@@ -50,7 +50,7 @@ from ..integration.radau import Radau5
 from ..numerics import eager_jit, is_traced, program_jit
 from ..vehicle.model import State
 from .model import HybridModel, appendage_body
-from .rhs import _equations, hybrid_jacobian, hybrid_rhs, solve
+from .rhs import equations_of_parts, hybrid_jacobian, hybrid_rhs, solve
 
 
 class HybridSolution(eqx.Module):
@@ -289,7 +289,7 @@ def _appendage_unbalanced(hm: HybridModel, t, y):
     ns = hm.n_small
     P = ph.positions[:, :ns]  # the physical model's coordinates: a permutation of the small ones
     y_, yd_, ydd_ = (P.T @ (m @ v) for m, v in ((hm.positions, s_in), (hm.rates, s_in), (hm.rates, ds)))
-    mat, rhs = _equations(ph, t, (att, w, gL, gdL, jnp.concatenate([y_, yd_])))
+    mat, rhs = equations_of_parts(ph, t, (att, w, gL, gdL, jnp.concatenate([y_, yd_])))
     r = mat @ jnp.concatenate([wd, gddL, ydd_]) - rhs
     return -(P @ r[3 + len(hm.large) :])[hm.nu :]
 

@@ -236,7 +236,7 @@ def _linearized_equations_args(model, small, state, omega0_dot, gamma_ddot, t) -
     return hinges
 
 
-def _nominal(model, omega0, gamma, dcm):
+def nominal_state(model, omega0, gamma, dcm):
     dtype = model.mass.dtype
     n = model.n
     w = jnp.zeros(3, dtype) if omega0 is None else jnp.asarray(omega0, dtype)
@@ -251,7 +251,7 @@ def _nominal(model, omega0, gamma, dcm):
     return w, g, C
 
 
-def _jacobian(fun, nu3):
+def small_jacobian(fun, nu3):
     """Value and Jacobian of ``fun`` at zero by ``jax.jacfwd``."""
     z0 = jnp.zeros((nu3,), jnp.float64)
     jac, value = jax.jacfwd(lambda z: (lambda r: (r, r))(fun(z)), has_aux=True)(z0)
@@ -270,7 +270,7 @@ def _partial(model, hinges, dcm, omega0, gamma, gamma_dot, omega0_dot, gamma_ddo
         A, rhs = rotational_equations(model, state, t)
         return A @ jnp.concatenate([omega0_dot, gamma_ddot + E @ ydd]) - rhs
 
-    value, jac = _jacobian(residual, 3 * nu)
+    value, jac = small_jacobian(residual, 3 * nu)
     return PartialLinearization(value, jac[:, 2 * nu :], jac[:, nu : 2 * nu], jac[:, :nu])
 
 
@@ -346,7 +346,7 @@ def linearize(model: Model, small, *, omega0=None, gamma=None, dcm=None, t=0.0) 
     hinges = linearize_args("linearize", model, small, omega0=omega0, gamma=gamma, dcm=dcm, t=t)
     if hinges is None:  # small=None: a TypeError
         hinges = resolve_hinges(model, small)
-    w, g, C = _nominal(model, omega0, gamma, dcm)
+    w, g, C = nominal_state(model, omega0, gamma, dcm)
     I, J, K, bias = _held(model, hinges, C, w, g, jnp.asarray(t, g.dtype))
     return LinearSystem(I, J, K, bias, tuple(model.names[k] for k in hinges), hinges)
 
@@ -371,7 +371,7 @@ def _vehicle(model, hinges, dcm, omega0, gamma, t):
         r = A @ jnp.concatenate([wd, E @ qdd[3:]]) - rhs
         return jnp.concatenate([r[:3], r[3:][np.asarray(hinges) - 1]])
 
-    value, jac = _jacobian(residual, 3 * m)
+    value, jac = small_jacobian(residual, 3 * m)
     return jac[:, 2 * m :], jac[:, m : 2 * m], jac[:, :m], -value
 
 
@@ -405,7 +405,7 @@ def vehicle_linearization(model: Model, hinges=None, *, omega0=None, gamma=None,
         hinges = model.unknown_hinges
         if not hinges:
             raise ValueError("linearize_vehicle: the model has no hinge that is not prescribed")
-    w, g, C = _nominal(model, omega0, gamma, dcm)
+    w, g, C = nominal_state(model, omega0, gamma, dcm)
     I, J, K, bias = _vehicle(model, hinges, C, w, g, jnp.asarray(t, g.dtype))
     b0 = model.names[0]
     coords = tuple(f"{b0}.rotation_{a}" for a in (1, 2, 3)) + tuple(model.names[k] for k in hinges)
