@@ -71,6 +71,11 @@ from .assembly import mass_matrix as mass_matrix
 from .assembly import merge_outboard_sums as merge_outboard_sums
 from .assembly import rotational_equations as rotational_equations
 from .assembly import unbalanced as unbalanced
+from .diagnostics import SINGULAR_CONDITION as SINGULAR_CONDITION
+from .diagnostics import matrix_condition as matrix_condition
+from .diagnostics import null_direction_text as null_direction_text
+from .diagnostics import unknown_labels as unknown_labels
+from .diagnostics import unknown_rows as unknown_rows
 from .kinematics import ancestor_sum, cross, full_precision, mm, tilde
 
 _dtype = dtype_of  # the name the tests use
@@ -778,41 +783,6 @@ def _diagnose(name, model, state, t, tau):
             "prescription gave a non-finite value)"
         )
     return "\n".join(lines)
-
-
-# A condition number of Eq. (1)'s matrix above this is reported as singular (float64 keeps
-# about four digits of the accelerations there).
-SINGULAR_CONDITION = 1e12
-
-
-def matrix_condition(model, A):
-    """Condition number of the Eq. (1) matrix `A` with the prescribed rows and columns removed,
-    and its eigenvector of the eigenvalue nearest zero (the near-null direction when singular)."""
-    u = unknown_rows(model)
-    ev, V = jnp.linalg.eigh(A[np.ix_(u, u)])
-    i = jnp.argmin(jnp.abs(ev))
-    return jnp.max(jnp.abs(ev)) / jnp.abs(ev[i]), V[:, i]
-
-
-def unknown_rows(model):
-    """Rows of Eq. (1) that are unknowns: omega0 and the hinges that are not prescribed or inert."""
-    return np.concatenate([np.arange(3), np.asarray(model.unknown_hinges, dtype=np.int64) + 2])
-
-
-def unknown_labels(model) -> tuple[str, ...]:
-    """Labels of the unknown rows of Eq. (1), for messages: ``omega0x``..., ``hinge k (name)``."""
-    return tuple("omega0" + "xyz"[i] if i < 3 else f"hinge {i - 2} ({model.names[i - 2]})" for i in unknown_rows(model))
-
-
-def null_direction_text(v, labels) -> str:
-    """Describe the near-null direction `v` of a singular Eq. (1) matrix by its large entries."""
-    v = np.asarray(v, dtype=float)
-    big = np.flatnonzero(np.abs(v) >= 0.25 * np.abs(v).max())
-    parts = ", ".join(f"{labels[i]} {v[i]:+.3f}" for i in big)
-    return (
-        f"its near-null direction: {parts}. Rates in that direction move the vehicle alike (for a "
-        f"gimbal: gimbal lock, two axes aligned)."
-    )
 
 
 def _cholesky_solve(A, b):
