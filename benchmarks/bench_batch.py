@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxtree
-from jaxtree._src.equations import batched, dynamics
+from jaxtree._src.equations import batched, dynamics, solve
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
@@ -218,13 +218,13 @@ def case(name, size, args):
                 rows.append((f"batch-first ({mode})", per / size, first, flops(eq1(model), xs) / size))
             finally:
                 batched.STAGE = saved_stage
-        saved = dynamics.BATCH_FIRST_MIN
-        dynamics.BATCH_FIRST_MIN = 10**9
+        saved = solve.BATCH_FIRST_MIN
+        solve.BATCH_FIRST_MIN = 10**9
         try:
             per, first = loop_timing(eq1(model), xs, args.loop, args.repeats)
             rows.append(("vmap single", per / size, first, flops(eq1(model), xs) / size))
         finally:
-            dynamics.BATCH_FIRST_MIN = saved
+            solve.BATCH_FIRST_MIN = saved
         mj = mujoco_rollout(model, size, args.mujoco_steps)
         if mj is not None:
             rows.append(("MuJoCo rollout RK4", mj, np.nan, np.nan))
@@ -242,7 +242,7 @@ def case(name, size, args):
 def main():
     args = _args()
     say(machine())
-    say(f"jax {jax.__version__}, float64, batch-first from {dynamics.BATCH_FIRST_MIN} members")
+    say(f"jax {jax.__version__}, float64, batch-first from {solve.BATCH_FIRST_MIN} members")
     results = []
     for name in args.cases:
         for size in args.sizes or [CASES[name]]:

@@ -49,11 +49,7 @@ from ..numerics import (
     is_traced,
     spd_inverse,
 )
-from ..numerics import regular as _regular
-from ..numerics import regular_pivots as _regular_pivots
-from ..vehicle import hinges
 from ..vehicle.model import Model, State
-from . import articulated, batched
 from .assembly import Configuration as Configuration
 from .assembly import angular_momentum as angular_momentum
 from .assembly import body_angular_velocities as body_angular_velocities
@@ -77,8 +73,26 @@ from .diagnostics import null_direction_text as null_direction_text
 from .diagnostics import unknown_labels as unknown_labels
 from .diagnostics import unknown_rows as unknown_rows
 from .kinematics import ancestor_sum, cross, full_precision, mm, tilde
+from .solve import BATCH_FIRST_MIN as BATCH_FIRST_MIN
+from .solve import BATCH_FIRST_MIN_ACCELERATOR as BATCH_FIRST_MIN_ACCELERATOR
+from .solve import Accelerations as Accelerations
+from .solve import (
+    Inverse,
+    cholesky_solve,
+    factored_one,
+    factorize,
+    full_accelerations,
+    solve_members,
+    solve_plain,
+    solver,
+    unknown_rows_and_prescribed,
+)
+from .solve import batch_first_min as batch_first_min
 
-_dtype = dtype_of  # the name the tests use
+# the names the tests use
+_dtype = dtype_of
+_solve_plain = solve_plain
+_cholesky_solve = cholesky_solve
 
 
 class DynamicsError(ArithmeticError):
@@ -88,14 +102,6 @@ class DynamicsError(ArithmeticError):
     direction (e.g. gimbal lock: two hinge axes aligned through a massless gimbal frame).
     Under ``jax.jit`` or ``jax.vmap`` the accelerations are NaN instead (``jaxtree.simulate``
     reports such runs with the same diagnosis)."""
-
-
-class Accelerations(NamedTuple):
-    """Solution of Eq. (1): accelerations and, for prescribed hinges, the torque that holds them."""
-
-    omega0_dot: jax.Array  # (3,)
-    gamma_ddot: jax.Array  # (n,), prescribed hinges included
-    hold_torque: jax.Array  # (len(model.prescribed),)
 
 
 @full_precision
@@ -135,149 +141,17 @@ def _solve_completed(model, state, t, tau, gdd_p):
     """Eq. (1) for a state completed with its prescribed hinges (their accelerations `gdd_p`), by
     the model's method; its derivatives follow the implicit-function rule of
     :func:`_solve_completed_jvp` instead of the operations of the solve."""
-    return _solve_plain(model, state, t, tau, gdd_p)
+    return solve_plain(model, state, t, tau, gdd_p)
 
 
 @eqx.filter_custom_jvp
 def _solve_factored(model, state, t, tau, gdd_p):
     """``(accelerations, factor)``: :func:`_solve_completed` as its derivative rule computes it,
-    from the factor of the matrix that the rule's tangents reuse (:func:`_factored_one`); under
+    from the factor of the matrix that the rule's tangents reuse (:func:`factored_one`); under
     a batch-first ``jax.vmap`` the batch-first accelerations and a placeholder factor (the
     tangents are then the recursion's, which makes no factor). Differentiated by the same rule
     (the factor a constant), so second derivatives never differentiate a ``custom_vmap``."""
-    return _solve_plain(model, state, t, tau, gdd_p, one=_factored_one)
-
-
-# Batches of at least this many members run the batch-first recursion (:mod:`.batched`) when Eq. (1)
-# is vmapped on a CPU; smaller ones vmap the single-member solve. The batch-first program pays a
-# fixed cost per call (~550 kernels on fig4_free, ~1300 on flex95: 57 and 190 us) that a small batch
-# does not amortize (benchmarks/bench_batch.py: fig4_free 9.4 us a member at B = 16 against 6 us
-# vmapped, 3.2 at B = 128).
-BATCH_FIRST_MIN = 64
-# The same on an accelerator, where each of those kernels is a launch: on an H200 (benchmarks/
-# bench_gpu.py, 2026-11-27) the batch-first program cost ~1.2-2 ms a call whatever the batch up to
-# 8192 members, so the vmapped single solve won at 1024 and 8192 members (fig4_free float64: 559
-# against 1407 ns a member at 1024, 94 against 251 at 8192) and lost at 65 536 (44 against 18;
-# flex95 765 against 146). Batches between 8192 and 65 536 were not measured.
-BATCH_FIRST_MIN_ACCELERATOR = 65536
-
-
-def batch_first_min() -> int:
-    """Members from which a vmapped Eq. (1) runs the batch-first recursion on JAX's default backend."""
-    return BATCH_FIRST_MIN if jax.default_backend() == "cpu" else BATCH_FIRST_MIN_ACCELERATOR
-
-
-def _solve_plain(model, state, t, tau, gdd_p, one=None):
-    """Eq. (1) by the model's method; under ``jax.vmap`` of at least :func:`batch_first_min`
-    members, by the batch-first recursion of :mod:`jaxtree._src.equations.batched` (the same
-    accelerations to round-off)."""
-    one = _solve_one if one is None else one
-    dyn, static = eqx.partition((model, state, t, tau, gdd_p), eqx.is_array)
-    # custom_vmap sees a flat list of arrays: its JVP compares pytree structures in which None
-    # leaves (eqx.partition's placeholders) would not match
-    leaves, tree = jax.tree_util.tree_flatten(dyn)
-    args = lambda leaves: eqx.combine(jax.tree_util.tree_unflatten(tree, leaves), static)
-
-    @jax.custom_batching.custom_vmap
-    def solve(leaves):
-        return one(*args(leaves))
-
-    @solve.def_vmap
-    def _rule(axis_size, in_batched, leaves):
-        (flags,) = in_batched
-        if not any(flags):  # nothing batched (e.g. only tangents, in a JVP): one solve
-            out = one(*args(leaves))
-            return out, jax.tree_util.tree_map(lambda _: False, out)
-        if axis_size < batch_first_min():
-            axes = ([0 if b else None for b in flags],)
-            out = jax.vmap(lambda xs: one(*args(xs)), in_axes=axes, axis_size=axis_size)(leaves)
-        else:
-            out = _solve_members(
-                axis_size,
-                jax.tree_util.tree_unflatten(tree, leaves),
-                jax.tree_util.tree_unflatten(tree, flags),
-                static,
-            )
-            if one is _factored_one:  # the factor's placeholder, the same for all members
-                size = len(_unknown_rows_and_prescribed(static[0])[0])
-                placeholder = jnp.zeros((size, size), out.omega0_dot.dtype)
-                return (out, placeholder), (jax.tree_util.tree_map(lambda _: True, out), False)
-        return out, jax.tree_util.tree_map(lambda _: True, out)
-
-    return solve(leaves)
-
-
-def _solve_members(size, dyn, flags, static):
-    """Eq. (1) for a batch (members on axis 0 of the leaves flagged in `flags`) by the batch-first
-    recursion: the hinge laws, torques and loads of each member by ``jax.vmap``, then one
-    recursion over all members with the members as the contiguous axis."""
-    model, state, t, tau, gdd_p = eqx.combine(dyn, static)
-    mflags, sflags = eqx.combine(flags, static)[:2]
-    axes = jax.tree_util.tree_map(lambda b: 0 if b else None, flags)
-    prescribed = hinges.index(model.prescribed)
-
-    def member(d):
-        m, s, tt, ta, gp = eqx.combine(d, static)
-        torque = hinge_torques(m, s.gamma, s.gamma_dot)
-        if ta is not None:
-            torque = torque + ta
-        gdd = jnp.zeros_like(s.gamma) if gp is None else jnp.zeros_like(s.gamma).at[prescribed].set(gp)
-        loads = None if m.loads is None else m.loads(tt, s)
-        return torque, gdd, loads
-
-    torque, gdd, loads = jax.vmap(member, in_axes=(axes,), axis_size=size)(dyn)
-    if loads is not None:
-        loads = (model.loads.bodies, loads[0], loads[1])
-    pl = batched.plan(model.topology.parents, model.prescribed + model.inert, model.prescribed)
-    keys = ("mass", "inertia", "axis", "hinge_on_parent", "hinge_on_body")
-    on = {k: bool(getattr(mflags, k)) for k in keys}
-    on.update(omega0=bool(sflags.omega0), gamma=bool(sflags.gamma), gamma_dot=bool(sflags.gamma_dot))
-    on.update(tau=True, gdd=True, loads=True)
-    x = batched.inputs(model, pl, state.omega0, state.gamma, state.gamma_dot, torque, gdd, loads, on)
-    w, gdd_rows, hold_rows, _ = batched.solve(pl, x)
-    w = jnp.broadcast_to(jnp.concatenate([jnp.reshape(c, (1, -1)) for c in w], 0), (3, size)).T
-    hinge_row = np.argsort(pl.order - 1)
-    gdd_out = jnp.broadcast_to(gdd_rows, (model.n, size))[hinge_row].T
-    hold = jnp.broadcast_to(hold_rows, (model.n, size))[pl.prescribed_rows].T
-    return Accelerations(w, gdd_out, hold)
-
-
-def _solve_one(model, state, t, tau, gdd_p):
-    if articulated.resolve_method(model) == "articulated":
-        return _solve_articulated(model, state, t, tau, gdd_p)
-    A, rhs = rotational_equations(model, state, t, tau)
-    return _from_matrix(model, A, rhs, gdd_p, _cholesky_solve)
-
-
-def _unknown_rows_and_prescribed(model):
-    """Rows of Eq. (1) of its unknowns (omega0, then the unknown hinges) and of the prescribed hinges."""
-    u, p, _ = hinges.split(model)
-    return np.concatenate([np.arange(3), u + 3]), p + 3
-
-
-def _from_matrix(model, A, rhs, gdd_p, solve):
-    """The accelerations and holding torques of Eq. (1) from its matrix and right side, with
-    ``solve(A_uu, b_u)`` solving the block of the unknowns (the prescribed accelerations moved to
-    the right side, Sec. II B)."""
-    rows_u, rows_p = _unknown_rows_and_prescribed(model)
-    if len(rows_u) == A.shape[0]:
-        x_u = solve(A, rhs)  # every row an unknown: no gathers
-    else:
-        rhs_u = rhs[rows_u]
-        if gdd_p is not None:
-            rhs_u = rhs_u - A[np.ix_(rows_u, rows_p)] @ gdd_p
-        x_u = solve(A[np.ix_(rows_u, rows_u)], rhs_u)
-    w_dot, gdd = _full_accelerations(model, x_u, gdd_p)
-    hold = A[rows_p] @ jnp.concatenate([w_dot, gdd]) - rhs[rows_p] if len(rows_p) else jnp.zeros((0,), A.dtype)
-    return Accelerations(w_dot, gdd, hold)
-
-
-def _full_accelerations(model, x_u, gdd_p):
-    """``(omega0_dot, gamma_ddot)`` from the unknowns `x_u` (omega0_dot, then the unknown hinges)
-    and the prescribed accelerations (inert hinges: zero)."""
-    _, _, inverse = hinges.split(model)
-    parts = [x_u[3:]] + ([] if gdd_p is None else [gdd_p]) + [jnp.zeros((len(model.inert),), x_u.dtype)]
-    return x_u[:3], jnp.concatenate(parts)[inverse]
+    return solve_plain(model, state, t, tau, gdd_p, one=factored_one)
 
 
 def _configuration_tangent(model, cfg, omega, gamma_dot, d_gamma, d_gamma_dot, d_omega0):
@@ -376,7 +250,7 @@ def _rule(primals, tangents):
     :data:`BATCH_FIRST_DERIVATIVES_MIN` bodies, else by the single-member rule in plain JAX (which
     ``jax.vmap`` batches as it is)."""
     wrapped = primals[0].n >= BATCH_FIRST_DERIVATIVES_MIN
-    acc, factor = _solve_factored(*primals) if wrapped else _factored_one(*primals)
+    acc, factor = _solve_factored(*primals) if wrapped else factored_one(*primals)
     leaves, tree = jax.tree_util.tree_flatten(primals)
     tleaves = tree.flatten_up_to(tangents)
     diff = tuple(i for i, tl in enumerate(tleaves) if tl is not None)
@@ -433,9 +307,9 @@ def _tangent_map(spec, arr, res, dots):
         # second derivatives would otherwise run batched beside others (the LAPACK deadlock of
         # benchmarks/FINDINGS.md), and differentiable as it is
         model, state, t, tau, _ = spec.primals(arr)
-        rows_u, _ = _unknown_rows_and_prescribed(model)
+        rows_u, _ = unknown_rows_and_prescribed(model)
         A, _ = rotational_equations(model, state, t, tau)
-        return _Inverse(spd_inverse(A[np.ix_(rows_u, rows_u)])[0])
+        return Inverse(spd_inverse(A[np.ix_(rows_u, rows_u)])[0])
 
     def matvec(x):  # read only when the solve is differentiated: its own factor, differentiable
         p, y = x
@@ -479,44 +353,6 @@ class _Spec(NamedTuple):
         return jax.tree_util.tree_unflatten(self.tree, leaves)
 
 
-def _factor(model, state, t, tau):
-    """``(A, solve_u)``: the matrix of Eq. (1) and the solve with its block of the unknowns, by the
-    dense method's Cholesky factor or, for the articulated method (which calls no LAPACK
-    routine), an inverse by Gauss-Jordan elimination in a loop
-    (:func:`jaxtree._src.numerics.spd_inverse`) applied by one product; and whether the
-    block is regular."""
-    rows_u, _ = _unknown_rows_and_prescribed(model)
-    A, rhs = rotational_equations(model, state, t, tau)
-    Auu = A[np.ix_(rows_u, rows_u)]
-    if articulated.resolve_method(model) == "articulated":
-        Ainv, pivots = spd_inverse(Auu)
-        return A, rhs, Ainv, _regular_pivots(pivots, Auu)
-    L = jax.lax.linalg.cholesky(Auu, symmetrize_input=False)
-    return A, rhs, L, _regular(L, Auu)
-
-
-class _Inverse(NamedTuple):
-    """``A_uu^{-1}`` as a factor (:func:`_solver` applies it by a product)."""
-
-    inverse: jax.Array
-
-
-def _solver(model, factor):
-    """``A_uu^{-1} r`` by :func:`_factor`'s factor or an :class:`_Inverse` (r: a vector)."""
-    if isinstance(factor, _Inverse):
-        return lambda r: factor.inverse @ r
-    if articulated.resolve_method(model) == "articulated":
-        return lambda r: factor @ r
-    return lambda r: _cho_apply(factor, r)
-
-
-def _factored_one(model, state, t, tau, gdd_p):
-    """Eq. (1) for one member by :func:`_factor` (NaN where its block is singular), and the factor."""
-    A, rhs, factor, ok = _factor(model, state, t, tau)
-    solve_u = _solver(model, factor)
-    return _from_matrix(model, A, rhs, gdd_p, lambda _, b: jnp.where(ok, solve_u(b), jnp.nan)), factor
-
-
 def _over_axes(fn, extra):
     """`fn` of one tangent (or cotangent) mapped over `extra` leading axes of its argument."""
     for _ in range(extra):
@@ -534,16 +370,16 @@ def _tangents(spec, per, arr, res, dots):
 
 def _tangent_one(spec, arr, res, dots):
     """``G p'`` for one member and one tangent by the implicit-function rule. `res`: the
-    accelerations and :func:`_factor`'s factor (None: make it here)."""
+    accelerations and :func:`factorize`'s factor (None: make it here)."""
     acc, factor = res
     primals = spec.primals(arr)
     model, state, t, tau, gdd_p = primals
-    rows_u, rows_p = _unknown_rows_and_prescribed(model)
+    rows_u, rows_p = unknown_rows_and_prescribed(model)
     if factor is None:
-        A, _, factor, _ = _factor(model, state, t, tau)
+        A, _, factor, _ = factorize(model, state, t, tau)
     elif len(rows_p):
         A, _ = rotational_equations(model, state, t, tau)
-    solve_u = _solver(model, factor)
+    solve_u = solver(model, factor)
     x_u = jnp.concatenate([acc.omega0_dot, acc.gamma_ddot[rows_u[3:] - 3]])
     A_pu = A[np.ix_(rows_p, rows_u)] if len(rows_p) else None
     values = [arr[j] for j in spec.where]
@@ -554,7 +390,7 @@ def _tangent_one(spec, arr, res, dots):
         F_dot = _unbalanced_jvp(primals, tangents, x_u, values, d, rebuild)
         x_dot = solve_u(F_dot[rows_u])
         gdd_p_dot = None if gdd_p is None else (jnp.zeros_like(gdd_p) if tangents[4] is None else tangents[4])
-        w_dot_dot, gdd_dot = _full_accelerations(model, x_dot, gdd_p_dot)
+        w_dot_dot, gdd_dot = full_accelerations(model, x_dot, gdd_p_dot)
         hold_dot = -F_dot[rows_p]
         if A_pu is not None:
             hold_dot = hold_dot + A_pu @ x_dot
@@ -565,7 +401,7 @@ def _tangent_one(spec, arr, res, dots):
 
 def _members(spec, size, arr, arr_f):
     """``(values, f)``: the differentiated leaves, each with the members on axis 0, and the
-    batch-first accelerations of :func:`_solve_members` as a function of them."""
+    batch-first accelerations of :func:`solve_members` as a function of them."""
     values = [arr[j] if arr_f[j] else jnp.broadcast_to(arr[j], (size,) + jnp.shape(arr[j])) for j in spec.where]
     flags = list(arr_f)
     for j in spec.where:
@@ -576,7 +412,7 @@ def _members(spec, size, arr, arr_f):
         for j, x in zip(spec.where, v):
             full[j] = x
         dyn, static = eqx.partition(spec.primals(full), eqx.is_array)
-        return _solve_members(size, dyn, jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(dyn), flags), static)
+        return solve_members(size, dyn, jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(dyn), flags), static)
 
     return values, f
 
@@ -672,7 +508,7 @@ def _cotangent_of(spec, per, arr, res, c):
         else:
             out = jax.vmap(
                 lambda a, b, c: _cotangent_one(spec, per, a, b, c), in_axes=_axes(in_batched), axis_size=size
-            )(arr, res, c)  # a batch this small made its factors member by member (_solve_plain)
+            )(arr, res, c)  # a batch this small made its factors member by member (solve_plain)
         return out, [True] * len(out)
 
     return g(arr, res, c)
@@ -713,32 +549,9 @@ def _unbalanced_jvp(primals, tangents, x_u, values, dots, rebuild):
 
     def force(values, cfg, omega):
         m, s, tt, ta, gp = rebuild(values)
-        return unbalanced_at(m, s, tt, ta, cfg, omega, *_full_accelerations(m, x_u, gp))
+        return unbalanced_at(m, s, tt, ta, cfg, omega, *full_accelerations(m, x_u, gp))
 
     return jax.jvp(force, (values, cfg, omega), (dots, cfg_dot, omega_dot))[1]
-
-
-def _cho_apply(L, b):
-    """``A^{-1} b`` from the lower Cholesky factor L of A (b: a vector)."""
-    y = jax.lax.linalg.triangular_solve(L, b[:, None], left_side=True, lower=True)
-    return jax.lax.linalg.triangular_solve(L, y, left_side=True, lower=True, transpose_a=True)[:, 0]
-
-
-def _solve_articulated(model, state, t, tau, gdd_p):
-    """Eq. (1) by the blocked articulated-body recursion of :mod:`jaxtree._src.equations.articulated` (the
-    state completed with its prescribed hinges, their accelerations `gdd_p`)."""
-    dtype = dtype_of(model, state.gamma, state.gamma_dot, state.omega0)
-    gamma, gamma_dot = jnp.asarray(state.gamma, dtype), jnp.asarray(state.gamma_dot, dtype)
-    state = State(jnp.asarray(state.dcm, dtype), jnp.asarray(state.omega0, dtype), gamma, gamma_dot)
-    cfg, omega = configuration_and_rates(model, gamma, state.omega0, gamma_dot)
-    torque = hinge_torques(model, gamma, gamma_dot)
-    if tau is not None:
-        torque = torque + tau
-    loads = external_loads(model, t, state, cfg)
-    w_dot, gdd, hold = articulated.solve(
-        model, cfg, omega, mass_center_velocities(model, cfg, omega), gamma_dot, torque, loads, gdd_p
-    )
-    return Accelerations(w_dot, gdd, hold)
 
 
 def _check_finite(name, model, state, t, tau, acc):
@@ -783,23 +596,6 @@ def _diagnose(name, model, state, t, tau):
             "prescription gave a non-finite value)"
         )
     return "\n".join(lines)
-
-
-def _cholesky_solve(A, b):
-    """Solve ``A x = b`` for the symmetric positive definite matrix of Eq. (1) (Cholesky).
-
-    The factorization is of ``A`` bordered by ``b`` and a huge corner, ``[[A, b], [b^T, c]]``:
-    its last row is ``(L^{-1} b)^T``, so LAPACK's ``potrf`` does the forward substitution and
-    one triangular solve with ``L^T`` remains (two library calls instead of three; one right
-    side of fig4 3 % faster, vmapped chain50 10 %). ``c`` only has to exceed
-    ``b^T A^{-1} b``; a singular ``A`` still fails the factorization (NaN)."""
-    n = A.shape[0]
-    big = jnp.asarray(np.finfo(np.dtype(A.dtype)).max / 16, A.dtype)
-    M = jnp.concatenate([jnp.concatenate([A, b[:, None]], 1), jnp.concatenate([b, big[None]])[None, :]], 0)
-    L = jax.lax.linalg.cholesky(M, symmetrize_input=False)
-    y = L[n, :n]  # = L_A^{-1} b: the bordered factorization does the forward substitution
-    x = jax.lax.linalg.triangular_solve(L[:n, :n], y[:, None], left_side=True, lower=True, transpose_a=True)[:, 0]
-    return jnp.where(_regular(L[:n, :n], A), x, jnp.nan)
 
 
 @full_precision
