@@ -11,7 +11,7 @@ form (:func:`configuration_tangent`: small rotations about the hinge axes inboar
 Def. 27 and Eq. 5). Under ``jax.vmap`` of at least
 :func:`~jaxtree._src.equations.solve.batch_first_min` members the tangents and cotangents are
 those of the batch-first recursion of :mod:`.batched` instead, differentiated forward and
-backward (``custom_vmap`` decides, where JAX batches).
+backward (:func:`jaxtree._src.equations.solve.vmap_dispatch` decides, where JAX batches).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from .kinematics import ancestor_sum, cross, mm, tilde
 from .solve import (
     Accelerations,
     Inverse,
-    batch_first_min,
+    all_batched,
     factored_one,
     factorize,
     full_accelerations,
@@ -45,6 +45,7 @@ from .solve import (
     solve_plain,
     solver,
     unknown_rows_and_prescribed,
+    vmap_dispatch,
 )
 
 
@@ -366,28 +367,20 @@ def _tangent_of(spec, per, arr, res, dots):
     """``G p'`` (:func:`_tangent_one`), by the batch-first recursion differentiated forward under
     ``jax.vmap`` of at least :func:`batch_first_min` members."""
 
-    @jax.custom_batching.custom_vmap
-    def g(arr, res, dots):
-        return _tangents(spec, per, arr, res, dots)
+    def unbatched(size, in_batched, arr, res, dots):
+        # tangents alone batched (jax.jacfwd): one more leading axis of tangents on all
+        dots = [d if b else jnp.broadcast_to(d, (size,) + jnp.shape(d)) for d, b in zip(dots, in_batched[2])]
+        return all_batched(_tangent_of(spec, per, arr, res, dots))
 
-    @g.def_vmap
-    def _rule(size, in_batched, arr, res, dots):
-        arr_f, res_f, dot_f = in_batched
-        if not (any(arr_f) or any(jax.tree_util.tree_leaves(res_f))):
-            # tangents alone batched (jax.jacfwd): one more leading axis of tangents on all
-            dots = [d if b else jnp.broadcast_to(d, (size,) + jnp.shape(d)) for d, b in zip(dots, dot_f)]
-            out = _tangent_of(spec, per, arr, res, dots)
-        elif size >= batch_first_min():
-            j = spec.where[0]
-            extra = jnp.ndim(dots[0]) - int(dot_f[0]) - (jnp.ndim(arr[j]) - int(arr_f[j]))
-            d = [_tangent_axes(x, b, size, extra) for x, b in zip(dots, dot_f)]
-            out = _members_jvp(spec, size, tuple(arr_f), extra, arr, d)
-        else:
-            axes = _axes(in_batched)
-            out = jax.vmap(lambda a, r, d: _tangents(spec, per, a, r, d), in_axes=axes, axis_size=size)(arr, res, dots)
-        return out, jax.tree_util.tree_map(lambda _: True, out)
+    def members(size, in_batched, arr, res, dots):
+        arr_f, _, dot_f = in_batched
+        j = spec.where[0]
+        extra = jnp.ndim(dots[0]) - int(dot_f[0]) - (jnp.ndim(arr[j]) - int(arr_f[j]))
+        d = [_tangent_axes(x, b, size, extra) for x, b in zip(dots, dot_f)]
+        return all_batched(_members_jvp(spec, size, tuple(arr_f), extra, arr, d))
 
-    return g(arr, res, dots)
+    one = lambda arr, res, dots: _tangents(spec, per, arr, res, dots)
+    return vmap_dispatch(one, (arr, res, dots), members, unbatched, decide=2)
 
 
 def _cotangent_one(spec, per, arr, res, c):
@@ -403,27 +396,21 @@ def _cotangent_of(spec, per, arr, res, c):
     """``G^T c`` (:func:`_cotangent_one`), by the batch-first recursion differentiated backward
     under ``jax.vmap`` of at least :func:`batch_first_min` members."""
 
-    @jax.custom_batching.custom_vmap
-    def g(arr, res, c):
-        return _cotangent_one(spec, per, arr, res, c)
+    def unbatched(size, in_batched, arr, res, c):
+        c = jax.tree_util.tree_map(
+            lambda x, b: x if b else jnp.broadcast_to(x, (size,) + jnp.shape(x)), c, in_batched[2]
+        )
+        return all_batched(_cotangent_of(spec, per, arr, res, c))
 
-    @g.def_vmap
-    def _rule(size, in_batched, arr, res, c):
-        arr_f, res_f, c_f = in_batched
-        if not (any(arr_f) or any(jax.tree_util.tree_leaves(res_f))):
-            c = jax.tree_util.tree_map(lambda x, b: x if b else jnp.broadcast_to(x, (size,) + jnp.shape(x)), c, c_f)
-            out = _cotangent_of(spec, per, arr, res, c)
-        elif size >= batch_first_min():
-            extra = jnp.ndim(c.omega0_dot) - int(c_f.omega0_dot) - 1
-            cc = jax.tree_util.tree_map(lambda x, b: _tangent_axes(x, b, size, extra), c, c_f)
-            out = _members_vjp(spec, size, tuple(arr_f), extra, arr, cc)
-        else:
-            out = jax.vmap(
-                lambda a, b, c: _cotangent_one(spec, per, a, b, c), in_axes=_axes(in_batched), axis_size=size
-            )(arr, res, c)  # a batch this small made its factors member by member (solve_plain)
-        return out, [True] * len(out)
+    def members(size, in_batched, arr, res, c):
+        arr_f, _, c_f = in_batched
+        extra = jnp.ndim(c.omega0_dot) - int(c_f.omega0_dot) - 1
+        cc = jax.tree_util.tree_map(lambda x, b: _tangent_axes(x, b, size, extra), c, c_f)
+        return all_batched(_members_vjp(spec, size, tuple(arr_f), extra, arr, cc))
 
-    return g(arr, res, c)
+    # fewer members: one by one (a batch this small made its factors member by member, solve_plain)
+    one = lambda arr, res, c: _cotangent_one(spec, per, arr, res, c)
+    return vmap_dispatch(one, (arr, res, c), members, unbatched, decide=2)
 
 
 def _tangent_axes(x, batched, size, extra):
@@ -432,10 +419,6 @@ def _tangent_axes(x, batched, size, extra):
     if not batched:
         x = jnp.broadcast_to(x, (size,) + jnp.shape(x))
     return jnp.moveaxis(x, 0, extra)
-
-
-def _axes(in_batched):
-    return jax.tree_util.tree_map(lambda b: 0 if b else None, in_batched)
 
 
 def _unbalanced_jvp(primals, tangents, x_u, values, dots, rebuild):

@@ -8,7 +8,8 @@ Sec. II B: a prescribed hinge j takes ``gamma_j``, ``gamma_dot_j`` and ``gamma_d
 prescription, its row and column leave the matrix and ``a_{.j} gamma_ddot_j`` moves to the right
 side; the torque that holds the prescription is returned too. Under ``jax.vmap`` of at least
 :func:`batch_first_min` members Eq. (1) runs the batch-first recursion of :mod:`.batched` (the
-same accelerations to round-off), chosen where JAX batches (``custom_vmap``).
+same accelerations to round-off): :func:`vmap_dispatch` makes that choice where JAX batches, for
+the solve and for its tangents and cotangents (:mod:`.rules`).
 """
 
 from __future__ import annotations
@@ -63,6 +64,49 @@ def batch_first_min() -> int:
     return BATCH_FIRST_MIN if jax.default_backend() == "cpu" else BATCH_FIRST_MIN_ACCELERATOR
 
 
+def vmap_dispatch(one, args, members, unbatched=None, decide=None):
+    """``one(*args)``, one member, under a ``custom_vmap`` whose rule takes one of three paths
+    for a batch of `size` members, the same decision for the solve of Eq. (1)
+    (:func:`solve_plain`) and for its tangents and cotangents (:mod:`.rules`):
+
+    - nothing batched in the first `decide` arguments (the primals; all arguments when None):
+      ``unbatched(size, in_batched, *args)``, by default one call of `one`, its result not
+      batched (e.g. only tangents batched, in a JVP);
+    - at least :func:`batch_first_min` members: ``members(size, in_batched, *args)``, the
+      batch-first recursion of :mod:`.batched`;
+    - fewer: `one` member by member (``jax.vmap``).
+
+    `members` and `unbatched` return ``(out, out_batched)``, as a ``custom_vmap`` rule does."""
+
+    @jax.custom_batching.custom_vmap
+    def g(*args):
+        return one(*args)
+
+    @g.def_vmap
+    def _rule(size, in_batched, *args):
+        primal = in_batched if decide is None else in_batched[:decide]
+        if not any(jax.tree_util.tree_leaves(primal)):
+            if unbatched is not None:
+                return unbatched(size, in_batched, *args)
+            out = one(*args)  # nothing batched (e.g. only tangents, in a JVP): one solve
+            return out, jax.tree_util.tree_map(lambda _: False, out)
+        if size >= batch_first_min():
+            return members(size, in_batched, *args)
+        return all_batched(jax.vmap(one, in_axes=batch_axes(in_batched), axis_size=size)(*args))
+
+    return g(*args)
+
+
+def batch_axes(in_batched):
+    """``jax.vmap``'s `in_axes` from a ``custom_vmap`` rule's flags: 0 where batched, else None."""
+    return jax.tree_util.tree_map(lambda b: 0 if b else None, in_batched)
+
+
+def all_batched(out):
+    """``(out, out_batched)`` of a ``custom_vmap`` rule whose outputs all carry the members."""
+    return out, jax.tree_util.tree_map(lambda _: True, out)
+
+
 def solve_plain(model, state, t, tau, gdd_p, one=None):
     """Eq. (1) by the model's method; under ``jax.vmap`` of at least :func:`batch_first_min`
     members, by the batch-first recursion of :mod:`jaxtree._src.equations.batched` (the same
@@ -74,33 +118,17 @@ def solve_plain(model, state, t, tau, gdd_p, one=None):
     leaves, tree = jax.tree_util.tree_flatten(dyn)
     args = lambda leaves: eqx.combine(jax.tree_util.tree_unflatten(tree, leaves), static)
 
-    @jax.custom_batching.custom_vmap
-    def solve(leaves):
-        return one(*args(leaves))
-
-    @solve.def_vmap
-    def _rule(axis_size, in_batched, leaves):
+    def members(size, in_batched, leaves):
         (flags,) = in_batched
-        if not any(flags):  # nothing batched (e.g. only tangents, in a JVP): one solve
-            out = one(*args(leaves))
-            return out, jax.tree_util.tree_map(lambda _: False, out)
-        if axis_size < batch_first_min():
-            axes = ([0 if b else None for b in flags],)
-            out = jax.vmap(lambda xs: one(*args(xs)), in_axes=axes, axis_size=axis_size)(leaves)
-        else:
-            out = solve_members(
-                axis_size,
-                jax.tree_util.tree_unflatten(tree, leaves),
-                jax.tree_util.tree_unflatten(tree, flags),
-                static,
-            )
-            if one is factored_one:  # the factor's placeholder, the same for all members
-                size = len(unknown_rows_and_prescribed(static[0])[0])
-                placeholder = jnp.zeros((size, size), out.omega0_dot.dtype)
-                return (out, placeholder), (jax.tree_util.tree_map(lambda _: True, out), False)
-        return out, jax.tree_util.tree_map(lambda _: True, out)
+        dyn, flags = jax.tree_util.tree_unflatten(tree, leaves), jax.tree_util.tree_unflatten(tree, flags)
+        out = solve_members(size, dyn, flags, static)
+        if one is factored_one:  # the factor's placeholder, the same for all members
+            rows = len(unknown_rows_and_prescribed(static[0])[0])
+            placeholder = jnp.zeros((rows, rows), out.omega0_dot.dtype)
+            return (out, placeholder), (jax.tree_util.tree_map(lambda _: True, out), False)
+        return all_batched(out)
 
-    return solve(leaves)
+    return vmap_dispatch(lambda leaves: one(*args(leaves)), (leaves,), members)
 
 
 def solve_members(size, dyn, flags, static):
@@ -109,7 +137,7 @@ def solve_members(size, dyn, flags, static):
     recursion over all members with the members as the contiguous axis."""
     model, state, t, tau, gdd_p = eqx.combine(dyn, static)
     mflags, sflags = eqx.combine(flags, static)[:2]
-    axes = jax.tree_util.tree_map(lambda b: 0 if b else None, flags)
+    axes = batch_axes(flags)
     prescribed = hinges.index(model.prescribed)
 
     def member(d):
