@@ -73,6 +73,8 @@ def _check_finite(name, model, state, t, tau, acc):
 
 
 def diagnose(name, model, state, t, tau):
+    """The message of :class:`DynamicsError` for the call `name`: the time, the state, and why
+    the accelerations are not finite."""
     lines = [f"jaxtree.{name}: the accelerations of Eq. (1) are not finite", f"  t = {float(t):.9g}"]
     for field in State._fields:
         lines.append(f"  {field} = {np.asarray(getattr(state, field)).tolist()}")
