@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxtree
-from jaxtree._src.equations import batched, dynamics
+from jaxtree._src.equations import batched, rules, solve
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
@@ -184,16 +184,16 @@ def tangents_case(model, size, args):
     dcm = model.initial.dcm
     f = lambda w, g, gd: jaxtree.forward_dynamics(model, dcm, w, g, gd)
     rows = []
-    saved = dynamics.BATCH_FIRST_DERIVATIVES_MIN
+    saved = rules.BATCH_FIRST_DERIVATIVES_MIN
     for label, bodies in (("tangents, batch-first", 1), ("tangents, rule vmapped", 10**9)):
-        dynamics.BATCH_FIRST_DERIVATIVES_MIN = bodies
+        rules.BATCH_FIRST_DERIVATIVES_MIN = bodies
         # a new function each time: jax.jit's cache of traces would hand back the other path
         fn = jax.vmap(lambda w, g, gd, *d: jax.vmap(lambda *t: jax.jvp(f, (w, g, gd), t)[1])(*d))
         try:
             per, first = loop_timing(fn, xs + dirs, args.loop, args.repeats)
             rows.append((f"{args.tangents} {label}", per / size, first, flops(fn, xs + dirs) / size))
         finally:
-            dynamics.BATCH_FIRST_DERIVATIVES_MIN = saved
+            rules.BATCH_FIRST_DERIVATIVES_MIN = saved
     return rows
 
 
@@ -218,13 +218,13 @@ def case(name, size, args):
                 rows.append((f"batch-first ({mode})", per / size, first, flops(eq1(model), xs) / size))
             finally:
                 batched.STAGE = saved_stage
-        saved = dynamics.BATCH_FIRST_MIN
-        dynamics.BATCH_FIRST_MIN = 10**9
+        saved = solve.BATCH_FIRST_MIN
+        solve.BATCH_FIRST_MIN = 10**9
         try:
             per, first = loop_timing(eq1(model), xs, args.loop, args.repeats)
             rows.append(("vmap single", per / size, first, flops(eq1(model), xs) / size))
         finally:
-            dynamics.BATCH_FIRST_MIN = saved
+            solve.BATCH_FIRST_MIN = saved
         mj = mujoco_rollout(model, size, args.mujoco_steps)
         if mj is not None:
             rows.append(("MuJoCo rollout RK4", mj, np.nan, np.nan))
@@ -242,7 +242,7 @@ def case(name, size, args):
 def main():
     args = _args()
     say(machine())
-    say(f"jax {jax.__version__}, float64, batch-first from {dynamics.BATCH_FIRST_MIN} members")
+    say(f"jax {jax.__version__}, float64, batch-first from {solve.BATCH_FIRST_MIN} members")
     results = []
     for name in args.cases:
         for size in args.sizes or [CASES[name]]:

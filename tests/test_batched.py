@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree._src.equations import batched, dynamics
+from jaxtree._src.equations import batched, dynamics, rules
 
 from helpers import random_state, scene_names
 from trees import deep_and_wide, gimbal_model, random_tree
@@ -213,10 +213,10 @@ def batch_first_derivatives(monkeypatch):
     """Derivatives through the batch-first form for any tree (the engine keeps it for trees of
     BATCH_FIRST_DERIVATIVES_MIN bodies and more, whose programs compile for long), and a count
     of the batch-first programs differentiated."""
-    monkeypatch.setattr(dynamics, "BATCH_FIRST_DERIVATIVES_MIN", 1)
+    monkeypatch.setattr(rules, "BATCH_FIRST_DERIVATIVES_MIN", 1)
     calls = []
-    members = dynamics._members
-    monkeypatch.setattr(dynamics, "_members", lambda *a: calls.append(1) or members(*a))
+    members = rules._members
+    monkeypatch.setattr(rules, "_members", lambda *a: calls.append(1) or members(*a))
     return calls
 
 

@@ -111,9 +111,9 @@ def test_eq1_equals_lagrange_oracle(scenes, name):
 def test_eq1_with_separate_outboard_products_equals_the_oracle(scenes, name, monkeypatch):
     """The formulation traced on GPUs (two outboard-set products instead of one, see
     jaxtree._src.equations.dynamics.merge_outboard_sums) against the oracle too, with loads and a prescription."""
-    import jaxtree._src.equations.dynamics as dynamics
+    import jaxtree._src.equations.assembly as assembly
 
-    monkeypatch.setattr(dynamics, "merge_outboard_sums", lambda: False)
+    monkeypatch.setattr(assembly, "merge_outboard_sums", lambda: False)
     rng = np.random.default_rng(7)
     model = scenes[name]
     check_against_oracle(model, random_state(model, rng), rng, loads=True)

@@ -25,7 +25,7 @@ from scipy.integrate import solve_ivp
 
 import jaxtree
 from jaxtree import State, simulate
-from jaxtree._src.equations import dynamics
+from jaxtree._src.equations import rules
 from jaxtree._src.equations.control import hinge_torque_vector
 from jaxtree._src.integration.problem import with_jacobian
 
@@ -720,7 +720,7 @@ def test_radau_jacobian_is_traced_for_forward_use_only(monkeypatch):
     call: its trace halved). With the rule that trees of BATCH_FIRST_DERIVATIVES_MIN bodies
     and more take (forced here on a two-hinge chain), the Jacobian traced alone holds a linear
     solve and Radau5's program none; Radau5's J against jacfwd and central differences: above."""
-    monkeypatch.setattr(dynamics, "BATCH_FIRST_DERIVATIVES_MIN", 1)
+    monkeypatch.setattr(rules, "BATCH_FIRST_DERIVATIVES_MIN", 1)
     model = sprung_tree(np.random.default_rng(1), chain(2), damping=0.5)
     problem = jaxtree.Problem(model, jaxtree.Quaternion(), None, None, None, False, 0)
     y = problem.pack(random_state(model, np.random.default_rng(5)))

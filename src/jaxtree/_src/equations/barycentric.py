@@ -22,7 +22,7 @@ import numpy as np
 
 from ..numerics import eager_jit
 from ..vehicle.model import Model, State
-from .dynamics import complete_state, external_loads, hinge_torques
+from .assembly import complete_state, external_loads, hinge_torques
 from .kinematics import body_rotations, full_precision, relative_rotations
 
 

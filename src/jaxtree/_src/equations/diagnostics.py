@@ -6,7 +6,10 @@ direction of its eigenvalue nearest zero, named by hinges: where the matrix is n
 (gimbal lock: two hinge axes aligned through massless gimbal frames) that is the combination of
 rates that moves no mass. float64 keeps about ``16 - log10(cond)`` digits of the accelerations.
 
-:func:`jaxtree.check_scene` (:mod:`jaxtree._src.scene.check`) prints it for a scene.
+:func:`jaxtree.check_scene` (:mod:`jaxtree._src.scene.check`) prints it for a scene. The helpers
+it shares with the diagnosis of a failed solve (:func:`jaxtree._src.equations.forward.diagnose`)
+and ``simulate``'s failure reports are here too: :func:`matrix_condition`, :func:`unknown_rows`,
+:func:`unknown_labels`, :func:`null_direction_text` and :data:`SINGULAR_CONDITION`.
 """
 
 from __future__ import annotations
@@ -17,7 +20,42 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..vehicle.model import Model, State
-from .dynamics import SINGULAR_CONDITION, matrix_condition, rotational_equations, unknown_labels
+from .assembly import rotational_equations
+
+# A condition number of Eq. (1)'s matrix above this is reported as singular (float64 keeps
+# about four digits of the accelerations there).
+SINGULAR_CONDITION = 1e12
+
+
+def matrix_condition(model, A):
+    """Condition number of the Eq. (1) matrix `A` with the prescribed rows and columns removed,
+    and its eigenvector of the eigenvalue nearest zero (the near-null direction when singular)."""
+    u = unknown_rows(model)
+    ev, V = jnp.linalg.eigh(A[np.ix_(u, u)])
+    i = jnp.argmin(jnp.abs(ev))
+    return jnp.max(jnp.abs(ev)) / jnp.abs(ev[i]), V[:, i]
+
+
+def unknown_rows(model):
+    """Rows of Eq. (1) that are unknowns: omega0 and the hinges that are not prescribed or inert."""
+    return np.concatenate([np.arange(3), np.asarray(model.unknown_hinges, dtype=np.int64) + 2])
+
+
+def unknown_labels(model) -> tuple[str, ...]:
+    """Labels of the unknown rows of Eq. (1), for messages: ``omega0x``..., ``hinge k (name)``."""
+    return tuple("omega0" + "xyz"[i] if i < 3 else f"hinge {i - 2} ({model.names[i - 2]})" for i in unknown_rows(model))
+
+
+def null_direction_text(v, labels) -> str:
+    """Describe the near-null direction `v` of a singular Eq. (1) matrix by its large entries."""
+    v = np.asarray(v, dtype=float)
+    big = np.flatnonzero(np.abs(v) >= 0.25 * np.abs(v).max())
+    parts = ", ".join(f"{labels[i]} {v[i]:+.3f}" for i in big)
+    return (
+        f"its near-null direction: {parts}. Rates in that direction move the vehicle alike (for a "
+        f"gimbal: gimbal lock, two axes aligned)."
+    )
+
 
 # Above this condition number the summary warns that digits are being lost (float64 keeps
 # about 8 of its 16 digits there).

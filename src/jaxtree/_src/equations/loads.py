@@ -31,7 +31,7 @@ from jax.typing import ArrayLike
 
 from ..vehicle.model import BodyLoads, Model, State
 from ..vehicle.profiles import linear_table, pad_tables
-from .dynamics import configuration
+from .assembly import configuration
 
 
 class PerBodyLoads(BodyLoads):
