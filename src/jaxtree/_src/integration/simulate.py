@@ -41,10 +41,10 @@ from .core import (
     check_times,
     cut_rows,
     default_controller,
+    grid_times,
     integrate,
     padded_times,
     progress_meter,
-    save_bucket,
     solver_statistics,
     tolerances,
 )
@@ -163,7 +163,6 @@ class _Run(NamedTuple):
     adjoint: Any
     event: Any
     progress_meter: Any
-    grid_div: Any = None  # with a bucketed grid: the requested number of save times less one
     packed: Any = None  # (flat start, flat state at rest) packed before the solve, or None
 
 
@@ -183,7 +182,7 @@ def _solve(problem: Problem, y0: State, run: _Run, opts: _Options):
             dt0 = jax.lax.stop_gradient(_initial_step(problem, jnp.where(start_ok, y, rest), run.t0, run.t1))
     ts = None
     if not opts.user_saveat:
-        ts = _grid(run.t0, run.t1, opts.grid, run.grid_div, dtype) if opts.grid is not None else run.saveat
+        ts = jnp.linspace(run.t0, run.t1, opts.grid, dtype=dtype) if opts.grid is not None else run.saveat
     solver = with_jacobian(run.solver)
     ends = integrate(
         problem_field,
@@ -207,16 +206,6 @@ def _solve(problem: Problem, y0: State, run: _Run, opts: _Options):
     if opts.report_in_callback:
         report_from_callback(out)
     return out
-
-
-def _grid(t0, t1, size, div, dtype):
-    """`size` evenly spaced times from `t0` to `t1`; with `div` (traced) the first ``div + 1`` of
-    them are ``jnp.linspace(t0, t1, div + 1)`` to the bit (its formula) and the rest repeat `t1`:
-    a grid of any length up to `size` in one program (see :func:`.core.save_bucket`)."""
-    if div is None:
-        return jnp.linspace(t0, t1, size, dtype=dtype)
-    step = jax.lax.iota(dtype, size) / div
-    return jnp.where(step < 1, t0 * (1 - step) + t1 * step, t1)
 
 
 def _at_rest(model: Model, dtype, xp=jnp) -> State:
@@ -440,7 +429,7 @@ def simulate(
     traced = is_traced((*inputs, rtol, atol, dt0, solver, stepsize_controller, adjoint))
     if not traced and throw:
         _check_finite_start(y0, X0, Xd0, t0, att)
-    saveat, grid, div, n_saved = _bucketed(saveat, grid, user_saveat or traced, dtype)
+    saveat, grid, n_saved = _bucketed(saveat, grid, user_saveat or traced, t0, t1, dtype)
     opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced), bool(diagnostics))
 
     def as_array(x):  # (a Python or numpy number put on the device: no program compiled for it)
@@ -455,7 +444,7 @@ def simulate(
     if not traced:
         y_flat = packed_start(problem, y0, X0, Xd0) if y_flat is None else y_flat
         packed = (y_flat, packed_start(problem, jax.device_put(_at_rest(model, np.dtype(dtype), np)), None, None))
-    run = _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, div, packed)
+    run = _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, packed)
     with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
         sol = _solve(problem, y0, run, opts)
     if diagnostics:
@@ -506,21 +495,18 @@ def _check_saveat(saveat, t0, t1):
     return saveat, grid, user_saveat
 
 
-def _bucketed(saveat, grid, exact: bool, dtype):
-    """``(saveat, grid, div, n)``: the save grid of an eager run padded to its :func:`save_bucket`
-    (`grid` the bucket's size and `div` the requested number less one; or an array of times
-    padded with its last), `n` the number of save times asked for. With `exact` (a user's
-    SaveAt, or traced inputs: the caller's program is compiled for its shapes anyway) nothing
-    changes and `n` is None."""
+def _bucketed(saveat, grid, exact: bool, t0, t1, dtype):
+    """``(saveat, grid, n)``: the save times of an eager run (a number of evenly spaced ones made
+    on the host, :func:`.core.grid_times`, or the user's array) padded with the last to their
+    :func:`.core.save_bucket`, and `n` the number asked for: one program for grids and arrays of times
+    alike. With `exact` (a user's SaveAt, or traced inputs: the caller's program is compiled for
+    its shapes anyway) nothing changes and `n` is None."""
     if exact:
-        return saveat, grid, None, None
-    if grid is not None:
-        return None, save_bucket(grid, FIRST_BUCKET), jax.device_put(np.asarray(grid - 1, dtype)), grid
-    ts = np.asarray(saveat, dtype)
-    n = ts.shape[0]
-    if n == 0:
-        return saveat, grid, None, None
-    return padded_times(ts, FIRST_BUCKET), None, None, n
+        return saveat, grid, None
+    ts = grid_times(t0, t1, grid, np.dtype(dtype)) if grid is not None else np.asarray(saveat, dtype)
+    if ts.shape[0] == 0:
+        return saveat, grid, None
+    return padded_times(ts, FIRST_BUCKET), None, ts.shape[0]
 
 
 _HISTORIES = (
