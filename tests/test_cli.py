@@ -451,6 +451,32 @@ def test_what_import_changes_and_its_opt_outs():
     assert run(JAX_PLATFORMS="cuda") == ["True", "unset"]
 
 
+def test_import_gives_the_cpu_a_device_per_core_unless_told_otherwise():
+    """On the CPU, `import jaxtree` gives JAX one device per core the process may use (so that a
+    campaign's chunks run on every core), JAXTREE_HOST_DEVICES sets another count or keeps one, a
+    count set in XLA_FLAGS wins, and a backend already started is left as it is. Fresh
+    interpreters: the count is read when JAX's backend starts."""
+    env = {k: v for k, v in os.environ.items() if k not in ("JAXTREE_HOST_DEVICES", "JAX_PLATFORMS")}
+    env["XLA_FLAGS"] = env.get("XLA_FLAGS", "").replace("--xla_force_host_platform_device_count", "--unused")
+
+    def count(code="import jax, jaxtree", **extra):
+        probe = code + "; print(len(jax.devices()))"
+        out = subprocess.run(
+            [sys.executable, "-c", probe], env={**env, **extra}, capture_output=True, text=True, timeout=120
+        )
+        assert out.returncode == 0, out.stderr
+        return int(out.stdout.split()[-1])
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    assert count() == cores
+    assert count(JAXTREE_HOST_DEVICES="1") == 1
+    assert count(JAXTREE_HOST_DEVICES="off") == 1
+    assert count(JAXTREE_HOST_DEVICES="3") == 3
+    flags = env["XLA_FLAGS"] + " --xla_force_host_platform_device_count=3"
+    assert count(XLA_FLAGS=flags, JAXTREE_HOST_DEVICES="2") == 3
+    assert count("import jax; jax.devices(); import jaxtree") == 1
+
+
 def test_own_programs_take_the_cpu_compiler_options():
     """jaxtree's top-level programs (a solve, its diagnostics) compile on a CPU with XLA's older
     fusion emitters, set per program: not in a process whose XLA_FLAGS names the option, and not

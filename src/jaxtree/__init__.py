@@ -3,7 +3,7 @@
 An implementation of P. W. Likins, *Large-Deformation Modal Coordinates for
 Nonrigid Vehicle Dynamics*, JPL TR 32-1565 (1972).
 
-Importing jaxtree changes three things in the process (:mod:`jaxtree._src.process`; README,
+Importing jaxtree changes four things in the process (:mod:`jaxtree._src.process`; README,
 "What `import jaxtree` changes"):
 
 - JAX's float64 mode (``jax_enable_x64``) is turned on: float64 is the default everywhere;
@@ -17,12 +17,17 @@ Importing jaxtree changes three things in the process (:mod:`jaxtree._src.proces
   ``JAXTREE_CACHE_DIR=0`` turns it off; a cache directory set for JAX itself is left alone.
   jaxtree's own top-level programs are kept traced there too (:mod:`jaxtree._src.programs`;
   ``JAXTREE_PROGRAM_CACHE=0`` turns that part off), so a second process skips their tracing.
+- Where the CPU is JAX's default backend and JAX has not started yet, it gets one device per core
+  (``jax_num_cpu_devices``), so that campaigns run on every core; a program of one member still
+  runs on the first. ``JAXTREE_HOST_DEVICES=1`` keeps one device; a count set in ``XLA_FLAGS``
+  or JAX's configuration wins.
 """
 
 from ._src import process as _process
 
 _process.limit_openblas_threads()  # before JAX and scipy load OpenBLAS
 _process.enable_x64()
+_process.use_every_core()  # before anything starts JAX's backend
 
 from ._src import cache as _cache
 

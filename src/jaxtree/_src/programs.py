@@ -29,8 +29,9 @@ apart. Nor when the program has host callbacks (a progress meter) or anything el
 ``jax.export`` refuses: that is remembered on disk, so later processes do not try again.
 
 Where: ``programs/`` in jaxtree's compilation-cache directory (``JAXTREE_CACHE_DIR``), only when
-jaxtree turned that cache on and the process has one device (a campaign shards its chunks over
-several, and an exported program is bound to their number); ``JAXTREE_PROGRAM_CACHE=0`` turns
+jaxtree turned that cache on. The number of devices is in the key, and a program sharded over
+several (a campaign's chunk) is not kept: an exported program is bound to the devices it was
+traced for. ``JAXTREE_PROGRAM_CACHE=0`` turns
 this cache off alone. A process that rebinds a name of jaxtree's (a monkeypatch) keeps it off
 while the name is rebound (see :func:`rebound`). Files are
 written atomically (a temporary file renamed), so processes may share the directory; an entry
@@ -105,8 +106,6 @@ def directory() -> str | None:
         return None
     base = cache.directory()
     if base is None or getattr(jax.config, "jax_compilation_cache_dir", None) != base:
-        return None
-    if jax.device_count() != 1:  # a program may shard over the devices: exported for their number
         return None
     return os.path.join(base, SUBDIR)
 
@@ -208,6 +207,7 @@ def key(fn, dyn, static, options) -> str:
                 sorted((options or {}).items()),
                 device.platform,
                 getattr(device, "device_kind", ""),
+                jax.device_count(),
                 cache.checks_state(),
                 env,
             )
@@ -409,7 +409,10 @@ def _export(fn, dyn, static, in_tree, leaves, options):
         return out_leaves
 
     flat.__name__ = flat.__qualname__ = fn.__name__
-    blob = bytes(jax.export.export(jax.jit(flat))(*leaves).serialize())
+    exported = jax.export.export(jax.jit(flat))(*leaves)
+    if exported.nr_devices != 1:  # sharded over the devices (a campaign's chunk): not kept
+        raise Unkeyable("sharded over several devices")
+    blob = bytes(exported.serialize())
     places, out_static = box[-1]
     payload = pickle.dumps(("program", blob, places, out_static), protocol=pickle.HIGHEST_PROTOCOL)
     # called as read back, as a later process calls it: the program compiled here is the one

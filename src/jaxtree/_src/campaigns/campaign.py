@@ -213,10 +213,9 @@ def _sharded(fn, n_devices, group):
 
     if n_devices <= 1:
         return batched
-    from jax.sharding import Mesh
     from jax.sharding import PartitionSpec as P
 
-    mesh = Mesh(np.asarray(jax.local_devices()[:n_devices]), ("run",))
+    mesh = _mesh(n_devices)
 
     def run(models, ts, t1, rtol, atol, cfg):
         dynamic, static = eqx.partition(models, eqx.is_array)
@@ -226,6 +225,13 @@ def _sharded(fn, n_devices, group):
         )(dynamic, ts, t1, rtol, atol)
 
     return run
+
+
+def _mesh(n_devices: int):
+    """The first `n_devices` local devices as a mesh with one axis, ``"run"``."""
+    from jax.sharding import Mesh
+
+    return Mesh(np.asarray(jax.local_devices()[:n_devices]), ("run",))
 
 
 @program_jit
@@ -248,6 +254,12 @@ def run_chunk(models, ts, t1, rtol, atol, cfg: _Config, pilot: bool = False, dev
     if devices > 1 and jax.default_backend() == "cpu":
         group = _cpu_group(models)
     dtype = jnp.result_type(models.mass)
+    if devices > 1:  # each device's members placed on it (a sharded program is not kept on disk)
+        from jax.sharding import NamedSharding
+        from jax.sharding import PartitionSpec as P
+
+        dynamic, static = eqx.partition(models, eqx.is_array)
+        models = eqx.combine(jax.device_put(dynamic, NamedSharding(_mesh(devices), P("run"))), static)
     out = _run_chunk_jit(
         models,
         jnp.asarray(ts, dtype),
@@ -544,8 +556,9 @@ def monte_carlo(
       every member takes the same steps, so nobody waits.
     - `max_steps`: step limit per run (simulate's default; ``ceil(t1 / dt) + 1`` with `dt`).
     - `attitude`: the attitude variables integrated (see :func:`jaxtree.simulate`).
-    - `devices`: local devices a chunk is split over (default all; several CPU devices come from
-      ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` set before JAX starts). On the CPU
+    - `devices`: local devices a chunk is split over (default all: on a CPU, one per core, which
+      ``import jaxtree`` sets up when JAX has not started yet; ``JAXTREE_HOST_DEVICES`` or
+      ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` set another count). On the CPU
       each device runs its members in vmapped groups small enough that jaxlib's batched
       LAPACK calls stay on the calling thread (larger batches are split over XLA's thread
       pool, and two device shards doing that at once can deadlock; see benchmarks/README.md).
