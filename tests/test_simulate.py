@@ -455,6 +455,11 @@ def test_exact_gimbal_lock_under_jit_is_a_failure_at_the_start(scenes):
     assert np.all(np.asarray(sol.t_final[4:]) == 0.5)
     energy = np.asarray(sol.energy[4:])  # the regular members run as usual: energy conserved
     assert np.all(np.abs(energy[:, -1] - energy[:, 0]) < DRIFT_LOOSE * np.abs(energy[:, 0]))
+    # an eager run tests its start only after failing there (no test in its program): the same report
+    for i in (0, 1):
+        alone = simulate(fig4, 0.5, y0=locked[i], saveat=2, rtol=1e-8, atol=1e-8, throw=False)
+        assert int(alone.failure) == 6 and float(alone.t_final) == 0.0, i
+        assert np.all(np.isnan(np.asarray(alone.gamma[1:]))) and np.all(np.isnan(np.asarray(alone.energy[1:])))
 
     pair = gimbal_pair()
     starts = jax.tree.map(lambda *x: jnp.stack(x), *(random_state(pair, rng) for _ in range(4)))

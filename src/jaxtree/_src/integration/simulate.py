@@ -430,7 +430,10 @@ def simulate(
     if not traced and throw:
         _check_finite_start(y0, X0, Xd0, t0, att)
     saveat, grid, n_saved = _bucketed(saveat, grid, user_saveat or traced, t0, t1, dtype)
-    opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced), bool(diagnostics))
+    # an eager run tests for a singular start only when it failed there (_singular_start_after): the
+    # test is no part of its program; a traced run (a vmapped batch) tests every start in-program
+    check_start = bool(diagnostics) and traced
+    opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced), check_start)
 
     def as_array(x):  # (a Python or numpy number put on the device: no program compiled for it)
         if x is None:
@@ -447,6 +450,8 @@ def simulate(
     run = _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, packed)
     with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
         sol = _solve(problem, y0, run, opts)
+    if diagnostics and not traced:
+        sol = _singular_start_after(sol, problem, packed[0], arrays[2])
     if diagnostics:
         sol = _with_diagnostics(sol, model, law, controller, params, n_saved)
     else:
@@ -457,6 +462,25 @@ def simulate(
     if throw and not traced:
         check_solution(sol)
     return sol
+
+
+def _singular_start_after(sol: Solution, problem: Problem, y, t0) -> Solution:
+    """`sol` of an eager run, reported as a singular start (:attr:`Failure.SINGULAR_START`, NaN
+    histories, as the in-program test of a traced run reports it) where it failed without leaving
+    `t0` and Eq. (1) is singular there. The test compiles only for a run that failed at its start:
+    Eq. (1)'s solve returns NaN at a pivot at round-off level (the test of :func:`_singular`), so
+    such a start fails within a few rejected steps."""
+    if int(sol.failure) == 0 or float(sol.t_final) != float(t0) or not bool(_singular_start(problem, t0, y)):
+        return sol
+    nan = lambda a: None if a is None else jnp.full_like(a, jnp.nan)
+    states = ("gamma", "gamma_dot", "omega0", "dcm", "attitude", "control_state", "X", "X_dot", "orthogonality")
+    failure = jnp.asarray(int(Failure.SINGULAR_START), jnp.result_type(sol.failure))
+    return dataclasses.replace(sol, failure=failure, **{k: nan(getattr(sol, k)) for k in states})
+
+
+@eqx.filter_jit
+def _singular_start(problem: Problem, t0, y):
+    return _singular(problem, t0, y)
 
 
 def _check_attitude_and_laws(attitude, controller, law) -> AbstractAttitude:
