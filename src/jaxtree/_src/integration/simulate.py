@@ -465,17 +465,20 @@ def simulate(
 
 
 def _singular_start_after(sol: Solution, problem: Problem, y, t0) -> Solution:
-    """`sol` of an eager run, reported as a singular start (:attr:`Failure.SINGULAR_START`, NaN
-    histories, as the in-program test of a traced run reports it) where it failed without leaving
-    `t0` and Eq. (1) is singular there. The test compiles only for a run that failed at its start:
-    Eq. (1)'s solve returns NaN at a pivot at round-off level (the test of :func:`_singular`), so
-    such a start fails within a few rejected steps."""
-    if int(sol.failure) == 0 or float(sol.t_final) != float(t0) or not bool(_singular_start(problem, t0, y)):
+    """`sol` of an eager run, reported as a singular start (:attr:`Failure.SINGULAR_START`, t_final
+    `t0`, NaN histories, as the in-program test of a traced run reports it) where it failed and
+    Eq. (1) is singular at its start. The test compiles only for a run that failed: Eq. (1)'s solve
+    returns NaN at a pivot at round-off level (the test of :func:`_singular`), so such a start
+    fails, usually within a few rejected steps at `t0`."""
+    if int(sol.failure) == 0 or not bool(_singular_start(problem, t0, y)):
         return sol
     nan = lambda a: None if a is None else jnp.full_like(a, jnp.nan)
     states = ("gamma", "gamma_dot", "omega0", "dcm", "attitude", "control_state", "X", "X_dot", "orthogonality")
     failure = jnp.asarray(int(Failure.SINGULAR_START), jnp.result_type(sol.failure))
-    return dataclasses.replace(sol, failure=failure, **{k: nan(getattr(sol, k)) for k in states})
+    start = problem.state(t0, y)
+    return dataclasses.replace(
+        sol, failure=failure, t_final=t0, final=start, **{k: nan(getattr(sol, k)) for k in states}
+    )
 
 
 @eqx.filter_jit
