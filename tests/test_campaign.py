@@ -150,6 +150,14 @@ def test_store_is_written_chunk_by_chunk_and_a_rerun_resumes(campaign, tmp_path,
         np.testing.assert_array_equal(ds[v].values, campaign[v].values, err_msg=v)
     again = run(out=out)  # all done: nothing runs
     assert again.attrs["chunks_run"] == 0 and again.omega0.equals(campaign.omega0)
+    # the file itself holds the campaign's settings and the versions that ran it
+    import xarray as xr
+
+    opened = xr.open_zarr(out, consolidated=False) if suffix == ".zarr" else xr.open_dataset(out)
+    with opened as f:
+        assert (f.attrs["n"], f.attrs["chunk_size"], f.attrs["rtol"], f.attrs["t1"]) == (N, CHUNK, TOL, T1)
+        assert f.attrs["model"] == "fig4_free" and f.attrs["jax_version"] == jax.__version__
+        assert f.attrs["jaxtree_version"] == jaxtree.__version__ and f.attrs["max_steps"] == MAX_STEPS
     model = jaxtree.load_scene("fig4_free")
     with pytest.raises(ValueError, match="different campaign"):
         monte_carlo(
@@ -165,6 +173,43 @@ def test_store_is_written_chunk_by_chunk_and_a_rerun_resumes(campaign, tmp_path,
             max_steps=MAX_STEPS,
             out=out,
         )
+
+
+def test_a_full_disk_stops_the_campaign_with_a_message_and_the_rerun_resumes(campaign, tmp_path, monkeypatch):
+    """The store's disk fills while the second chunk is written: an OSError (ENOSPC) that names
+    the store and says how to resume, the first chunk kept; the rerun runs the second alone and
+    returns the numbers of the in-memory run. With progress, a line per chunk with its time and
+    an estimate of the time left."""
+    import errno
+
+    import jaxtree._src.campaigns.campaign as C
+
+    out = tmp_path / "full.nc"
+    real, calls = C._Store.write, []
+
+    def fills_on_the_second(self, *args):
+        calls.append(1)
+        if len(calls) == 2:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(self, *args)
+
+    monkeypatch.setattr(C._Store, "write", fills_on_the_second)
+    with pytest.raises(OSError, match=r"no space left for the store .*full\.nc.*chunk 2 of 2.*run the same call again"):
+        run(out=out)
+    monkeypatch.setattr(C._Store, "write", real)
+    ds = run(out=out, progress=True)
+    assert ds.attrs["chunks_run"] == 1
+    np.testing.assert_array_equal(ds.omega0.values, campaign.omega0.values)
+
+
+def test_progress_says_what_is_left(capsys):
+    """progress=True: one line per chunk, the first with an upper bound of the time left, the last
+    with none."""
+    run(progress=True)
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("monte_carlo:")]
+    assert len(lines) == 2, lines
+    assert "chunk 1/2 done in" in lines[0] and "1/2 run in" in lines[0] and "s left" in lines[0]
+    assert "chunk 2/2 done in" in lines[1] and "2/2 run in" in lines[1] and "left" not in lines[1]
 
 
 def test_a_campaign_on_one_device_and_on_two_gives_the_same_states(campaign, tmp_path):

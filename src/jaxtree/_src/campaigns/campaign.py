@@ -35,6 +35,7 @@ the user then owns).
 
 from __future__ import annotations
 
+import errno
 import functools
 import hashlib
 import json
@@ -57,6 +58,7 @@ from ..integration.core import DEFAULT_MAX_STEPS, default_tolerance
 from ..integration.failures import Failure, condition_jit
 from ..integration.simulate import simulate
 from ..io.files import atomic_write
+from ..io.results import clean_attrs, versions
 from ..numerics import program_jit
 from ..vehicle.model import Model, State
 
@@ -378,8 +380,9 @@ class _Store:
     the whole file assembled atomically at the end). `fingerprint` identifies the campaign: a
     store made by a different one is refused."""
 
-    def __init__(self, path, fingerprint: str, n_chunks: int):
+    def __init__(self, path, fingerprint: str, n_chunks: int, attrs: dict | None = None):
         self.path = os.fspath(path)
+        self.attrs = clean_attrs(attrs or {})  # the campaign's settings and versions, kept in the file
         self.zarr = self.path.rstrip("/").endswith(".zarr")
         self.fingerprint = fingerprint
         self.n_chunks = n_chunks
@@ -430,6 +433,7 @@ class _Store:
                 tmp = self.path + f".tmp{os.getpid()}"
                 shutil.rmtree(tmp, ignore_errors=True)
                 template = template.assign(chunk_done=(("chunk",), np.zeros(self.n_chunks, bool)))
+                template.attrs.update(self.attrs)
                 template.attrs["jaxtree_campaign"] = self.fingerprint
                 template.to_zarr(tmp, mode="w", compute=False, consolidated=False, zarr_format=2)
                 os.replace(tmp, self.path)
@@ -472,6 +476,7 @@ class _Store:
             join="override",
         )
         tmp = self.path + f".tmp{os.getpid()}"
+        ds.attrs.update(self.attrs)
         ds.attrs["jaxtree_campaign"] = self.fingerprint
         ds.to_netcdf(tmp)
         os.replace(tmp, self.path)
@@ -547,8 +552,10 @@ def monte_carlo(
     - `client`: a Dask ``distributed.Client``: the chunks run as tasks on its workers (each
       worker compiles once). None (default): in this process.
     - `out`: a Zarr store (``*.zarr``) or NetCDF file (``*.nc``) written chunk by chunk as they
-      finish; a rerun with the same `out` skips the finished chunks (a different campaign in
-      that place is refused).
+      finish, with the campaign's settings and the versions that ran it as attributes; a rerun
+      with the same `out` skips the finished chunks (a different campaign in that place is
+      refused). A disk that fills stops the campaign with an ``OSError`` that names the store;
+      the chunks written before are kept for the rerun.
     - `order`: None (members in index order) or ``"pilot"``: a pilot run over the first
       `pilot_fraction` of the flight counts each member's steps, and the chunks are filled in
       that order, so that members of alike cost wait for each other.
@@ -562,7 +569,8 @@ def monte_carlo(
       each device runs its members in vmapped groups small enough that jaxlib's batched
       LAPACK calls stay on the calling thread (larger batches are split over XLA's thread
       pool, and two device shards doing that at once can deadlock; see benchmarks/README.md).
-    - `progress`: print one line per finished chunk.
+    - `progress`: print one line per finished chunk: its time, the chunks run so far and an
+      estimate of the time left (from the chunks after the first, which compiles).
 
     **Returns:** an ``xarray.Dataset`` with dimensions ``run`` (member index), ``time``,
     ``hinge`` (1..n), ``axis`` (1..3), ``quaternion`` (0..3) and ``body``: ``omega0``,
@@ -573,7 +581,7 @@ def monte_carlo(
     ``"singular_matrix"``, ``"nonfinite_state"``, ``"max_steps"``, ...; ``""`` for a success),
     ``steps``, ``rejected``, ``rhs_evaluations``, ``t_final``; ``param.<leaf>`` for every
     leaf that the dispersion changed (e.g. ``param.inertia``, ``param.initial.omega0``).
-    Attributes: the settings, the wall time, and the chunks' efficiencies
+    Attributes: the settings, the versions of jaxtree and its libraries, the wall time, and the chunks' efficiencies
     (``sum(steps) / (size * max(steps))``: the share of the vmapped work that was not spent
     waiting for a chunk's slowest member).
     """
@@ -583,8 +591,25 @@ def monte_carlo(
     t_pilot = s.t1 * float(pilot_fraction) if order == "pilot" else None
     cfg = _Config(len(s.ts), s.max_steps, attitude, s.dt, t_pilot)
     store = None
+    settings = {
+        "model": model.name,
+        "t1": s.t1,
+        "rtol": s.rtol,
+        "atol": s.atol,
+        "n": s.n,
+        "chunk_size": s.chunk_size,
+        "chunks": s.n_chunks,
+        "max_steps": s.max_steps,
+        "order": order or "index",
+        "fixed_step": s.dt if s.dt is not None else "none",
+        "attitude": str(attitude),
+        "dtype": jnp.dtype(s.dtype).name,
+        "where": "dask" if client is not None else f"in-process ({jax.default_backend()})",
+        "devices": len(jax.local_devices()) if devices is None else int(devices),
+    }
     if out is not None:
-        store = _Store(out, _fingerprint(models, s.ts, s.t1, s.rtol, s.atol, cfg, s.chunk_size), s.n_chunks)
+        fingerprint = _fingerprint(models, s.ts, s.t1, s.rtol, s.atol, cfg, s.chunk_size)
+        store = _Store(out, fingerprint, s.n_chunks, {**settings, **versions()})
     runs = _Chunks(model, models, s, cfg, client=client, devices=devices, store=store, progress=progress)
     finished = set() if store is None else store.done()
     pilot_s = runs.pilot(finished) if order == "pilot" else 0.0
@@ -592,18 +617,9 @@ def monte_carlo(
     ds = runs.dataset()
     ds.attrs.update(
         {
-            "model": model.name,
-            "t1": s.t1,
-            "rtol": s.rtol,
-            "atol": s.atol,
-            "n": s.n,
-            "chunk_size": s.chunk_size,
-            "chunks": s.n_chunks,
+            **settings,
+            **versions(),
             "chunks_run": len(runs.stats),
-            "order": order or "index",
-            "fixed_step": s.dt if s.dt is not None else "none",
-            "dtype": jnp.dtype(s.dtype).name,
-            "where": "dask" if client is not None else f"in-process ({jax.default_backend()})",
             "chunk_efficiency": [runs.stats[k]["efficiency"] for k in sorted(runs.stats)],
             "chunk_wall_s": [runs.stats[k]["wall_s"] for k in sorted(runs.stats)],
             "pilot_s": pilot_s,
@@ -704,6 +720,8 @@ class _Chunks:
         self.template = None
         self.results: dict[int, Any] = {}
         self.stats: dict[int, dict] = {}
+        self.started = _time.perf_counter()
+        self.todo = s.n_chunks
 
     def members(self, k):
         """Chunk k's members, and the same padded to the chunk size (with its first member)."""
@@ -734,6 +752,7 @@ class _Chunks:
 
     def run(self, todo) -> None:
         """Run the chunks `todo`, each finished as it completes."""
+        self.started, self.todo = _time.perf_counter(), len(todo)
         if self.client is None:
             for k in todo:
                 t = _time.perf_counter()
@@ -766,11 +785,37 @@ class _Chunks:
         if self.store is not None:
             if self.template is None:
                 self.template = _template(ds, s.n)
-            self.store.write(k, ds, self.template)
+            try:
+                self.store.write(k, ds, self.template)
+            except OSError as e:
+                if e.errno not in (errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)):
+                    raise
+                raise OSError(
+                    e.errno,
+                    f"monte_carlo: no space left for the store {self.store.path!r} while writing chunk "
+                    f"{k + 1} of {self.n_chunks}; the {len(self.results)} chunks written before it are kept: "
+                    "free some space and run the same call again to resume from them",
+                ) from e
         self.results[k] = ds
         if self.progress:
-            eff = self.stats[k]["efficiency"]
-            print(f"monte_carlo: chunk {k + 1}/{self.n_chunks} done ({wall:.2f} s, efficiency {eff:.2f})", flush=True)
+            print(self.progress_line(k, wall), flush=True)
+
+    def progress_line(self, k, wall) -> str:
+        """One line on chunk k: its time and efficiency, the chunks run so far in this call, and the
+        time left, estimated from the chunks after the first (the first compiles: before a second
+        chunk the estimate is an upper bound)."""
+        done, left = len(self.stats), self.todo - len(self.stats)
+        elapsed = _time.perf_counter() - self.started
+        line = (
+            f"monte_carlo: chunk {k + 1}/{self.n_chunks} done in {wall:.2f} s "
+            f"(efficiency {self.stats[k]['efficiency']:.2f}); {done}/{self.todo} run in {elapsed:.1f} s"
+        )
+        if left <= 0:
+            return line
+        if done == 1:
+            return f"{line}, at most {elapsed * left:.0f} s left"
+        first = self.stats[min(self.stats)]["wall_s"] if self.client is None else 0.0
+        return f"{line}, about {(elapsed - first) / (done - 1) * left:.0f} s left"
 
     def dataset(self):
         """The campaign's dataset, runs by member index: the store's, or the chunks' concatenated."""
