@@ -54,9 +54,10 @@ def dispersed_fig4(key, model):
     # and its "error" compared different members: 0.92 on 2026-11-24).
     dtype = jnp.float64
     panels = np.asarray(model.sprung[1:]) - 1  # the panel chain (hinge 1 is the platform's)
-    omega0 = s.omega0 + 0.01 * jax.random.normal(k[0], (3,), dtype)
-    gamma_dot = s.gamma_dot.at[panels].add(0.01 * jax.random.normal(k[1], (len(panels),), dtype))
-    stiffness = model.stiffness.at[panels].multiply(1 + 0.1 * jax.random.normal(k[2], (len(panels),), dtype))
+    omega0 = s.omega0.astype(dtype) + 0.01 * jax.random.normal(k[0], (3,), dtype)
+    gamma_dot = s.gamma_dot.astype(dtype).at[panels].add(0.01 * jax.random.normal(k[1], (len(panels),), dtype))
+    spread = 1 + 0.1 * jax.random.normal(k[2], (len(panels),), dtype)
+    stiffness = model.stiffness.astype(dtype).at[panels].multiply(spread)
     return eqx.tree_at(
         lambda m: (m.stiffness, m.initial),
         model,
