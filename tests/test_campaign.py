@@ -312,3 +312,22 @@ run(out={str(out)!r})
     assert ds.attrs["chunks_run"] == 1  # the first chunk was not run again
     for v in campaign.data_vars:
         np.testing.assert_array_equal(ds[v].values, campaign[v].values, err_msg=v)
+
+
+def test_the_default_chunk_fills_each_device_to_the_batch_first_size_within_the_memory(monkeypatch):
+    """The default chunk: per device the members from which the batch-first recursion is used
+    (fewer when the campaign is smaller, the chunk then a multiple of the devices), and fewer
+    members when their histories would pass the memory share."""
+    import jaxtree._src.campaigns.campaign as C
+    from jaxtree._src.equations.solve import batch_first_min
+
+    model = jaxtree.load_scene("fig4_free")
+    per = batch_first_min()
+    assert C.default_chunk(model, 10_000, 101, devices=1) == per
+    assert C.default_chunk(model, 10_000, 101, devices=4) == 4 * per
+    assert C.default_chunk(model, 7, 11, devices=2) == 8  # 4 a device: the last member padded
+    memory = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    member = 3 * 1001 * (2 * model.n + 11) * 8  # bytes of a member's histories at 1001 saves
+    monkeypatch.setattr(C, "CHUNK_MEMORY", 5.5 * member / memory)  # room for 5 members
+    assert C.default_chunk(model, 10_000, 1001, devices=1) == 5
+    assert C.default_chunk(model, 10_000, 1001, devices=2) == 4  # 2 a device

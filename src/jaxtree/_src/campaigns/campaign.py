@@ -53,7 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..equations.attitude import dcm_to_quaternion
-from ..equations.dynamics import SINGULAR_CONDITION
+from ..equations.dynamics import SINGULAR_CONDITION, batch_first_min
 from ..integration.core import DEFAULT_MAX_STEPS, default_tolerance
 from ..integration.failures import Failure, condition_jit
 from ..integration.simulate import simulate
@@ -547,7 +547,9 @@ def monte_carlo(
       of times.
     - `rtol`, `atol`: tolerances of :func:`jaxtree.simulate` (default
       :func:`jaxtree.default_tolerance` of the model's dtype).
-    - `chunk_size`: members per vmapped chunk (default ``min(n, 128)``); a chunk is compiled once
+    - `chunk_size`: members per vmapped chunk (default :func:`default_chunk`: on each device up to
+      the members from which Eq. (1)'s batch-first recursion pays, 64 on a CPU, within a share of
+      the memory); a chunk is compiled once
       and every chunk has this size (the last one is padded).
     - `client`: a Dask ``distributed.Client``: the chunks run as tasks on its workers (each
       worker compiles once). None (default): in this process.
@@ -586,7 +588,7 @@ def monte_carlo(
     waiting for a chunk's slowest member).
     """
     start = _time.perf_counter()
-    s = _settings(model, sample, n, t1, saveat, rtol, atol, chunk_size, order, dt, max_steps, attitude)
+    s = _settings(model, sample, n, t1, saveat, rtol, atol, chunk_size, order, dt, max_steps, attitude, devices)
     models = _draw(model, sample, s.n, key)
     t_pilot = s.t1 * float(pilot_fraction) if order == "pilot" else None
     cfg = _Config(len(s.ts), s.max_steps, attitude, s.dt, t_pilot)
@@ -645,7 +647,9 @@ class _Settings(NamedTuple):
     dtype: Any
 
 
-def _settings(model, sample, n, t1, saveat, rtol, atol, chunk_size, order, dt, max_steps, attitude) -> _Settings:
+def _settings(
+    model, sample, n, t1, saveat, rtol, atol, chunk_size, order, dt, max_steps, attitude, devices=None
+) -> _Settings:
     """monte_carlo's arguments checked, with their defaults filled in."""
 
     n = int(n)
@@ -675,12 +679,40 @@ def _settings(model, sample, n, t1, saveat, rtol, atol, chunk_size, order, dt, m
             raise ValueError(f"monte_carlo: dt must be positive, got {dt}")
         max_steps = int(math.ceil(t1 / dt)) + 1 if max_steps is None else int(max_steps)
     max_steps = DEFAULT_MAX_STEPS if max_steps is None else int(max_steps)
-    chunk_size = min(n, 128) if chunk_size is None else int(chunk_size)
+    chunk_size = default_chunk(model, n, len(ts), devices) if chunk_size is None else int(chunk_size)
     if chunk_size < 1:
         raise ValueError(f"monte_carlo: chunk_size must be at least 1, got {chunk_size}")
     if isinstance(attitude, str) is False:
         raise TypeError("monte_carlo: attitude must be a name ('quaternion', 'dcm', 'euler123')")
     return _Settings(n, t1, ts, rtol, atol, dt, max_steps, chunk_size, -(-n // chunk_size), dtype)
+
+
+# A chunk's members per device by default: the batch-first recursion of Eq. (1) pays from
+# batch_first_min() members on (its program's cost per call amortized over the members), and more
+# gained nothing measurable while the first chunk (compile and run) and the wait for a chunk's
+# slowest member grew: 512 fig4_free runs on two devices in chunks of 128 / 256 / 512, 6.55 / 6.49 /
+# 7.49 s, first calls 17.4 / 19.2 / 23.2 s; in chunks of 64 (32 a device, under the threshold) 2.5x
+# slower (benchmarks/FINDINGS.md, "Chunks sized by cost"). A chunk's histories stay within
+# CHUNK_MEMORY of the machine's memory (each member's saved states held about three times over: the
+# solve's saves, its histories, the host's copy).
+CHUNK_MEMORY = 1 / 16
+
+
+def default_chunk(model: Model, n: int, saves: int, devices: int | None = None) -> int:
+    """The default chunk size of a campaign of `n` members with `saves` save times: per device
+    (`devices`, default all local ones) up to :func:`batch_first_min` members, fewer where a
+    chunk's histories would pass :data:`CHUNK_MEMORY` of the physical memory; at most `n`
+    rounded up to the devices."""
+    devices = len(jax.local_devices()) if devices is None else max(1, int(devices))
+    per_device = min(-(-n // devices), batch_first_min())
+    itemsize = jnp.dtype(jnp.result_type(model.mass)).itemsize
+    member = 3 * saves * (2 * model.n + 11 + len(model.prescribed)) * itemsize  # bytes of histories
+    try:
+        memory = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        memory = 8 * 1024**3
+    per_device = max(1, min(per_device, int(CHUNK_MEMORY * memory / (member * devices))))
+    return per_device * devices
 
 
 @eqx.filter_jit
