@@ -146,6 +146,8 @@ def test_store_is_written_chunk_by_chunk_and_a_rerun_resumes(campaign, tmp_path,
     monkeypatch.setattr(C, "run_chunk", real)
     ds = run(out=out)
     assert ds.attrs["chunks_run"] == 1
+    # a Zarr store's dataset comes back unread (a campaign larger than memory); a NetCDF file's read
+    assert ds.omega0.variable._in_memory == (suffix == ".nc")
     for v in campaign.data_vars:
         np.testing.assert_array_equal(ds[v].values, campaign[v].values, err_msg=v)
     again = run(out=out)  # all done: nothing runs

@@ -459,8 +459,8 @@ class _Store:
     def read(self):
         import xarray as xr
 
-        if self.zarr:
-            ds = xr.open_zarr(self.path, consolidated=False).load()
+        if self.zarr:  # read lazily: a campaign larger than memory stays on disk until read
+            ds = xr.open_zarr(self.path, consolidated=False, chunks=None)
             return ds.drop_vars("chunk_done")
         if os.path.exists(self.path):
             return xr.load_dataset(self.path)
@@ -557,7 +557,10 @@ def monte_carlo(
       finish, with the campaign's settings and the versions that ran it as attributes; a rerun
       with the same `out` skips the finished chunks (a different campaign in that place is
       refused). A disk that fills stops the campaign with an ``OSError`` that names the store;
-      the chunks written before are kept for the rerun.
+      the chunks written before are kept for the rerun. With a store, finished chunks are not
+      kept in memory, and a Zarr store's dataset is returned unread (its arrays read when
+      used): a campaign larger than memory streams through it. A NetCDF file is assembled in
+      memory at the end.
     - `order`: None (members in index order) or ``"pilot"``: a pilot run over the first
       `pilot_fraction` of the flight counts each member's steps, and the chunks are filled in
       that order, so that members of alike cost wait for each other.
@@ -825,10 +828,11 @@ class _Chunks:
                 raise OSError(
                     e.errno,
                     f"monte_carlo: no space left for the store {self.store.path!r} while writing chunk "
-                    f"{k + 1} of {self.n_chunks}; the {len(self.results)} chunks written before it are kept: "
+                    f"{k + 1} of {self.n_chunks}; the chunks written before it are kept: "
                     "free some space and run the same call again to resume from them",
                 ) from e
-        self.results[k] = ds
+        else:  # (with a store the chunks are read back from it: memory bounded by a chunk)
+            self.results[k] = ds
         if self.progress:
             print(self.progress_line(k, wall), flush=True)
 
