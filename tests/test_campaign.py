@@ -187,7 +187,7 @@ def test_a_full_disk_stops_the_campaign_with_a_message_and_the_rerun_resumes(cam
     import jaxtree._src.campaigns.campaign as C
 
     out = tmp_path / "full.nc"
-    real, calls = C._Store.write, []
+    real, calls = C.Store.write, []
 
     def fills_on_the_second(self, *args):
         calls.append(1)
@@ -195,10 +195,10 @@ def test_a_full_disk_stops_the_campaign_with_a_message_and_the_rerun_resumes(cam
             raise OSError(errno.ENOSPC, "No space left on device")
         return real(self, *args)
 
-    monkeypatch.setattr(C._Store, "write", fills_on_the_second)
+    monkeypatch.setattr(C.Store, "write", fills_on_the_second)
     with pytest.raises(OSError, match=r"no space left for the store .*full\.nc.*chunk 2 of 2.*run the same call again"):
         run(out=out)
-    monkeypatch.setattr(C._Store, "write", real)
+    monkeypatch.setattr(C.Store, "write", real)
     ds = run(out=out, progress=True)
     assert ds.attrs["chunks_run"] == 1
     np.testing.assert_array_equal(ds.omega0.values, campaign.omega0.values)

@@ -36,478 +36,24 @@ the user then owns).
 from __future__ import annotations
 
 import errno
-import functools
-import hashlib
-import json
 import math
 import os
-import shutil
 import time as _time
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
-import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..equations.attitude import dcm_to_quaternion
-from ..equations.dynamics import SINGULAR_CONDITION, batch_first_min
+from ..equations.dynamics import batch_first_min
 from ..integration.core import DEFAULT_MAX_STEPS, default_tolerance
-from ..integration.failures import Failure, condition_jit
-from ..integration.simulate import simulate
-from ..io.files import atomic_write
-from ..io.results import clean_attrs, versions
-from ..numerics import program_jit
-from ..vehicle.model import Model, State
-
-# jaxtree's diagnosis of a failed member ("" for a run that reached t1)
-FAILURES = (
-    "",
-    "max_steps",
-    "dt_min",
-    "singular_attitude",
-    "other",
-    "nonfinite_start",
-    "singular_matrix",
-    "nonfinite_state",
-)
-
-
-@functools.cache
-def _result_names() -> tuple[str, ...]:
-    """diffrax's result names by index (``RESULTS.max_steps_reached._value`` -> its name)."""
-    items = dfx.RESULTS._name_to_item
-    names = {int(item._value): name for name, item in items.items()}
-    return tuple(names.get(i, f"result_{i}") for i in range(max(names) + 1))
-
-
-# ----------------------------------------------------------------------------- one chunk
-class _Config(NamedTuple):
-    """Static choices of a campaign (hashable: part of the compilation key)."""
-
-    n_save: int
-    max_steps: int
-    attitude: str
-    dt: float | None  # fixed step, or None for the adaptive default of simulate
-    t_pilot: float | None  # the pilot run's end (order="pilot"), or None
-
-
-def _member(model: Model, ts, t1, rtol, atol, cfg: _Config):
-    """One member: its histories and per-run figures (a dict of arrays)."""
-
-    kw: dict[str, Any] = {}
-    if cfg.dt is not None:
-        kw = dict(stepsize_controller=dfx.ConstantStepSize(), dt0=jnp.asarray(cfg.dt, ts.dtype))
-    sol = simulate(
-        model,
-        t1,
-        y0=model.initial,
-        saveat=ts,
-        rtol=rtol,
-        atol=atol,
-        max_steps=cfg.max_steps,
-        attitude=cfg.attitude,
-        throw=False,
-        **kw,
-    )
-    hist = dict(
-        omega0=sol.omega0,
-        gamma=sol.gamma,
-        gamma_dot=sol.gamma_dot,
-        attitude=dcm_to_quaternion(sol.dcm),
-        energy=sol.energy,
-        angular_momentum=sol.angular_momentum,
-    )
-    if model.prescribed:
-        hist["hold_torque"] = sol.hold_torque
-    finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in hist.values()]))
-    code = sol.failure  # an integration.failures.Failure code (the first five of FAILURES)
-    state_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in sol.final]))
-    diagnosis = jnp.where(
-        code > 0,
-        jnp.where((code == FAILURES.index("nonfinite_start")) | state_ok, code, FAILURES.index("nonfinite_state")),
-        jnp.where(finite, 0, FAILURES.index("nonfinite_state")),
-    )
-    ok = diagnosis == 0
-    hist = {k: jnp.where(ok, v, jnp.nan) for k, v in hist.items()}
-    # (whether a failed run's Eq. (1) matrix is singular where it stopped is decided on the host,
-    # for the failed members only: see _diagnose_failures)
-    # a start that cannot be integrated (not finite, or Eq. 1 singular there) never ran: its
-    # integrator result is that of the vehicle at rest simulate integrated in its place
-
-    started = (code != int(Failure.NONFINITE_START)) & (code != int(Failure.SINGULAR_START))
-    return dict(
-        hist,
-        result=jnp.where(started, sol.result._value, -1),
-        diagnosis=diagnosis,
-        steps=sol.stats["num_steps"],
-        rejected=sol.stats["num_rejected_steps"],
-        rhs_evaluations=sol.stats["rhs_evaluations"],
-        t_final=sol.t_final,
-        final=tuple(sol.final),
-    )
-
-
-def _diagnose_failures(out: dict, models, model: Model) -> None:
-    """Failed members that stopped at a finite state (step limit, step-size collapse): 'singular_matrix'
-    when Eq. (1)'s matrix is singular or nearly so there (gimbal lock, a vanishing mass). One
-    eager evaluation per failed member, on the host (batched LAPACK calls in the vmapped chunk
-    would cost every member a decomposition, and can deadlock on the CPU, see _sharded)."""
-
-    code = out["diagnosis"]
-    suspects = np.flatnonzero(np.isin(code, [FAILURES.index(k) for k in ("max_steps", "dt_min", "other")]))
-    for i in suspects:
-        member = _take(models, i)
-        state = State(*(np.asarray(x)[i] for x in out["final"]))
-        cond, _ = condition_jit(member, state, np.asarray(out["t_final"])[i])
-        cond = float(cond)
-        if not np.isfinite(cond) or cond > SINGULAR_CONDITION:
-            code[i] = FAILURES.index("singular_matrix")
-
-
-def _pilot_member(model: Model, ts, t1, rtol, atol, cfg: _Config):
-    """The pilot: steps of the first part of the flight (to order members by cost)."""
-
-    sol = simulate(
-        model,
-        cfg.t_pilot,
-        y0=model.initial,
-        saveat=2,
-        rtol=rtol,
-        atol=atol,
-        max_steps=cfg.max_steps,
-        attitude=cfg.attitude,
-        throw=False,
-    )
-    return dict(steps=sol.stats["num_steps"])
-
-
-# jaxlib's CPU LAPACK kernels (potrf, trsm, syevd, ...) split a batch of matrices over XLA's
-# intra-op thread pool when it is worth more than about 2e5 flops (jax::ParallelBatchMap), and
-# block the calling pool thread until the parts are done. The executions of a program's device
-# shards run on that same pool: two shards that both split a batch can hold every pool thread
-# while their parts wait behind each other, and the process hangs (benchmarks/README.md has the
-# reproduction). Below that size the kernel runs inline. So on the CPU each shard runs its
-# members in vmapped groups small enough for Eq. (1)'s factorization to stay inline.
-_LAPACK_INLINE_FLOPS = 2e5
-
-
-def _cpu_group(model: Model) -> int:
-    """Members per vmapped group on a CPU shard: the batched Cholesky of Eq. (1) (order n + 4
-    with its border) stays under jaxlib's threshold for splitting a batch over the pool."""
-    order = model.n + 4
-    return max(1, int(_LAPACK_INLINE_FLOPS / (order**3 / 3.0)) - 1)
-
-
-def _sharded(fn, n_devices, group):
-    """`fn` over a batch (vmapped), split over the first `n_devices` local devices when more than
-    one (``shard_map``: each device runs its own integration loop, so a device does not wait for
-    the other's slowest member); `group` members at a time per device (None: all at once)."""
-    one = lambda m, ts, t1, rtol, atol, cfg: fn(m, ts, t1, rtol, atol, cfg)
-
-    def batched(models, ts, t1, rtol, atol, cfg):
-        size = jax.tree_util.tree_leaves(models)[0].shape[0]
-        if group is None or group >= size:
-            return jax.vmap(one, in_axes=(0, None, None, None, None, None))(models, ts, t1, rtol, atol, cfg)
-        return jax.lax.map(lambda m: one(m, ts, t1, rtol, atol, cfg), models, batch_size=group)
-
-    if n_devices <= 1:
-        return batched
-    from jax.sharding import PartitionSpec as P
-
-    mesh = _mesh(n_devices)
-
-    def run(models, ts, t1, rtol, atol, cfg):
-        dynamic, static = eqx.partition(models, eqx.is_array)
-        inner = lambda d, ts, t1, rtol, atol: batched(eqx.combine(d, static), ts, t1, rtol, atol, cfg)
-        return jax.shard_map(
-            inner, mesh=mesh, in_specs=(P("run"), P(), P(), P(), P()), out_specs=P("run"), check_vma=False
-        )(dynamic, ts, t1, rtol, atol)
-
-    return run
-
-
-def _mesh(n_devices: int):
-    """The first `n_devices` local devices as a mesh with one axis, ``"run"``."""
-    from jax.sharding import Mesh
-
-    return Mesh(np.asarray(jax.local_devices()[:n_devices]), ("run",))
-
-
-@program_jit
-def _run_chunk_jit(models, ts, t1, rtol, atol, cfg: _Config, n_devices: int, group, pilot: bool):
-    return _sharded(_pilot_member if pilot else _member, n_devices, group)(models, ts, t1, rtol, atol, cfg)
-
-
-def run_chunk(models, ts, t1, rtol, atol, cfg: _Config, pilot: bool = False, devices: int | None = None):
-    """Run one chunk (a batch of models with a leading run axis) in this process: numpy outputs.
-
-    Public for Dask workers (:func:`monte_carlo` submits it). The chunk is split over `devices`
-    local devices (default all of them; fewer if the chunk does not divide evenly)."""
-    leaves = [x for x in jax.tree_util.tree_leaves(models) if eqx.is_array(x)]
-    size = leaves[0].shape[0]
-    devices = len(jax.local_devices()) if devices is None else int(devices)
-    devices = max(1, min(devices, len(jax.local_devices())))
-    while size % devices:
-        devices -= 1
-    group = None
-    if devices > 1 and jax.default_backend() == "cpu":
-        group = _cpu_group(models)
-    dtype = jnp.result_type(models.mass)
-    if devices > 1:  # each device's members placed on it (a sharded program is not kept on disk)
-        from jax.sharding import NamedSharding
-        from jax.sharding import PartitionSpec as P
-
-        dynamic, static = eqx.partition(models, eqx.is_array)
-        models = eqx.combine(jax.device_put(dynamic, NamedSharding(_mesh(devices), P("run"))), static)
-    out = _run_chunk_jit(
-        models,
-        jnp.asarray(ts, dtype),
-        jnp.asarray(t1, dtype),
-        jnp.asarray(rtol, dtype),
-        jnp.asarray(atol, dtype),
-        cfg,
-        devices,
-        group,
-        pilot,
-    )
-    return jax.tree_util.tree_map(np.asarray, out)
-
-
-# ----------------------------------------------------------------------------- the dataset
-_LEAF_DIMS = {
-    "mass": ("body",),
-    "inertia": ("body", "axis", "axis_j"),
-    "axis": ("hinge", "axis"),
-    "hinge_on_parent": ("hinge", "axis"),
-    "hinge_on_body": ("hinge", "axis"),
-    "stiffness": ("hinge",),
-    "damping": ("hinge",),
-    "initial.dcm": ("axis", "axis_j"),
-    "initial.omega0": ("axis",),
-    "initial.gamma": ("hinge",),
-    "initial.gamma_dot": ("hinge",),
-}
-_HISTORY_DIMS = {
-    "omega0": ("time", "axis"),
-    "gamma": ("time", "hinge"),
-    "gamma_dot": ("time", "hinge"),
-    "attitude": ("time", "quaternion"),
-    "energy": ("time",),
-    "angular_momentum": ("time", "axis"),
-    "hold_torque": ("time", "prescribed"),
-}
-_ATTRS = {
-    "omega0": ("rad/s", "angular velocity of b_0 in {b^0} components"),
-    "gamma": ("rad", "hinge angles"),
-    "gamma_dot": ("rad/s", "hinge rates"),
-    "attitude": ("", "Euler parameters (q0 >= 0) of C, {b^0} = C {i} (Def. 9)"),
-    "energy": ("J", "kinetic energy about the system mass center plus hinge-spring energy"),
-    "angular_momentum": ("N m s", "angular momentum about the system mass center, inertial components"),
-    "hold_torque": ("N m", "torque holding each prescribed hinge (Sec. II B)"),
-    "status": ("", "diffrax's result of the run, named"),
-    "failure": ("", "jaxtree's diagnosis of a failed run ('' when it reached t1)"),
-    "steps": ("", "solver steps (accepted and rejected)"),
-    "rejected": ("", "rejected solver steps"),
-    "rhs_evaluations": ("", "evaluations of Eq. (1)"),
-    "t_final": ("s", "where the run ended (t1, or the time of a failure)"),
-}
-
-
-def _leaf_name(path) -> str:
-    parts = []
-    for p in path:
-        name = getattr(p, "name", None) or getattr(p, "key", None)
-        parts.append(str(name if name is not None else getattr(p, "idx", p)))
-    return ".".join(parts)
-
-
-def _dispersed(models, n) -> dict[str, np.ndarray]:
-    """The array leaves of the batch of models that differ between runs, by dotted name."""
-    out = {}
-    for path, leaf in jax.tree_util.tree_leaves_with_path(models):
-        if not eqx.is_array(leaf) or not jnp.issubdtype(leaf.dtype, jnp.number):
-            continue
-        x = np.asarray(leaf)
-        if x.shape[:1] == (n,) and n > 1 and np.any(x != x[:1]):
-            out[_leaf_name(path)] = x
-    return out
-
-
-def _chunk_dataset(out: dict, runs: np.ndarray, params: dict, ts, model: Model):
-    """An xarray Dataset of one chunk's outputs (runs `runs`)."""
-    import xarray as xr
-
-    names = _result_names()
-    data = {}
-    for k, dims in _HISTORY_DIMS.items():
-        if k in out:
-            data[k] = (("run",) + dims, out[k])
-    data["status"] = (
-        ("run",),
-        np.asarray([names[int(i)] if i >= 0 else "not_started" for i in out["result"]], dtype="U32"),
-    )
-    data["failure"] = (("run",), np.asarray([FAILURES[int(i)] for i in out["diagnosis"]], dtype="U32"))
-    for k in ("steps", "rejected", "rhs_evaluations"):
-        data[k] = (("run",), np.asarray(out[k], np.int64))
-    data["t_final"] = (("run",), np.asarray(out["t_final"], float))
-    for name, x in params.items():
-        dims = _LEAF_DIMS.get(name, tuple(f"{name}_{i}" for i in range(x.ndim - 1)))
-        data[f"param.{name}"] = (("run",) + dims, x)
-    coords = {
-        "run": runs,
-        "time": np.asarray(ts, float),
-        "hinge": np.arange(1, model.n + 1),
-        "axis": np.arange(1, 4),
-        "quaternion": np.arange(4),
-        "body": np.arange(model.n + 1),
-    }
-    if model.prescribed:
-        coords["prescribed"] = np.asarray(model.prescribed)
-    ds = xr.Dataset(data, coords=coords)
-    for k, (unit, text) in _ATTRS.items():
-        if k in ds:
-            ds[k].attrs.update(units=unit, long_name=text)
-    return ds
-
-
-# ----------------------------------------------------------------------------- stores
-class _Store:
-    """Where finished chunks go: a Zarr store (one region per chunk, a ``done`` flag per chunk
-    written after its data) or a NetCDF file (one part file per chunk, written atomically, and
-    the whole file assembled atomically at the end). `fingerprint` identifies the campaign: a
-    store made by a different one is refused."""
-
-    def __init__(self, path, fingerprint: str, n_chunks: int, attrs: dict | None = None):
-        self.path = os.fspath(path)
-        self.attrs = clean_attrs(attrs or {})  # the campaign's settings and versions, kept in the file
-        self.zarr = self.path.rstrip("/").endswith(".zarr")
-        self.fingerprint = fingerprint
-        self.n_chunks = n_chunks
-        self.parts = self.path + ".parts"
-        if not self.zarr and not self.path.endswith((".nc", ".nc4", ".netcdf")):
-            raise ValueError(f"out: expected a Zarr store (*.zarr) or a NetCDF file (*.nc), got {self.path!r}")
-
-    def _check(self, attrs):
-        got = attrs.get("jaxtree_campaign")
-        if got is not None and got != self.fingerprint:
-            raise ValueError(
-                f"out: {self.path!r} holds a different campaign (another model, sample, n, key, times, "
-                f"tolerances or chunk size); remove it or choose another path"
-            )
-
-    def done(self) -> set[int]:
-        if self.zarr:
-            if not os.path.exists(self.path):
-                return set()
-            import zarr
-
-            group = zarr.open_group(self.path, mode="r")
-            self._check(dict(group.attrs))
-            if "chunk_done" not in group:
-                return set()
-            chunk_done = group["chunk_done"]
-            assert isinstance(chunk_done, zarr.Array), "write() makes chunk_done an array"
-            return {int(i) for i in np.flatnonzero(np.asarray(chunk_done[:]))}
-        if os.path.exists(self.path):
-            import xarray as xr
-
-            with xr.open_dataset(self.path) as ds:
-                self._check(ds.attrs)
-            return set(range(self.n_chunks))
-        if not os.path.isdir(self.parts):
-            return set()
-        meta = os.path.join(self.parts, "campaign.json")
-        if os.path.exists(meta):
-            with open(meta) as fh:
-                self._check(json.load(fh))
-        return {int(f[6:12]) for f in os.listdir(self.parts) if f.startswith("chunk_") and f.endswith(".nc")}
-
-    def write(self, index: int, ds, template) -> None:
-        if self.zarr:
-            import zarr
-
-            if not os.path.exists(self.path):
-                tmp = self.path + f".tmp{os.getpid()}"
-                shutil.rmtree(tmp, ignore_errors=True)
-                template = template.assign(chunk_done=(("chunk",), np.zeros(self.n_chunks, bool)))
-                template.attrs.update(self.attrs)
-                template.attrs["jaxtree_campaign"] = self.fingerprint
-                template.to_zarr(tmp, mode="w", compute=False, consolidated=False, zarr_format=2)
-                os.replace(tmp, self.path)
-            region = {"run": slice(int(ds.run[0]), int(ds.run[-1]) + 1)}
-            ds.drop_vars([v for v in ds.coords if "run" not in ds[v].dims]).to_zarr(
-                self.path, region=region, consolidated=False
-            )
-            chunk_done = zarr.open_group(self.path, mode="r+")["chunk_done"]
-            assert isinstance(chunk_done, zarr.Array), "made an array with the template above"
-            chunk_done[index] = True
-            return
-
-        os.makedirs(self.parts, exist_ok=True)
-        meta = os.path.join(self.parts, "campaign.json")
-        if not os.path.exists(meta):
-            with atomic_write(meta, "w") as fh:
-                json.dump({"jaxtree_campaign": self.fingerprint}, fh)
-        final = os.path.join(self.parts, f"chunk_{index:06d}.nc")
-        tmp = final + f".tmp{os.getpid()}"
-        ds.to_netcdf(tmp)
-        os.replace(tmp, final)
-
-    def read(self):
-        import xarray as xr
-
-        if self.zarr:  # read lazily: a campaign larger than memory stays on disk until read
-            ds = xr.open_zarr(self.path, consolidated=False, chunks=None)
-            return ds.drop_vars("chunk_done")
-        if os.path.exists(self.path):
-            return xr.load_dataset(self.path)
-        files = sorted(
-            os.path.join(self.parts, f) for f in os.listdir(self.parts) if f.startswith("chunk_") and f.endswith(".nc")
-        )
-        ds = xr.concat(
-            [xr.load_dataset(f) for f in files],
-            dim="run",
-            data_vars="minimal",
-            coords="minimal",
-            compat="override",
-            join="override",
-        )
-        tmp = self.path + f".tmp{os.getpid()}"
-        ds.attrs.update(self.attrs)
-        ds.attrs["jaxtree_campaign"] = self.fingerprint
-        ds.to_netcdf(tmp)
-        os.replace(tmp, self.path)
-        shutil.rmtree(self.parts, ignore_errors=True)
-        return ds
-
-
-def _fingerprint(models, ts, t1, rtol, atol, cfg, chunk_size) -> str:
-    h = hashlib.sha256()
-    for leaf in jax.tree_util.tree_leaves(models):
-        if eqx.is_array(leaf):
-            h.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
-    h.update(
-        repr(
-            (
-                np.asarray(ts).tolist(),
-                float(t1),
-                float(rtol),
-                float(atol),
-                tuple(cfg),
-                chunk_size,
-                str(jax.tree_util.tree_structure(models)),
-            )
-        ).encode()
-    )
-    return h.hexdigest()[:32]
-
-
-# ----------------------------------------------------------------------------- the campaign
-def _take(models, idx):
-    return jax.tree_util.tree_map(lambda x: np.asarray(x)[idx] if eqx.is_array(x) else x, models)
+from ..io.results import versions
+from ..vehicle.model import Model
+from .dataset import chunk_dataset, dispersed
+from .members import Config, diagnose_failures, run_chunk, take
+from .store import Store, fingerprint, template
 
 
 def monte_carlo(
@@ -594,7 +140,7 @@ def monte_carlo(
     s = _settings(model, sample, n, t1, saveat, rtol, atol, chunk_size, order, dt, max_steps, attitude, devices)
     models = _draw(model, sample, s.n, key)
     t_pilot = s.t1 * float(pilot_fraction) if order == "pilot" else None
-    cfg = _Config(len(s.ts), s.max_steps, attitude, s.dt, t_pilot)
+    cfg = Config(len(s.ts), s.max_steps, attitude, s.dt, t_pilot)
     store = None
     settings = {
         "model": model.name,
@@ -613,8 +159,8 @@ def monte_carlo(
         "devices": len(jax.local_devices()) if devices is None else int(devices),
     }
     if out is not None:
-        fingerprint = _fingerprint(models, s.ts, s.t1, s.rtol, s.atol, cfg, s.chunk_size)
-        store = _Store(out, fingerprint, s.n_chunks, {**settings, **versions()})
+        key = fingerprint(models, s.ts, s.t1, s.rtol, s.atol, cfg, s.chunk_size)
+        store = Store(out, key, s.n_chunks, {**settings, **versions()})
     runs = _Chunks(model, models, s, cfg, client=client, devices=devices, store=store, progress=progress)
     finished = set() if store is None else store.done()
     pilot_s = runs.pilot(finished) if order == "pilot" else 0.0
@@ -746,11 +292,11 @@ class _Chunks:
     """A campaign's chunks: the members each one holds (in the order of the members, by index or
     by the pilot's steps), where they run, and what they gave (datasets, efficiencies, the store)."""
 
-    def __init__(self, model: Model, models, s: _Settings, cfg: _Config, *, client, devices, store, progress):
+    def __init__(self, model: Model, models, s: _Settings, cfg: Config, *, client, devices, store, progress):
         self.model, self.models, self.s, self.cfg = model, models, s, cfg
         self.client, self.devices, self.store, self.progress = client, devices, store, progress
         self.n_chunks = s.n_chunks
-        self.params = _dispersed(models, s.n)
+        self.params = dispersed(models, s.n)
         self.order = np.arange(s.n)
         self.template = None
         self.results: dict[int, Any] = {}
@@ -767,7 +313,7 @@ class _Chunks:
     def submit(self, k, pilot=False):
         """Run chunk k (the pilot's part of the flight with `pilot`): its outputs, or a Dask future."""
         s = self.s
-        args = (_take(self.models, self.members(k)[1]), s.ts, s.t1, s.rtol, s.atol, self.cfg, pilot, self.devices)
+        args = (take(self.models, self.members(k)[1]), s.ts, s.t1, s.rtol, s.atol, self.cfg, pilot, self.devices)
         if self.client is None:
             return run_chunk(*args)
         return self.client.submit(run_chunk, *args, pure=False)
@@ -806,8 +352,8 @@ class _Chunks:
         s = self.s
         idx, _ = self.members(k)
         res = jax.tree_util.tree_map(lambda v: np.array(v)[: len(idx)], res)
-        _diagnose_failures(res, _take(self.models, idx), self.model)
-        ds = _chunk_dataset(
+        diagnose_failures(res, take(self.models, idx), self.model)
+        ds = chunk_dataset(
             res,
             np.arange(k * s.chunk_size, k * s.chunk_size + len(idx)),
             {name: x[idx] for name, x in self.params.items()},
@@ -819,7 +365,7 @@ class _Chunks:
         self.stats[k] = dict(efficiency=float(steps.sum() / (s.chunk_size * max(steps.max(), 1))), wall_s=wall)
         if self.store is not None:
             if self.template is None:
-                self.template = _template(ds, s.n)
+                self.template = template(ds, s.n)
             try:
                 self.store.write(k, ds, self.template)
             except OSError as e:
@@ -870,15 +416,3 @@ class _Chunks:
             )
         ds = ds.assign_coords(run=np.asarray(ds["member"].values, np.int64)).drop_vars("member").sortby("run")
         return ds.drop_vars([v for v in list(ds.data_vars) if v == "chunk_done"])
-
-
-def _template(ds, n):
-    """A lazily filled dataset of the whole campaign's shape (for the Zarr store's layout)."""
-    import xarray as xr
-
-    size = ds.sizes["run"]
-    reps = -(-n // size)
-    full = xr.concat(
-        [ds] * reps, dim="run", data_vars="minimal", coords="minimal", compat="override", join="override"
-    ).isel(run=slice(0, n))
-    return full.assign_coords(run=np.arange(n)).chunk({"run": size})
