@@ -48,10 +48,10 @@ from ._src.appendage import read_op4 as read_op4
 from ._src.appendage import save_appendage as save_appendage
 from ._src.appendage import save_fe as save_fe
 from ._src.appendage import scene_appendages as scene_appendages
-from ._src.campaigns.members import FAILURES as FAILURES
 from ._src.campaigns.campaign import (
     monte_carlo as monte_carlo,
 )
+from ._src.campaigns.members import FAILURES as FAILURES
 from ._src.equations.articulated import resolve_method as resolve_method
 from ._src.equations.attitude import (
     AbstractAttitude as AbstractAttitude,

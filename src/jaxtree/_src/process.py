@@ -97,7 +97,11 @@ def use_every_core() -> int | None:
     import jax
     from jax._src import xla_bridge
 
-    if count <= 1 or xla_bridge.backends_are_initialized() or jax.config.jax_num_cpu_devices not in (-1, None):
+    if (
+        count <= 1
+        or xla_bridge.backends_are_initialized()
+        or getattr(jax.config, "jax_num_cpu_devices", -1) not in (-1, None)
+    ):
         return None
     jax.config.update("jax_num_cpu_devices", count)
     return count

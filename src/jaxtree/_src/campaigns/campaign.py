@@ -159,8 +159,8 @@ def monte_carlo(
         "devices": len(jax.local_devices()) if devices is None else int(devices),
     }
     if out is not None:
-        key = fingerprint(models, s.ts, s.t1, s.rtol, s.atol, cfg, s.chunk_size)
-        store = Store(out, key, s.n_chunks, {**settings, **versions()})
+        campaign_id = fingerprint(models, s.ts, s.t1, s.rtol, s.atol, cfg, s.chunk_size)
+        store = Store(out, campaign_id, s.n_chunks, {**settings, **versions()})
     runs = _Chunks(model, models, s, cfg, client=client, devices=devices, store=store, progress=progress)
     finished = set() if store is None else store.done()
     pilot_s = runs.pilot(finished) if order == "pilot" else 0.0

@@ -450,7 +450,7 @@ def simulate(
     run = _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, packed)
     with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
         sol = _solve(problem, y0, run, opts)
-    if diagnostics and not traced:
+    if diagnostics and packed is not None:  # (an eager run)
         sol = _singular_start_after(sol, problem, packed[0], arrays[2])
     if diagnostics:
         sol = _with_diagnostics(sol, model, law, controller, params, n_saved)
