@@ -132,6 +132,26 @@ def eq1(model):
     return jax.vmap(lambda w, g, gd: jaxtree.forward_dynamics(model, dcm, w, g, gd))
 
 
+def eq1_on_devices(model, size):
+    """Eq. (1) of a batch split over the local devices (``shard_map``: the CPU's cores, one device
+    per core as ``import jaxtree`` sets up), each device's share in vmapped groups of
+    ``batch_first_min()`` members (the batch-first recursion; a group's working set stays small),
+    as ``jaxtree.monte_carlo`` splits a chunk; None with one device."""
+    from jax.sharding import Mesh
+    from jax.sharding import PartitionSpec as P
+
+    devices = jax.local_devices()
+    if len(devices) < 2 or size % len(devices):
+        return None
+    dcm = model.initial.dcm
+    one = lambda w, g, gd: jaxtree.forward_dynamics(model, dcm, w, g, gd)
+    group = min(solve.batch_first_min(), size // len(devices))
+    share = lambda w, g, gd: jax.lax.map(lambda a: one(*a), (w, g, gd), batch_size=group)
+    mesh = Mesh(np.asarray(devices), ("members",))
+    spec = P("members")
+    return jax.shard_map(share, mesh=mesh, in_specs=(spec, spec, spec), out_specs=spec, check_vma=False)
+
+
 def mujoco_rollout(model, size, steps):
     """Seconds per member and right side of ``mujoco.rollout`` (RK4, one thread per core), or None."""
     try:
@@ -225,6 +245,10 @@ def case(name, size, args):
             rows.append(("vmap single", per / size, first, flops(eq1(model), xs) / size))
         finally:
             solve.BATCH_FIRST_MIN = saved
+        sharded = eq1_on_devices(model, size)
+        if sharded is not None:
+            per, first = loop_timing(sharded, xs, args.loop, args.repeats)
+            rows.append((f"batch-first, {jax.device_count()} devices", per / size, first, np.nan))
         mj = mujoco_rollout(model, size, args.mujoco_steps)
         if mj is not None:
             rows.append(("MuJoCo rollout RK4", mj, np.nan, np.nan))
