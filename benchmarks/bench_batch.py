@@ -6,8 +6,12 @@ For each case it prints the time per member of
 - ``batch-first``: ``jax.vmap`` of :func:`jaxtree.forward_dynamics` as the engine runs it (from
   ``BATCH_FIRST_MIN`` members on, the batch-first recursion of
   ``jaxtree._src.equations.batched``);
-- ``vmap single``: the same call with the batch-first path switched off (``BATCH_FIRST_MIN`` set
-  above B), i.e. the single-member solve (dense or blocked articulated) batched by ``vmap``;
+- ``vmap single``: the single-member solve (dense or blocked articulated; ``solve.solve_one``,
+  called explicitly) batched by ``vmap``;
+- ``batch-first (<stage>)`` with ``--stages``: the recursion called explicitly
+  (``solve.batch_first``) with the stages cut another way;
+- ``batch-first, N devices``: the batch split over the host devices (``shard_map``), each
+  device's share in vmapped groups of ``batch_first_min()`` members;
 - ``MuJoCo rollout``: ``mujoco.rollout`` with one thread per core, RK4, time per member and per
   right side (a step is four), where the scene is representable (massless bodies get a tiny mass);
 
@@ -59,8 +63,8 @@ def _args():
         "--stages",
         nargs="+",
         default=None,
-        choices=("cond", "barrier", "none"),
-        help="also time the batch-first program with these stage modes (batched.STAGE)",
+        choices=("barrier", "none"),
+        help="also time the batch-first program with its stages cut these ways (solve.batch_first)",
     )
     p.add_argument(
         "--tangents",
@@ -116,15 +120,27 @@ def loop_timing(fn, args, loop, repeats):
 
 
 def flops(fn, args):
-    """XLA's flop count of one call of `fn(*args)` with every level of the recursion unrolled."""
-    saved = batched.SCAN_MIN
-    batched.SCAN_MIN = 10**9
-    try:
-        cost = jax.jit(fn).lower(*args).compile().cost_analysis()
-    finally:
-        batched.SCAN_MIN = saved
+    """XLA's flop count of one call of `fn(*args)` (a ``lax.scan`` body counted once)."""
+    cost = jax.jit(fn).lower(*args).compile().cost_analysis()
     cost = cost[0] if isinstance(cost, list) else cost
     return float(cost.get("flops", np.nan))
+
+
+def batch_first(model, stages=None, scan_min=batched.SCAN_MIN):
+    """The batch-first recursion called explicitly (``scan_min`` above the depth: every level
+    unrolled, for the flop count)."""
+    dcm = model.initial.dcm
+
+    def fn(w, g, gd):
+        state = jaxtree.State(jnp.broadcast_to(dcm, (w.shape[0], 3, 3)), w, g, gd)
+        return solve.batch_first(model, state, stages=stages, scan_min=scan_min)
+
+    return fn
+
+
+def vmap_single(model):
+    dcm = model.initial.dcm
+    return jax.vmap(lambda w, g, gd: solve.solve_one(model, jaxtree.State(dcm, w, g, gd), 0.0, None, None))
 
 
 def eq1(model):
@@ -227,24 +243,15 @@ def case(name, size, args):
         xs = batch_states(model, size)
         fn = eq1(model)
         per, first = loop_timing(fn, xs, args.loop, args.repeats)
-        rows = [(f"batch-first ({batched.stage_mode()})", per / size, first, flops(fn, xs) / size)]
+        unrolled = batch_first(model, scan_min=10**9)
+        rows = [(f"batch-first ({batched.default_stages()})", per / size, first, flops(unrolled, xs) / size)]
         for mode in args.stages or ():
-            if mode == batched.stage_mode():
+            if mode == batched.default_stages():
                 continue
-            saved_stage = batched.STAGE
-            batched.STAGE = mode
-            try:
-                per, first = loop_timing(eq1(model), xs, args.loop, args.repeats)
-                rows.append((f"batch-first ({mode})", per / size, first, flops(eq1(model), xs) / size))
-            finally:
-                batched.STAGE = saved_stage
-        saved = solve.BATCH_FIRST_MIN
-        solve.BATCH_FIRST_MIN = 10**9
-        try:
-            per, first = loop_timing(eq1(model), xs, args.loop, args.repeats)
-            rows.append(("vmap single", per / size, first, flops(eq1(model), xs) / size))
-        finally:
-            solve.BATCH_FIRST_MIN = saved
+            per, first = loop_timing(batch_first(model, stages=mode), xs, args.loop, args.repeats)
+            rows.append((f"batch-first ({mode})", per / size, first, flops(batch_first(model, mode, 10**9), xs) / size))
+        per, first = loop_timing(vmap_single(model), xs, args.loop, args.repeats)
+        rows.append(("vmap single", per / size, first, flops(vmap_single(model), xs) / size))
         sharded = eq1_on_devices(model, size)
         if sharded is not None:
             per, first = loop_timing(sharded, xs, args.loop, args.repeats)
@@ -266,7 +273,7 @@ def case(name, size, args):
 def main():
     args = _args()
     say(machine())
-    say(f"jax {jax.__version__}, float64, batch-first from {solve.BATCH_FIRST_MIN} members")
+    say(f"jax {jax.__version__}, float64, batch-first from {solve.batch_first_min()} members")
     results = []
     for name in args.cases:
         for size in args.sizes or [CASES[name]]:

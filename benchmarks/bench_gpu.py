@@ -7,11 +7,11 @@ CPU too (``--quick``), where it checks itself.
 It prints, for the default JAX backend:
 
 - the machine line and the devices;
-- ``forward``: :func:`jaxtree.forward_dynamics` vmapped over a batch of random states, by method:
-  ``vmap single`` (the single-member solve batched by ``vmap``: the engine's path on a GPU),
-  ``batch-first/<stage>`` (the recursion of ``jaxtree._src.equations.batched`` with the members
-  as the contiguous axis, its stages cut as ``none``, ``barrier`` or ``cond``; see
-  ``batched.STAGE``); compile time (``lower`` + ``compile``) apart from the run time (median of
+- ``forward``: Eq. (1) (its accelerations) over a batch of random states, by method: ``vmap
+  single`` (the single-member solve batched by ``vmap``, ``solve.solve_one``: the engine's path
+  on a GPU below ``BATCH_FIRST_MIN_ACCELERATOR``), ``batch-first/<stage>`` (the recursion of
+  ``jaxtree._src.equations.batched`` with the members as the contiguous axis, its stages cut as
+  ``none`` or ``barrier``: ``solve.batch_first``); compile time (``lower`` + ``compile``) apart from the run time (median of
   repeated calls), ns per member, XLA's flop count per member and the GFLOP/s reached, and the
   largest deviation from the float64 ``vmap single`` accelerations (relative to their largest
   magnitude): round-off for float64, the float32 error for float32;
@@ -37,7 +37,6 @@ version matches ``mujoco``'s). Figures of 2026-11-27, NVIDIA H200: results/bench
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import sys
 import time
@@ -50,7 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxtree
-from jaxtree._src.equations import batched, dynamics
+from jaxtree._src.equations import solve
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _common import dispersed_fig4, machine, timed, write_json
@@ -92,18 +91,20 @@ def over_budget(what):
 
 
 # ------------------------------------------------------------------------------------- forward
-@contextlib.contextmanager
-def method(name):
-    """Run Eq. (1) under vmap by `name`: "vmap single" or "batch-first/<stage>"."""
-    saved = dynamics.BATCH_FIRST_MIN, dynamics.BATCH_FIRST_MIN_ACCELERATOR, batched.STAGE
-    try:
-        least = 10**9 if name == "vmap single" else 1
-        dynamics.BATCH_FIRST_MIN = dynamics.BATCH_FIRST_MIN_ACCELERATOR = least
-        if name != "vmap single":
-            batched.STAGE = name.split("/")[1]
-        yield
-    finally:
-        dynamics.BATCH_FIRST_MIN, dynamics.BATCH_FIRST_MIN_ACCELERATOR, batched.STAGE = saved
+def method(model, how):
+    """Eq. (1)'s accelerations of a batch ``(omega0, gamma, gamma_dot)`` by `how`: "vmap single"
+    or "batch-first/<stage>" (each path called explicitly, whatever the batch's size)."""
+    dcm = model.initial.dcm
+    if how == "vmap single":
+        one = lambda w, g, gd: solve.solve_one(model, jaxtree.State(dcm, w, g, gd), 0.0, None, None)
+        return jax.vmap(one)
+    stages = how.split("/")[1]
+
+    def batch(w, g, gd):
+        dcms = jnp.broadcast_to(dcm, (w.shape[0], 3, 3))
+        return solve.batch_first(model, jaxtree.State(dcms, w, g, gd), 0.0, stages=stages)
+
+    return batch
 
 
 def states(model, size, seed=0):
@@ -128,12 +129,10 @@ def forward(name, size, dtype, how, repeats):
     model = m64 if dtype == "float64" else m64.astype(jnp.float32)
     host = states(m64, size)
     args = tuple(jnp.asarray(a, dtype) for a in host)
-    dcm = model.initial.dcm
-    with method(how):
-        fn = jax.jit(jax.vmap(lambda w, g, gd: jaxtree.forward_dynamics(model, dcm, w, g, gd)))
-        t0 = time.perf_counter()
-        compiled = fn.lower(*args).compile()
-        compile_s = time.perf_counter() - t0
+    fn = jax.jit(method(model, how))
+    t0 = time.perf_counter()
+    compiled = fn.lower(*args).compile()
+    compile_s = time.perf_counter() - t0
     cost = compiled.cost_analysis()
     cost = cost[0] if isinstance(cost, list) else cost
     fl = float((cost or {}).get("flops", np.nan)) / size
@@ -172,7 +171,7 @@ def forward(name, size, dtype, how, repeats):
 def forward_largest(name, size, modes, repeats):
     """vmap single and the batch-first stage `modes` at batch `size` in float64, then the faster
     path of each kind in float32; returns the fastest batch-first method."""
-    say(f"forward_dynamics {name}, vmapped over {size} random states")
+    say(f"Eq. (1) of {name}, {size} random states")
     rows = {}
     for how in ["vmap single", *[f"batch-first/{m}" for m in modes]]:
         if over_budget(f"{name} {how}"):
@@ -188,7 +187,7 @@ def forward_largest(name, size, modes, repeats):
 
 def forward_sweep(name, sizes, best, repeats):
     """Both paths at the smaller batch sizes, float64 then float32."""
-    say(f"forward_dynamics {name}, smaller batches")
+    say(f"Eq. (1) of {name}, smaller batches")
     for dtype in ("float64", "float32"):
         for size in sizes:
             for how in ("vmap single", best):
@@ -315,13 +314,12 @@ def main():
     big, small = (512, (128,)) if quick else (65536, (1024, 8192))
     repeats = 3 if quick else 5
     if ARGS.rest:
-        with method("batch-first/none"):
-            campaign(ARGS.runs, quick)
+        campaign(ARGS.runs, quick)
         forward_sweep("fig4_free", small, "batch-first/none", repeats)
         forward_sweep("flex95", small, "batch-first/none", repeats)
         say("done")
         return
-    best4 = forward_largest("fig4_free", big, ("none", "barrier", "cond"), repeats) or "batch-first/barrier"
+    best4 = forward_largest("fig4_free", big, ("none", "barrier"), repeats) or "batch-first/barrier"
     # flex95 written as one expression ("none") was ten times the flops on a CPU: the barrier, and
     # fig4_free's fastest mode if it is another
     modes95 = tuple(dict.fromkeys(("barrier", best4.split("/")[1])))

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree._src.equations import batched, dynamics, rules
+from jaxtree._src.equations import dynamics, rules, solve
 
 from helpers import random_state, scene_names
 from trees import deep_and_wide, gimbal_model, random_tree
@@ -26,7 +26,7 @@ ROUNDOFF = 1e-11
 # float32 against float64 on the same members: single precision amplified by the condition
 FLOAT32 = 2e-3
 
-B = dynamics.BATCH_FIRST_MIN
+B = solve.BATCH_FIRST_MIN  # the CPU's threshold (the tests below run on a CPU or pass the path explicitly)
 
 
 def rel(a, b):
@@ -70,19 +70,49 @@ def assert_same(batch, singles, model, state):
                 assert rel(got, want) < tol, (field, i, rel(got, want), tol)
 
 
+def _runs_batch_first(closed) -> bool:
+    """Whether a jaxpr holds operations of the batch-first recursion (named ``batch_first``)."""
+
+    def walk(jaxpr):
+        for e in jaxpr.eqns:
+            if "batch_first" in str(e.source_info.name_stack):
+                return True
+            for v in e.params.values():
+                for x in v if isinstance(v, (list, tuple)) else [v]:
+                    inner = getattr(x, "jaxpr", x)
+                    if hasattr(inner, "eqns") and walk(inner):
+                        return True
+        return False
+
+    return walk(closed.jaxpr)
+
+
 def test_vmap_runs_the_batch_first_recursion(scenes):
-    """From BATCH_FIRST_MIN members on, vmap lands in the batch-first program (its stages are
-    cut by barriers or conditionals, ~30 on this scene); a smaller batch vmaps the single-member
-    solve (with at most one conditional, the platform switch of a library call, and no barrier)."""
+    """From batch_first_min() members on, vmap lands in the batch-first program; a smaller batch
+    vmaps the single-member solve."""
     model = scenes["wings"]
-    marker = {"barrier": "optimization_barrier", "cond": "cond["}[batched.stage_mode()]
+    size = solve.batch_first_min()
 
     def program(size):
         s = states(model, 0, size)
-        return str(jax.make_jaxpr(lambda s: accelerations(model, s))(s))
+        return jax.make_jaxpr(lambda s: accelerations(model, s))(s)
 
-    assert program(B).count(marker) > 10
-    assert program(B - 1).count(marker) <= 1
+    assert _runs_batch_first(program(size))
+    assert not _runs_batch_first(program(size - 1))
+
+
+def test_the_accelerators_stages_on_a_cpu(scenes):
+    """The recursion with the accelerator's stages ("none": fusion left to the compiler, tested
+    here on a CPU) and with the CPU's (barriers) gives the single solves' accelerations, its
+    chained levels scanned or unrolled alike; a stage mode that does not exist is named."""
+    model = scenes["wings"]
+    s = states(model, 12)
+    singles = one_by_one(model, s)
+    for stages, scan_min in (("none", solve.batched.SCAN_MIN), ("barrier", 1), ("none", 1)):
+        batch = jax.jit(lambda s: solve.batch_first(model, s, 0.3, stages=stages, scan_min=scan_min))(s)
+        assert_same(batch, singles, model, s)
+    with pytest.raises(ValueError, match="stages must be"):
+        solve.batch_first(model, s, 0.3, stages="cond")
 
 
 @pytest.mark.parametrize("name", scene_names())

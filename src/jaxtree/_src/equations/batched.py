@@ -199,52 +199,29 @@ class Inputs(NamedTuple):
     torque: Any
 
 
-def _stages(key):
+def _stages(mode: str):
     """``stage(fn, *args)``: ``fn(*args)`` (a pytree of arrays) computed as one unit whose results
     are buffers.
 
     XLA:CPU fuses an elementwise producer into each of its consumers and recomputes it there:
     written as one expression, a level's rotations were recomputed by each of the dozens of
-    entries that read them (flex95: 1.1 Mflop a member instead of ~100 k). By :func:`stage_mode`:
-    "barrier" puts an ``optimization_barrier`` on a stage's results; "cond" runs a stage as the
-    branch of a conditional (whose operands and results are buffers) whose two branches XLA
-    cannot merge: `key` is a scalar of the inputs; for a NaN key the values are `fn`'s, for any
-    other ``0 * key`` (exactly zero) is added to them; "none" leaves fusion to the compiler.
-    A stage returns few stacked arrays (components leading): one loop each, not one per
-    component."""
-
-    mode = stage_mode()
+    entries that read them (flex95: 1.1 Mflop a member instead of ~100 k). `mode` "barrier" puts
+    an ``optimization_barrier`` on a stage's results; "none" leaves fusion to the compiler (see
+    :func:`default_stages`). A stage returns few stacked arrays (components leading): one loop
+    each, not one per component."""
     if mode == "none":
         return lambda fn, *args: fn(*args)
     if mode == "barrier":
         return lambda fn, *args: jax.lax.optimization_barrier(fn(*args))
-
-    def stage(fn, *args):
-        def finite(*a):
-            return jax.tree_util.tree_map(lambda z: z + jnp.zeros((), z.dtype) * key.astype(z.dtype), fn(*a))
-
-        return jax.lax.cond(jnp.isnan(key), fn, finite, *args)
-
-    return stage
+    raise ValueError(f"batched.solve: stages must be 'barrier' or 'none', got {mode!r}")
 
 
-# How :func:`_stages` cuts the recursion: "cond" (each stage the branch of a conditional),
-# "barrier" (``optimization_barrier`` on a stage's results), "none" (one expression; the compiler
-# fuses as it likes), or "auto": "barrier" on a CPU, "none" elsewhere. On this 2-core CPU
-# (benchmarks/bench_batch.py --stages, 2026-11-27) "barrier" kept the stages apart as well as "cond"
-# (flex95 101.6 against 113.2 kflop a member) and ran faster (fig4_free 1.73 against 2.68 us a member
-# at 1024, flex95 16.96 against 22.78 at 256) with shorter compiles (7.4 against 12.3 s, 16.7 against
-# 22.7 s). On a GPU a conditional reads its
-# predicate on the host, one synchronization a stage, and XLA:GPU's fusion does not recompute the
-# rotations as XLA:CPU's does: on an H200 at 65 536 members (benchmarks/bench_gpu.py, float64) "none"
-# ran fig4_free in 17.8 ns a member, "barrier" 37.1, "cond" 36.5; flex95 145.6 and 275.3 ("barrier").
-STAGE = "auto"
-
-
-def stage_mode() -> str:
-    """The stage mode in force (:data:`STAGE`, with "auto" resolved by JAX's default backend)."""
-    if STAGE != "auto":
-        return STAGE
+def default_stages() -> str:
+    """How the recursion is cut into stages on JAX's default backend: "barrier" on a CPU, "none"
+    elsewhere. The rule from measurements (benchmarks/FINDINGS.md, "Stages by barrier, not by
+    conditional" and "bench_gpu.py on an NVIDIA H200"): on XLA:CPU the barriers keep the stages'
+    results from being recomputed by every consumer; XLA:GPU's fusion does not recompute them, and
+    there the barriers cost a factor of two. Stages as conditionals lost on both and were removed."""
     return "barrier" if jax.default_backend() == "cpu" else "none"
 
 
@@ -450,13 +427,13 @@ def _ldl6_solve(Ld, b, diag):
 
 # A run of more than this many consecutive levels that continue chains slot for slot (same width,
 # same locked hinges) is traversed by one ``lax.scan`` instead of unrolled: compile time then
-# follows the number of distinct levels, not the depth (chain200 unrolled: 172 s to compile, 5 s
-# scanned). Shorter runs are unrolled: a scan's iteration costs (flex95's wings, ten chained
-# levels: 17.6-18.0 us a member unrolled against 22.6-24.0 scanned at B = 256, compile 16 s / 11 s).
+# follows the number of distinct levels, not the depth; shorter runs are unrolled, where a scan's
+# iteration costs more than it saves (the rule's measurements: benchmarks/FINDINGS.md,
+# "`bench_batch.py`: Eq. (1) batch-first", step 4).
 SCAN_MIN = 16
 
 
-def _units(levels):
+def _units(levels, scan_min: int = SCAN_MIN):
     """The levels (1-based) as units: ``("one", d)``, or ``("run", a, b)`` for levels a..b that
     each continue the level before slot for slot with the same locked hinges."""
     units, d, n = [], 1, len(levels)
@@ -465,7 +442,7 @@ def _units(levels):
         b = d
         while b + 1 <= n and levels[b].chained and np.array_equal(levels[b].locked, levels[d - 1].locked):
             b += 1
-        if b - d >= SCAN_MIN:
+        if b - d >= scan_min:
             units.append(("run", d + 1, b))
         else:
             units.extend(("one", k) for k in range(d + 1, b + 1))
@@ -473,12 +450,18 @@ def _units(levels):
     return units
 
 
-def solve(pl: Plan, x: Inputs):
+def solve(pl: Plan, x: Inputs, *, stages: str | None = None, scan_min: int = SCAN_MIN):
     """``(omega0_dot (3 of (1, B)), gamma_ddot (n, B), hold (n, B), pivots (6 of (1, B)))``: rows of
     the hinges in plan order; `hold` zero but in the rows of locked hinges; `pivots` those of
-    b_0's articulated inertia (LDL^T)."""
+    b_0's articulated inertia (LDL^T). `stages`: how the recursion is cut ("barrier" or "none";
+    default :func:`default_stages`); `scan_min`: the chained levels from which a run of them is
+    one ``lax.scan`` (:data:`SCAN_MIN`)."""
+    with jax.named_scope("batch_first"):  # (its operations named so in profiles and jaxprs)
+        return _solve(pl, x, _stages(default_stages() if stages is None else stages), scan_min)
+
+
+def _solve(pl: Plan, x: Inputs, stage, scan_min: int):
     levels = pl.levels
-    stage = _stages(jnp.ravel(x.omega0[0])[0])
     starts = np.cumsum([0] + [len(lv.bodies) for lv in levels])
     dtype = x.gamma.dtype
 
@@ -594,7 +577,7 @@ def solve(pl: Plan, x: Inputs):
     T0 = None if x.torque is None else tuple(c[:1] for c in x.torque)
     p0 = _split(stage(lambda M, w, F, T: _bias(M, z3, w, z3, F, T, None), M0, w0, F0, T0), (6,))[0]
 
-    units = _units(levels)
+    units = _units(levels, scan_min)
 
     # --- outward: kinematics
     K = _stack(z3, w0, z3)  # (c, w, v) of b_0

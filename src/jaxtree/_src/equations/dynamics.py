@@ -14,10 +14,10 @@ imports them from here):
   ``solve_accelerations``, ``solve_unchecked``) and the diagnosis of a failed solve;
 - :mod:`.diagnostics`: the condition of Eq. (1).
 
-The tuning constants ``BATCH_FIRST_MIN``, ``BATCH_FIRST_MIN_ACCELERATOR`` (:mod:`.solve`) and
-``BATCH_FIRST_DERIVATIVES_MIN`` (:mod:`.rules`) read here give their modules' current values; to
-change them, assign them on those modules (as ``merge_outboard_sums`` is patched on
-:mod:`.assembly`), which read them.
+The rules of the batch dispatch (``BATCH_FIRST_MIN``, ``BATCH_FIRST_MIN_ACCELERATOR`` of
+:mod:`.solve`, ``BATCH_FIRST_DERIVATIVES_MIN`` of :mod:`.rules`) live in those modules with the
+measurements behind them; :func:`.solve.batch_first` and :func:`.solve.solve_one` call either path
+explicitly.
 """
 
 from __future__ import annotations
@@ -61,12 +61,3 @@ _cholesky_solve = solve.cholesky_solve
 _solve_completed_jvp = rules.solve_completed_jvp
 _configuration_tangent = rules.configuration_tangent
 _diagnose = forward.diagnose
-
-_TUNING = {"BATCH_FIRST_MIN": solve, "BATCH_FIRST_MIN_ACCELERATOR": solve, "BATCH_FIRST_DERIVATIVES_MIN": rules}
-
-
-def __getattr__(name: str):
-    """The tuning constants, read from the module that reads them (their current value)."""
-    if name in _TUNING:
-        return getattr(_TUNING[name], name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

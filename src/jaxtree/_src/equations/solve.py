@@ -46,16 +46,14 @@ class Accelerations(NamedTuple):
 
 
 # Batches of at least this many members run the batch-first recursion (:mod:`.batched`) when Eq. (1)
-# is vmapped on a CPU; smaller ones vmap the single-member solve. The batch-first program pays a
-# fixed cost per call (~550 kernels on fig4_free, ~1300 on flex95: 57 and 190 us) that a small batch
-# does not amortize (benchmarks/bench_batch.py: fig4_free 9.4 us a member at B = 16 against 6 us
-# vmapped, 3.2 at B = 128).
+# is vmapped on a CPU; smaller ones vmap the single-member solve, whose program is smaller to
+# compile (benchmarks/FINDINGS.md, "`bench_batch.py`: Eq. (1) batch-first" and "Stages by barrier,
+# not by conditional": with barriers the batch-first program wins per member from 8 members on,
+# but compiles for longer).
 BATCH_FIRST_MIN = 64
-# The same on an accelerator, where each of those kernels is a launch: on an H200 (benchmarks/
-# bench_gpu.py, 2026-11-27) the batch-first program cost ~1.2-2 ms a call whatever the batch up to
-# 8192 members, so the vmapped single solve won at 1024 and 8192 members (fig4_free float64: 559
-# against 1407 ns a member at 1024, 94 against 251 at 8192) and lost at 65 536 (44 against 18;
-# flex95 765 against 146). Batches between 8192 and 65 536 were not measured.
+# The same on an accelerator, where each of the batch-first program's kernels is a launch: it lost
+# to the vmapped single solve up to 8192 members and won at 65 536 (FINDINGS, "`bench_gpu.py` on
+# an NVIDIA H200"; between them not measured).
 BATCH_FIRST_MIN_ACCELERATOR = 65536
 
 
@@ -131,7 +129,7 @@ def solve_plain(model, state, t, tau, gdd_p, one=None):
     return vmap_dispatch(lambda leaves: one(*args(leaves)), (leaves,), members)
 
 
-def solve_members(size, dyn, flags, static):
+def solve_members(size, dyn, flags, static, *, stages=None, scan_min=batched.SCAN_MIN):
     """Eq. (1) for a batch (members on axis 0 of the leaves flagged in `flags`) by the batch-first
     recursion: the hinge laws, torques and loads of each member by ``jax.vmap``, then one
     recursion over all members with the members as the contiguous axis."""
@@ -158,12 +156,36 @@ def solve_members(size, dyn, flags, static):
     on.update(omega0=bool(sflags.omega0), gamma=bool(sflags.gamma), gamma_dot=bool(sflags.gamma_dot))
     on.update(tau=True, gdd=True, loads=True)
     x = batched.inputs(model, pl, state.omega0, state.gamma, state.gamma_dot, torque, gdd, loads, on)
-    w, gdd_rows, hold_rows, _ = batched.solve(pl, x)
+    w, gdd_rows, hold_rows, _ = batched.solve(pl, x, stages=stages, scan_min=scan_min)
     w = jnp.broadcast_to(jnp.concatenate([jnp.reshape(c, (1, -1)) for c in w], 0), (3, size)).T
     hinge_row = np.argsort(pl.order - 1)
     gdd_out = jnp.broadcast_to(gdd_rows, (model.n, size))[hinge_row].T
     hold = jnp.broadcast_to(hold_rows, (model.n, size))[pl.prescribed_rows].T
     return Accelerations(w, gdd_out, hold)
+
+
+def batch_first(model, state, t=0.0, tau=None, gdd_p=None, *, stages=None, scan_min=batched.SCAN_MIN):
+    """Eq. (1) for a batch of states (a :class:`~jaxtree.State` whose arrays carry the members on
+    axis 0; `tau` and `gdd_p` per member when 2-D) by the batch-first recursion, whatever the
+    batch's size; `stages`, `scan_min`: see :func:`jaxtree._src.equations.batched.solve`. What
+    ``jax.vmap`` of the solve runs from :func:`batch_first_min` members on, as an explicit call
+    (benchmarks of its variants, tests of the accelerator's form on a CPU)."""
+    size = int(jnp.shape(state.gamma)[0])
+    dyn, static = eqx.partition((model, state, t, tau, gdd_p), eqx.is_array)
+    flags = (
+        jax.tree_util.tree_map(lambda _: False, dyn[0]),
+        jax.tree_util.tree_map(lambda _: True, dyn[1]),
+        None if dyn[2] is None else False,
+        None if dyn[3] is None else jnp.ndim(dyn[3]) == 2,
+        None if dyn[4] is None else jnp.ndim(dyn[4]) == 2,
+    )
+    return solve_members(size, dyn, flags, static, stages=stages, scan_min=scan_min)
+
+
+def solve_one(model, state, t, tau, gdd_p):
+    """Eq. (1) for one member by the model's method (no batching rule): what ``jax.vmap`` of the
+    solve runs for fewer than :func:`batch_first_min` members."""
+    return _solve_one(model, state, t, tau, gdd_p)
 
 
 def _solve_one(model, state, t, tau, gdd_p):
