@@ -36,7 +36,7 @@ Symmetric 6 x 6 inertias are kept as their 21 entries, vectors as tuples of comp
 into every consumer and recomputes it there, so the recursion is cut into *stages* whose results
 are buffers (:func:`_stages`: an ``optimization_barrier`` on each stage's results); a
 concatenation of more than 8 operands is not fused, so a stage returns chunks of at most 8
-components (:func:`_stack`). Without the stages flex95 cost 1.1 Mflop a member (the rotations
+components (:func:`stacked`). Without the stages flex95 cost 1.1 Mflop a member (the rotations
 recomputed ~120 times), with them ~50 k.
 """
 
@@ -50,70 +50,21 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..numerics import SINGULAR_PIVOT
-
-# ----------------------------------------------------------------------------- component algebra
-# A 3-vector is a tuple of three arrays of one shape (bodies of a level, members); a symmetric
-# 6 x 6 matrix a dict {(i, j): array} over i <= j.
-
-
-def _cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def _dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _add(a, b):
-    return tuple(x + y for x, y in zip(a, b))
-
-
-def _scale(a, s):
-    return tuple(x * s for x in a)
-
-
-def _mv(R, x):
-    """``R @ x`` for R a 3 x 3 tuple of rows."""
-    return tuple(R[i][0] * x[0] + R[i][1] * x[1] + R[i][2] * x[2] for i in range(3))
-
-
-def _mm(A, B):
-    return tuple(tuple(A[i][0] * B[0][j] + A[i][1] * B[1][j] + A[i][2] * B[2][j] for j in range(3)) for i in range(3))
-
-
-_PAIRS = tuple((i, j) for i in range(6) for j in range(i, 6))
-
-
-def _sym(M, i, j):
-    return M[(i, j)] if i <= j else M[(j, i)]
-
-
-def _sym_apply(M, x):
-    """``M @ x`` for a symmetric 6 x 6 M and a 6-tuple x."""
-    return tuple(sum(_sym(M, i, j) * x[j] for j in range(6)) for i in range(6))
-
-
-def _body_inertia(m, J, c):
-    """The rigid-body inertia about O of a body of mass m, inertia J (symmetric 3 x 3 dict
-    {(i, j)}, {b^0} components, about its mass center) and mass center c from O:
-    ``[[J + m (|c|^2 U - c c^T), m c~], [-m c~, m U]]``."""
-    M = {}
-    cc = _dot(c, c)
-    for i in range(3):
-        for j in range(i, 3):
-            M[(i, j)] = J[(i, j)] + m * ((cc if i == j else 0.0) - c[i] * c[j])
-    mc = _scale(c, m)
-    # m c~ : rows (0, -c3, c2), (c3, 0, -c1), (-c2, c1, 0), in the upper right block
-    zero = jnp.zeros_like(m * c[0])
-    tilde = ((zero, -mc[2], mc[1]), (mc[2], zero, -mc[0]), (-mc[1], mc[0], zero))
-    for i in range(3):
-        for j in range(3):
-            M[(i, 3 + j)] = tilde[i][j]
-    for i in range(3):
-        for j in range(i, 3):
-            M[(3 + i, 3 + j)] = m if i == j else zero
-    return M
-
+from .components import (
+    PAIRS,
+    add,
+    body_inertia,
+    components_of,
+    cross,
+    ldl6,
+    ldl6_solve,
+    mm,
+    mv,
+    scale,
+    split_stacked,
+    stacked,
+    sym_apply,
+)
 
 # ----------------------------------------------------------------------------- static plan
 
@@ -225,36 +176,6 @@ def default_stages() -> str:
     return "barrier" if jax.default_backend() == "cpu" else "none"
 
 
-# XLA:CPU fuses a concatenation of at most 8 operands into one loop; a stage's stacked results
-# are therefore chunks of at most 8 components (one loop each).
-_CHUNK = 8
-
-
-def _components(a):
-    """The components of a stacked array or of a tuple of chunks (leading axes)."""
-    if isinstance(a, (tuple, list)):
-        return tuple(c for chunk in a for c in _components(chunk))
-    return tuple(a[i] for i in range(a.shape[0]))
-
-
-def _split(a, sizes):
-    """Components of the stacked array (or chunks) `a` in groups of `sizes` (tuples of arrays)."""
-    comps = _components(a)
-    out, i = [], 0
-    for k in sizes:
-        out.append(comps[i : i + k])
-        i += k
-    return out
-
-
-def _stack(*groups):
-    """The components of `groups` stacked along a new leading axis, in chunks of `_CHUNK`."""
-    comps = [c for g in groups for c in g]
-    shape = jnp.broadcast_shapes(*[jnp.shape(z) for z in comps])
-    comps = [jnp.broadcast_to(c, shape) for c in comps]
-    return tuple(jnp.stack(comps[i : i + _CHUNK]) for i in range(0, len(comps), _CHUNK))
-
-
 def _gather_rows(a, lv: _Level, parent_width):
     """Rows of the parent level's stacked array `a` (k, width, B) for the bodies of level `lv`."""
     if lv.chained or parent_width == 1 and len(lv.bodies) == 1:
@@ -286,22 +207,22 @@ def _level_kinematics(K_prev, co_si, g, hp, hb, gd, first):
     """Stage of one level, outward: ``(R (9), c (3), w (3), v (3))`` of its bodies and
     ``(S (6), c_k (6))``, from its parents' `K_prev` (same layout; for b_0 without R)."""
     if first:
-        (cp, wp, vp) = _split(K_prev, (3, 3, 3))
+        (cp, wp, vp) = split_stacked(K_prev, (3, 3, 3))
         Rp = None
     else:
-        R9, cp, wp, vp = _split(K_prev, (9, 3, 3, 3))
+        R9, cp, wp, vp = split_stacked(K_prev, (9, 3, 3, 3))
         Rp = (R9[0:3], R9[3:6], R9[6:9])
     E = _rotation(co_si[0], co_si[1], g)
-    R = E if Rp is None else _mm(Rp, E)
-    gw = g if Rp is None else _mv(Rp, g)
-    h = _add(cp, hp if Rp is None else _mv(Rp, hp))
-    c = tuple(a - b for a, b in zip(h, _mv(R, hb)))
-    sL = _cross(h, gw)
-    sw, sl = _scale(gw, gd), _scale(sL, gd)
-    w, v = _add(wp, sw), _add(vp, sl)
-    cb = _cross(wp, sw) + _add(_cross(wp, sl), _cross(vp, sw))
+    R = E if Rp is None else mm(Rp, E)
+    gw = g if Rp is None else mv(Rp, g)
+    h = add(cp, hp if Rp is None else mv(Rp, hp))
+    c = tuple(a - b for a, b in zip(h, mv(R, hb)))
+    sL = cross(h, gw)
+    sw, sl = scale(gw, gd), scale(sL, gd)
+    w, v = add(wp, sw), add(vp, sl)
+    cb = cross(wp, sw) + add(cross(wp, sl), cross(vp, sw))
     R9 = R[0] + R[1] + R[2]
-    return _stack(R9, c, w, v), _stack(gw + sL, cb)
+    return stacked(R9, c, w, v), stacked(gw + sL, cb)
 
 
 def _rigid_inertia(R9, c, m, Jb):
@@ -311,28 +232,28 @@ def _rigid_inertia(R9, c, m, Jb):
     else:
         R = (R9[0:3], R9[3:6], R9[6:9])
         Jfull = tuple(tuple(Jb[(min(i, j), max(i, j))] for j in range(3)) for i in range(3))
-        RJ = _mm(R, Jfull)
+        RJ = mm(R, Jfull)
         J = {
             (i, j): RJ[i][0] * R[j][0] + RJ[i][1] * R[j][1] + RJ[i][2] * R[j][2] for i in range(3) for j in range(i, 3)
         }
-    M = _body_inertia(m, J, c)
-    return _stack(tuple(M[k] for k in _PAIRS))
+    M = body_inertia(m, J, c)
+    return stacked(tuple(M[k] for k in PAIRS))
 
 
 def _bias(M21, c, w, v, F, T, R9):
     """Stage: the bias force ``p = v x* (M v) - f`` (6) of a level's bodies, ``f`` the external
     force F at the mass center c and torque T (body frames, or None) as a wrench about O."""
-    M = dict(zip(_PAIRS, M21))
-    h = _sym_apply(M, w + v)
-    pA = _add(_cross(w, h[:3]), _cross(v, h[3:]))
-    pL = _cross(w, h[3:])
+    M = dict(zip(PAIRS, M21))
+    h = sym_apply(M, w + v)
+    pA = add(cross(w, h[:3]), cross(v, h[3:]))
+    pL = cross(w, h[3:])
     if F is not None:
         if R9 is not None:
             R = (R9[0:3], R9[3:6], R9[6:9])
-            F, T = _mv(R, F), _mv(R, T)
-        pA = tuple(a - b for a, b in zip(pA, _add(T, _cross(c, F))))
+            F, T = mv(R, F), mv(R, T)
+        pA = tuple(a - b for a, b in zip(pA, add(T, cross(c, F))))
         pL = tuple(a - b for a, b in zip(pL, F))
-    return _stack(pA, pL)
+    return stacked(pA, pL)
 
 
 def _articulate(M21, p, carry, S, tau, free):
@@ -344,8 +265,8 @@ def _articulate(M21, p, carry, S, tau, free):
     else:
         IA = tuple(M21[i] + carry[i] for i in range(21))
         pA = tuple(p[i] + carry[21 + i] for i in range(6))
-    M = dict(zip(_PAIRS, IA))
-    U = _sym_apply(M, S)
+    M = dict(zip(PAIRS, IA))
+    U = sym_apply(M, S)
     D = sum(S[i] * U[i] for i in range(6))
     # the pivot D against the scale of I^A along S (its diagonal): at round-off level the hinge
     # is singular (gimbal lock) and the member's accelerations are NaN, as the dense solve's
@@ -355,7 +276,7 @@ def _articulate(M21, p, carry, S, tau, free):
     if free is not None:
         Dinv = jnp.where(free > 0, Dinv, 0.0)
     u = tau - sum(S[i] * pA[i] for i in range(6))
-    return _stack(IA, pA, U, (Dinv, u))
+    return stacked(IA, pA, U, (Dinv, u))
 
 
 def _articulated(IA, pA, U, Dinv, u, S, cb, gdd, free, all_locked):
@@ -363,66 +284,37 @@ def _articulated(IA, pA, U, Dinv, u, S, cb, gdd, free, all_locked):
     if all_locked:
         Ia = IA
         acc = tuple(cb[i] + S[i] * gdd for i in range(6))
-        pa = _add(pA, _sym_apply(dict(zip(_PAIRS, Ia)), acc))
-        return _stack(Ia, pa)
-    Ia = tuple(IA[k] - U[i] * U[j] * Dinv for k, (i, j) in enumerate(_PAIRS))
+        pa = add(pA, sym_apply(dict(zip(PAIRS, Ia)), acc))
+        return stacked(Ia, pa)
+    Ia = tuple(IA[k] - U[i] * U[j] * Dinv for k, (i, j) in enumerate(PAIRS))
     acc = cb if free is None else tuple(cb[i] + S[i] * gdd * (1.0 - free) for i in range(6))
-    pa = _add(tuple(pA[i] + u * Dinv * U[i] for i in range(6)), _sym_apply(dict(zip(_PAIRS, Ia)), acc))
-    return _stack(Ia, pa)
+    pa = add(tuple(pA[i] + u * Dinv * U[i] for i in range(6)), sym_apply(dict(zip(PAIRS, Ia)), acc))
+    return stacked(Ia, pa)
 
 
 def _accelerate(a_prev, cb, S, U, Dinv, u, gdd, free, all_locked):
     """Stage, outward: ``a`` (6) and ``gamma_ddot`` (1) of a level's bodies."""
-    a = _add(a_prev, cb)
+    a = add(a_prev, cb)
     if all_locked:
         q = gdd + jnp.zeros_like(a[0])
     else:
         q = (u - sum(U[i] * a[i] for i in range(6))) * Dinv
         if free is not None:
             q = q + gdd * (1.0 - free)
-    return _stack(tuple(a[i] + S[i] * q for i in range(6)), (q,))
+    return stacked(tuple(a[i] + S[i] * q for i in range(6)), (q,))
 
 
 def _hold(a, IA, pA, S, tau):
     """Stage: the holding torque ``S . (I^A a + p^A) - tau`` of a level's locked hinges."""
-    f = _add(_sym_apply(dict(zip(_PAIRS, IA)), a), pA)
+    f = add(sym_apply(dict(zip(PAIRS, IA)), a), pA)
     return sum(S[i] * f[i] for i in range(6)) - tau
 
 
 def _hold_from(a, A, Sc, tau):
     """:func:`_hold` from the stacked results of :func:`_articulate` and the kinematics stage."""
-    IA, pA = _split(A, (21, 6))
-    (S,) = _split(Sc, (6,))
+    IA, pA = split_stacked(A, (21, 6))
+    (S,) = split_stacked(Sc, (6,))
     return _hold(a, IA, pA, S, tau)
-
-
-def _ldl6(M21):
-    """Stage: the LDL^T factors of the symmetric 6 x 6 matrix (21 entries): L's 15 entries below
-    the diagonal (column by column) and the pivots d (6)."""
-    M = dict(zip(_PAIRS, M21))
-    L, d = {}, []
-    for j in range(6):
-        s = _sym(M, j, j) - sum(L[(j, k)] * L[(j, k)] * d[k] for k in range(j))
-        d.append(s)
-        for i in range(j + 1, 6):
-            L[(i, j)] = (_sym(M, i, j) - sum(L[(i, k)] * L[(j, k)] * d[k] for k in range(j))) / s
-    return _stack(tuple(L[(i, j)] for j in range(6) for i in range(j + 1, 6)), tuple(d))
-
-
-def _ldl6_solve(Ld, b, diag):
-    """Stage: ``M^{-1} b`` from :func:`_ldl6`'s factors."""
-    names = [(i, j) for j in range(6) for i in range(j + 1, 6)]
-    Lc, d = _split(Ld, (15, 6))
-    L = dict(zip(names, Lc))
-    y = []
-    for i in range(6):
-        y.append(b[i] - sum(L[(i, k)] * y[k] for k in range(i)))
-    x: list[Any] = [None] * 6
-    for i in reversed(range(6)):
-        x[i] = y[i] / d[i] - sum(L[(k, i)] * x[k] for k in range(i + 1, 6))
-    tol = SINGULAR_PIVOT * float(np.sqrt(6.0)) * float(jnp.finfo(d[0].dtype).eps)
-    ok = functools.reduce(jnp.logical_and, [d[i] > tol * diag[i] for i in range(6)])
-    return _stack(tuple(jnp.where(ok, xi, jnp.nan) for xi in x))
 
 
 # A run of more than this many consecutive levels that continue chains slot for slot (same width,
@@ -460,190 +352,179 @@ def solve(pl: Plan, x: Inputs, *, stages: str | None = None, scan_min: int = SCA
         return _solve(pl, x, _stages(default_stages() if stages is None else stages), scan_min)
 
 
+class _Pass(NamedTuple):
+    """What each level's step of the recursion reads besides its own inputs."""
+
+    levels: tuple[_Level, ...]
+    stage: Any  # :func:`_stages`
+    dtype: Any
+
+
+def _level_data(x: Inputs, starts, a, b):
+    """The inputs of levels a..b (1-based), with a leading axis of levels when b > a."""
+
+    def rows(arr, first=0):  # hinge rows; body rows with first = 1 (row 0: b_0)
+        out = arr[first + starts[a - 1] : first + starts[b]]
+        return out if a == b else out.reshape((b - a + 1, -1) + out.shape[1:])
+
+    brows = functools.partial(rows, first=1)
+    return dict(
+        g=tuple(rows(c) for c in x.axis),
+        hp=tuple(rows(c) for c in x.hinge_on_parent),
+        hb=tuple(rows(c) for c in x.hinge_on_body),
+        gam=rows(x.gamma),
+        gd=rows(x.gamma_dot),
+        tau=rows(x.tau),
+        gdd=rows(x.gdd),
+        m=brows(x.mass),
+        J={k: brows(c) for k, c in x.inertia.items()},
+        F=None if x.force is None else tuple(brows(c) for c in x.force),
+        T=None if x.torque is None else tuple(brows(c) for c in x.torque),
+    )
+
+
+def _free(lv: _Level, dtype):
+    """None when every hinge of the level is unknown, else its 0/1 mask (0 where locked)."""
+    if not lv.locked.any():
+        return None
+    return jnp.asarray((~lv.locked).astype(np.float64), dtype)[:, None]
+
+
+def _kinematics_step(ps: _Pass, d, K_prev, xd):
+    """Level d outward: its kinematics `K` (the next level's input) and what the inward and
+    acceleration passes read, ``(S and c, rigid inertias, bias forces)``."""
+    stage, lv = ps.stage, ps.levels[d - 1]
+    first, par_w = d == 1, 1 if d == 1 else len(ps.levels[d - 2].bodies)
+    co_si = stage(lambda q: jnp.stack([jnp.cos(q), jnp.sin(q)]), xd["gam"])
+    K, Sc = stage(
+        lambda K_prev, cs, g, hp, hb, gd: _level_kinematics(_gather_rows(K_prev, lv, par_w), cs, g, hp, hb, gd, first),
+        *(K_prev, co_si, xd["g"], xd["hp"], xd["hb"], xd["gd"]),
+    )
+    R9, c, w, v = split_stacked(K, (9, 3, 3, 3))
+    M = stage(_rigid_inertia, R9, c, xd["m"], xd["J"])
+    p = stage(lambda M, c, w, v, F, T, R9: _bias(components_of(M), c, w, v, F, T, R9), M, c, w, v, xd["F"], xd["T"], R9)
+    return K, (Sc, M, p)
+
+
+def _articulate_step(ps: _Pass, d, carry, inputs):
+    """Level d inward: the sums its bodies pass to their parents, and its articulated terms."""
+    (Sc, M, p), xd = inputs
+    stage, lv = ps.stage, ps.levels[d - 1]
+    S, cb = split_stacked(Sc, (6, 6))
+    free, all_locked = _free(lv, ps.dtype), bool(lv.locked.all())
+    A = stage(
+        lambda M, p, carry, S, tau, free: _articulate(
+            components_of(M), components_of(p), None if carry is None else components_of(carry), S, tau, free
+        ),
+        *(M, p, carry, S, xd["tau"], free),
+    )
+    out = stage(
+        lambda A, S, cb, gdd, free: _articulated(*_unpack(A), S, cb, gdd, free, all_locked), A, S, cb, xd["gdd"], free
+    )
+    return _sum_children(out, lv), A
+
+
+def _accelerate_step(ps: _Pass, d, a_prev, inputs):
+    """Level d outward again: its bodies' spatial accelerations, hinge accelerations and the
+    holding torques of its locked hinges."""
+    saved, A, xd = inputs
+    stage, lv = ps.stage, ps.levels[d - 1]
+    par_w = 1 if d == 1 else len(ps.levels[d - 2].bodies)
+    Sc = saved[0]
+    free, all_locked = _free(lv, ps.dtype), bool(lv.locked.all())
+    aq = stage(
+        lambda a_prev, Sc, A, gdd, free: _accelerate_from(a_prev, Sc, A, gdd, free, all_locked, lv, par_w),
+        *(a_prev, Sc, A, xd["gdd"], free),
+    )
+    a_new, (q,) = split_stacked(aq, (6, 1))
+    if lv.locked.any():
+        hold = stage(_hold_from, a_new, A, Sc, xd["tau"]) * (1.0 - free if free is not None else 1.0)
+    else:
+        hold = jnp.zeros_like(q)
+    return stacked(a_new), (q, hold)
+
+
 def _solve(pl: Plan, x: Inputs, stage, scan_min: int):
     levels = pl.levels
     starts = np.cumsum([0] + [len(lv.bodies) for lv in levels])
     dtype = x.gamma.dtype
-
-    def data(a, b):
-        """The inputs of levels a..b (1-based), with a leading axis of levels when b > a."""
-
-        def rows(arr, first=0):  # hinge rows; body rows with first = 1 (row 0: b_0)
-            out = arr[first + starts[a - 1] : first + starts[b]]
-            return out if a == b else out.reshape((b - a + 1, -1) + out.shape[1:])
-
-        brows = functools.partial(rows, first=1)
-
-        return dict(
-            g=tuple(rows(c) for c in x.axis),
-            hp=tuple(rows(c) for c in x.hinge_on_parent),
-            hb=tuple(rows(c) for c in x.hinge_on_body),
-            gam=rows(x.gamma),
-            gd=rows(x.gamma_dot),
-            tau=rows(x.tau),
-            gdd=rows(x.gdd),
-            m=brows(x.mass),
-            J={k: brows(c) for k, c in x.inertia.items()},
-            F=None if x.force is None else tuple(brows(c) for c in x.force),
-            T=None if x.torque is None else tuple(brows(c) for c in x.torque),
-        )
-
-    def mask(lv):
-        if not lv.locked.any():
-            return None
-        return jnp.asarray((~lv.locked).astype(np.float64), dtype)[:, None]
-
-    def kinematics(d, K_prev, xd):
-        lv = levels[d - 1]
-        first, par_w = d == 1, 1 if d == 1 else len(levels[d - 2].bodies)
-        co_si = stage(lambda q: jnp.stack([jnp.cos(q), jnp.sin(q)]), xd["gam"])
-        K, Sc = stage(
-            lambda K_prev, cs, g, hp, hb, gd: _level_kinematics(
-                _gather_rows(K_prev, lv, par_w), cs, g, hp, hb, gd, first
-            ),
-            K_prev,
-            co_si,
-            xd["g"],
-            xd["hp"],
-            xd["hb"],
-            xd["gd"],
-        )
-        R9, c, w, v = _split(K, (9, 3, 3, 3))
-        M = stage(_rigid_inertia, R9, c, xd["m"], xd["J"])
-        p = stage(
-            lambda M, c, w, v, F, T, R9: _bias(_components(M), c, w, v, F, T, R9), M, c, w, v, xd["F"], xd["T"], R9
-        )
-        return K, (Sc, M, p)
-
-    def articulate(d, carry, saved, xd):
-        lv = levels[d - 1]
-        Sc, M, p = saved
-        S, cb = _split(Sc, (6, 6))
-        free, all_locked = mask(lv), bool(lv.locked.all())
-        A = stage(
-            lambda M, p, carry, S, tau, free: _articulate(
-                _components(M), _components(p), None if carry is None else _components(carry), S, tau, free
-            ),
-            M,
-            p,
-            carry,
-            S,
-            xd["tau"],
-            free,
-        )
-        out = stage(
-            lambda A, S, cb, gdd, free: _articulated(*_unpack(A), S, cb, gdd, free, all_locked),
-            A,
-            S,
-            cb,
-            xd["gdd"],
-            free,
-        )
-        return _sum_children(out, lv), A
-
-    def accelerate(d, a_prev, saved, A, xd):
-        lv = levels[d - 1]
-        par_w = 1 if d == 1 else len(levels[d - 2].bodies)
-        Sc = saved[0]
-        free, all_locked = mask(lv), bool(lv.locked.all())
-        aq = stage(
-            lambda a_prev, Sc, A, gdd, free: _accelerate_from(a_prev, Sc, A, gdd, free, all_locked, lv, par_w),
-            a_prev,
-            Sc,
-            A,
-            xd["gdd"],
-            free,
-        )
-        a_new, (q,) = _split(aq, (6, 1))
-        if lv.locked.any():
-            hold = stage(
-                _hold_from,
-                a_new,
-                A,
-                Sc,
-                xd["tau"],
-            ) * (1.0 - free if free is not None else 1.0)
-        else:
-            hold = jnp.zeros_like(q)
-        return _stack(a_new), (q, hold)
+    ps = _Pass(levels, stage, dtype)
+    data = functools.partial(_level_data, x, starts)
 
     # --- b_0
     w0 = tuple(jnp.broadcast_to(a, jnp.broadcast_shapes(*[jnp.shape(z) for z in x.omega0])) for a in x.omega0)
     zero = jnp.zeros_like(w0[0])
     z3 = (zero, zero, zero)
     J0 = {k: v[:1] for k, v in x.inertia.items()}
-    M0 = _split(stage(lambda m, J: _rigid_inertia(None, z3, m, J), x.mass[:1], J0), (21,))[0]
+    M0 = split_stacked(stage(lambda m, J: _rigid_inertia(None, z3, m, J), x.mass[:1], J0), (21,))[0]
     F0 = None if x.force is None else tuple(c[:1] for c in x.force)
     T0 = None if x.torque is None else tuple(c[:1] for c in x.torque)
-    p0 = _split(stage(lambda M, w, F, T: _bias(M, z3, w, z3, F, T, None), M0, w0, F0, T0), (6,))[0]
+    p0 = split_stacked(stage(lambda M, w, F, T: _bias(M, z3, w, z3, F, T, None), M0, w0, F0, T0), (6,))[0]
 
     units = _units(levels, scan_min)
 
-    # --- outward: kinematics
-    K = _stack(z3, w0, z3)  # (c, w, v) of b_0
-    saved = {}
-    for u in units:
-        if u[0] == "one":
-            K, saved[u] = kinematics(u[1], K, data(u[1], u[1]))
-        else:
-            K, saved[u] = jax.lax.scan(lambda K, xd, d=u[1]: kinematics(d, K, xd), K, data(u[1], u[2]))
+    def nothing_outboard(u):  # the inward carry entering the deepest levels' run
+        shape = (len(levels[u[1] - 1].bodies),) + jnp.shape(x.gamma)[1:]
+        return stacked(tuple(jnp.zeros((27,) + shape, dtype)))
 
-    # --- inward
-    carry = None
-    art = {}
-    for u in reversed(units):
-        if u[0] == "one":
-            carry, art[u] = articulate(u[1], carry, saved[u], data(u[1], u[1]))
-        else:
-            d = u[1]
-            if carry is None:  # the deepest levels: nothing outboard
-                width = len(levels[d - 1].bodies)
-                shape = (width,) + jnp.shape(x.gamma)[1:]
-                carry = _stack(tuple(jnp.zeros((27,) + shape, dtype)))
-            carry, art[u] = jax.lax.scan(
-                lambda c, inp, d=d: articulate(d, c, inp[0], inp[1]), carry, (saved[u], data(u[1], u[2])), reverse=True
-            )
+    # --- outward: kinematics; inward: articulated inertias
+    K0 = stacked(z3, w0, z3)  # (c, w, v) of b_0
+    _, saved = _sweep(units, functools.partial(_kinematics_step, ps), K0, lambda u: data(*_span(u)))
+    art_in = lambda u: (saved[u], data(*_span(u)))
+    step = functools.partial(_articulate_step, ps)
+    carry, art = _sweep(units, step, None, art_in, reverse=True, start=nothing_outboard)
 
-    cs = None if carry is None else _components(carry)
+    cs = None if carry is None else components_of(carry)
     IA0 = M0 if cs is None else tuple(M0[i] + cs[i] for i in range(21))
     pA0 = p0 if cs is None else tuple(p0[i] + cs[21 + i] for i in range(6))
-    Ld = stage(_ldl6, IA0)
-    diag0 = tuple(IA0[_PAIRS.index((i, i))] for i in range(6))
-    a0 = stage(_ldl6_solve, Ld, tuple(-a for a in pA0), diag0)
-    pivots = _split(Ld, (15, 6))[1]
+    Ld = stage(ldl6, IA0)
+    diag0 = tuple(IA0[PAIRS.index((i, i))] for i in range(6))
+    a0 = stage(ldl6_solve, Ld, tuple(-a for a in pA0), diag0)
+    pivots = split_stacked(Ld, (15, 6))[1]
 
     # --- outward: accelerations
-    a_prev = a0
-    q_rows, hold_rows = [], []
-    for u in units:
-        if u[0] == "one":
-            a_prev, (q, hold) = accelerate(u[1], a_prev, saved[u], art[u], data(u[1], u[1]))
-        else:
-            d = u[1]
-            a_prev, (q, hold) = jax.lax.scan(
-                lambda a, inp, d=d: accelerate(d, a, inp[0], inp[1], inp[2]),
-                a_prev,
-                (saved[u], art[u], data(u[1], u[2])),
-            )
-            q, hold = (z.reshape((-1,) + z.shape[2:]) for z in (q, hold))
-        q_rows.append(q)
-        hold_rows.append(hold)
-    width = jnp.shape(_components(a0)[0])
+    acc_in = lambda u: (saved[u], art[u], data(*_span(u)))
+    _, out = _sweep(units, functools.partial(_accelerate_step, ps), a0, acc_in)
+    rows = [tuple(z.reshape((-1,) + z.shape[2:]) if u[0] == "run" else z for z in out[u]) for u in units]
+    q_rows, hold_rows = [r[0] for r in rows], [r[1] for r in rows]
+    width = jnp.shape(components_of(a0)[0])
     gdd = jnp.concatenate(q_rows, 0) if q_rows else jnp.zeros((0,) + tuple(width[1:]), dtype)
     hold = jnp.concatenate(hold_rows, 0) if hold_rows else gdd
-    return _split(a0, (3,))[0], gdd, hold, pivots
+    return split_stacked(a0, (3,))[0], gdd, hold, pivots
+
+
+def _span(unit):
+    """The first and last level (1-based) of a unit of :func:`_units`."""
+    return (unit[1], unit[1]) if unit[0] == "one" else (unit[1], unit[2])
+
+
+def _sweep(units, step, carry, inputs, reverse=False, start=None):
+    """One pass of the recursion over the levels: ``carry, out = step(d, carry, inputs(u))`` for
+    each unit u of :func:`_units` in order (`reverse`: from the deepest), a run of chained levels as
+    one ``lax.scan`` of `step` over them (its inputs and outputs with a leading axis of levels;
+    `start(u)` the carry entering a run when `carry` is still None). Returns ``(carry, {unit: out})``."""
+    out = {}
+    for u in reversed(units) if reverse else units:
+        if u[0] == "one":
+            carry, out[u] = step(u[1], carry, inputs(u))
+            continue
+        if carry is None:
+            assert start is not None, "a run entered without a carry needs `start`"
+            carry = start(u)
+        carry, out[u] = jax.lax.scan(lambda c, i, d=u[1]: step(d, c, i), carry, inputs(u), reverse=reverse)
+    return carry, out
 
 
 def _unpack(A):
     """``(I^A, p^A, U, 1/D, u)`` of :func:`_articulate`'s stacked result."""
-    IA, pA, U, (Dinv, u) = _split(A, (21, 6, 6, 2))
+    IA, pA, U, (Dinv, u) = split_stacked(A, (21, 6, 6, 2))
     return IA, pA, U, Dinv, u
 
 
 def _accelerate_from(a_prev, Sc, A, gdd, free, all_locked, lv, par_w):
-    S, cb = _split(Sc, (6, 6))
-    _, _, U, (Dinv, u) = _split(A, (21, 6, 6, 2))
-    return _accelerate(_components(_gather_rows(a_prev, lv, par_w)), cb, S, U, Dinv, u, gdd, free, all_locked)
+    S, cb = split_stacked(Sc, (6, 6))
+    _, _, U, (Dinv, u) = split_stacked(A, (21, 6, 6, 2))
+    return _accelerate(components_of(_gather_rows(a_prev, lv, par_w)), cb, S, U, Dinv, u, gdd, free, all_locked)
 
 
 # ----------------------------------------------------------------------------- from a model

@@ -1,0 +1,135 @@
+"""The component algebra of the batch-first recursion (:mod:`.batched`): 3-vectors as tuples of
+three arrays of one shape (bodies of a level, members), symmetric 6 x 6 matrices as their 21
+entries ``{(i, j): array}`` over i <= j, and b_0's 6 x 6 articulated inertia factored as LDL^T,
+all written out so that XLA's fused loops run along the members."""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..numerics import SINGULAR_PIVOT
+
+# A 3-vector is a tuple of three arrays of one shape (bodies of a level, members); a symmetric
+# 6 x 6 matrix a dict {(i, j): array} over i <= j.
+
+
+def cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def add(a, b):
+    return tuple(x + y for x, y in zip(a, b))
+
+
+def scale(a, s):
+    return tuple(x * s for x in a)
+
+
+def mv(R, x):
+    """``R @ x`` for R a 3 x 3 tuple of rows."""
+    return tuple(R[i][0] * x[0] + R[i][1] * x[1] + R[i][2] * x[2] for i in range(3))
+
+
+def mm(A, B):
+    return tuple(tuple(A[i][0] * B[0][j] + A[i][1] * B[1][j] + A[i][2] * B[2][j] for j in range(3)) for i in range(3))
+
+
+PAIRS = tuple((i, j) for i in range(6) for j in range(i, 6))
+
+
+def sym(M, i, j):
+    return M[(i, j)] if i <= j else M[(j, i)]
+
+
+def sym_apply(M, x):
+    """``M @ x`` for a symmetric 6 x 6 M and a 6-tuple x."""
+    return tuple(sum(sym(M, i, j) * x[j] for j in range(6)) for i in range(6))
+
+
+def body_inertia(m, J, c):
+    """The rigid-body inertia about O of a body of mass m, inertia J (symmetric 3 x 3 dict
+    {(i, j)}, {b^0} components, about its mass center) and mass center c from O:
+    ``[[J + m (|c|^2 U - c c^T), m c~], [-m c~, m U]]``."""
+    M = {}
+    cc = dot(c, c)
+    for i in range(3):
+        for j in range(i, 3):
+            M[(i, j)] = J[(i, j)] + m * ((cc if i == j else 0.0) - c[i] * c[j])
+    mc = scale(c, m)
+    # m c~ : rows (0, -c3, c2), (c3, 0, -c1), (-c2, c1, 0), in the upper right block
+    zero = jnp.zeros_like(m * c[0])
+    tilde = ((zero, -mc[2], mc[1]), (mc[2], zero, -mc[0]), (-mc[1], mc[0], zero))
+    for i in range(3):
+        for j in range(3):
+            M[(i, 3 + j)] = tilde[i][j]
+    for i in range(3):
+        for j in range(i, 3):
+            M[(3 + i, 3 + j)] = m if i == j else zero
+    return M
+
+
+# XLA:CPU fuses a concatenation of at most 8 operands into one loop; a stage's stacked results
+# are therefore chunks of at most 8 components (one loop each).
+CHUNK = 8
+
+
+def components_of(a):
+    """The components of a stacked array or of a tuple of chunks (leading axes)."""
+    if isinstance(a, (tuple, list)):
+        return tuple(c for chunk in a for c in components_of(chunk))
+    return tuple(a[i] for i in range(a.shape[0]))
+
+
+def split_stacked(a, sizes):
+    """Components of the stacked array (or chunks) `a` in groups of `sizes` (tuples of arrays)."""
+    comps = components_of(a)
+    out, i = [], 0
+    for k in sizes:
+        out.append(comps[i : i + k])
+        i += k
+    return out
+
+
+def stacked(*groups):
+    """The components of `groups` stacked along a new leading axis, in chunks of `CHUNK`."""
+    comps = [c for g in groups for c in g]
+    shape = jnp.broadcast_shapes(*[jnp.shape(z) for z in comps])
+    comps = [jnp.broadcast_to(c, shape) for c in comps]
+    return tuple(jnp.stack(comps[i : i + CHUNK]) for i in range(0, len(comps), CHUNK))
+
+
+def ldl6(M21):
+    """Stage: the LDL^T factors of the symmetric 6 x 6 matrix (21 entries): L's 15 entries below
+    the diagonal (column by column) and the pivots d (6)."""
+    M = dict(zip(PAIRS, M21))
+    L, d = {}, []
+    for j in range(6):
+        s = sym(M, j, j) - sum(L[(j, k)] * L[(j, k)] * d[k] for k in range(j))
+        d.append(s)
+        for i in range(j + 1, 6):
+            L[(i, j)] = (sym(M, i, j) - sum(L[(i, k)] * L[(j, k)] * d[k] for k in range(j))) / s
+    return stacked(tuple(L[(i, j)] for j in range(6) for i in range(j + 1, 6)), tuple(d))
+
+
+def ldl6_solve(Ld, b, diag):
+    """Stage: ``M^{-1} b`` from :func:`ldl6`'s factors."""
+    names = [(i, j) for j in range(6) for i in range(j + 1, 6)]
+    Lc, d = split_stacked(Ld, (15, 6))
+    L = dict(zip(names, Lc))
+    y = []
+    for i in range(6):
+        y.append(b[i] - sum(L[(i, k)] * y[k] for k in range(i)))
+    x: list[Any] = [None] * 6
+    for i in reversed(range(6)):
+        x[i] = y[i] / d[i] - sum(L[(k, i)] * x[k] for k in range(i + 1, 6))
+    tol = SINGULAR_PIVOT * float(np.sqrt(6.0)) * float(jnp.finfo(d[0].dtype).eps)
+    ok = functools.reduce(jnp.logical_and, [d[i] > tol * diag[i] for i in range(6)])
+    return stacked(tuple(jnp.where(ok, xi, jnp.nan) for xi in x))
