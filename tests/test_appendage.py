@@ -502,7 +502,7 @@ def test_scene_appendage_errors_name_the_field(tmp_path, kane_beam, entry, messa
         "appendages": [entry],
     }
     with pytest.raises(jaxtree.SceneError, match=message):
-        jaxtree._src.scene.scene.scene_from_dict(scene, tmp_path)
+        jaxtree._src.scene.files.scene_from_dict(scene, tmp_path)
 
 
 def test_command_line_runs_a_scene_with_an_appendage(tmp_path, capsys):

@@ -323,53 +323,53 @@ from ._src.scene.check import (
 from ._src.scene.check import (
     check_scene as check_scene,
 )
-from ._src.scene.scene import (
+from ._src.scene.files import (
+    list_scenes as list_scenes,
+)
+from ._src.scene.files import (
+    load_scene as load_scene,
+)
+from ._src.scene.files import (
+    save_scene as save_scene,
+)
+from ._src.scene.files import (
+    scene_from_dict as scene_from_dict,
+)
+from ._src.scene.files import (
+    scene_path as scene_path,
+)
+from ._src.scene.files import (
+    scene_to_dict as scene_to_dict,
+)
+from ._src.scene.joints import (
     Body as Body,
 )
-from ._src.scene.scene import (
+from ._src.scene.joints import (
     Free as Free,
 )
-from ._src.scene.scene import (
+from ._src.scene.joints import (
     Joint as Joint,
 )
-from ._src.scene.scene import (
+from ._src.scene.joints import (
     Prescribed as Prescribed,
 )
-from ._src.scene.scene import (
+from ._src.scene.joints import (
     PrescribedRamp as PrescribedRamp,
 )
-from ._src.scene.scene import (
+from ._src.scene.joints import (
     PrescribedSine as PrescribedSine,
 )
-from ._src.scene.scene import (
+from ._src.scene.joints import (
     PrescribedSmoothStep as PrescribedSmoothStep,
 )
-from ._src.scene.scene import (
+from ._src.scene.joints import (
     PrescribedTable as PrescribedTable,
 )
-from ._src.scene.scene import (
+from ._src.scene.joints import (
     SpringDamper as SpringDamper,
 )
 from ._src.scene.scene import (
     build_model as build_model,
-)
-from ._src.scene.scene import (
-    list_scenes as list_scenes,
-)
-from ._src.scene.scene import (
-    load_scene as load_scene,
-)
-from ._src.scene.scene import (
-    save_scene as save_scene,
-)
-from ._src.scene.scene import (
-    scene_from_dict as scene_from_dict,
-)
-from ._src.scene.scene import (
-    scene_path as scene_path,
-)
-from ._src.scene.scene import (
-    scene_to_dict as scene_to_dict,
 )
 from ._src.vehicle.model import (
     BodyLoads as BodyLoads,

@@ -16,7 +16,7 @@ import numpy as np
 from jaxtree._src.equations.loads import BodyTorque
 from jaxtree._src.integration.radau import Radau5
 from jaxtree._src.integration.rk4 import RK4
-from jaxtree._src.scene.scene import load_scene
+from jaxtree._src.scene.files import load_scene
 from jaxtree._src.vehicle.model import Model
 
 SOLVERS: dict[str, Callable[[], dfx.AbstractSolver]] = {

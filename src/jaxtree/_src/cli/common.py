@@ -14,10 +14,11 @@ import sys
 import threading
 
 from ..campaigns.chunked import parse_hinges
+from ..errors import SceneError
 from ..io import output
 from ..io.result_files import load_result
 from ..io.result_files import model_of as result_model
-from ..scene.scene import SceneError, list_scenes, load_scene
+from ..scene.files import list_scenes, load_scene
 
 SUBCOMMANDS = ("simulate", "modes", "animate", "check", "plot", "identify", "bench", "sample")
 EXIT_USAGE, EXIT_FAILED, EXIT_INTERRUPTED = 2, 1, 130

@@ -37,7 +37,7 @@ from ..integration.failures import KINDS
 from ..integration.problem import Problem
 from ..integration.solution import Solution
 from ..linear.modes import Modes
-from ..scene.scene import scene_from_dict
+from ..scene.files import scene_from_dict
 from ..vehicle.model import Model, State
 from .files import atomic_write
 from .results import (

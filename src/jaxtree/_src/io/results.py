@@ -31,7 +31,7 @@ from .. import VERSION
 from ..equations.dynamics import configuration
 from ..integration.failures import failure_kind
 from ..numerics import program_jit
-from ..scene.scene import scene_to_dict
+from ..scene.files import scene_to_dict
 from ..vehicle.model import Model
 
 if TYPE_CHECKING:

@@ -2,7 +2,9 @@
 checked as text and written back; a boundary beside :mod:`jaxtree._src.io`, which the engine
 (equations, integration, linear, hybrid, campaigns) never imports.
 
-``scene`` (the format read and written, the builder and the closed family of joint laws),
+``scene`` (the builder: bodies and joint laws checked into a model), ``joints`` (the bodies and
+the closed family of joint laws a user writes), ``files`` (the format read and written, the
+bundled scenes),
 ``keys`` (unknown keys refused, extension keys read past), ``laws`` (a scene's optional
 ``loads``, ``control`` and ``orbit`` keys, which build the hinge laws and loads of
 :mod:`jaxtree._src.equations`), ``appendages`` (a scene's finite-element appendages) and

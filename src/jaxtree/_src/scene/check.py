@@ -15,9 +15,10 @@ import numpy as np
 
 from ..equations.diagnostics import POOR_CONDITION, Condition, condition
 from ..equations.dynamics import SINGULAR_CONDITION
+from ..errors import SceneError
 from ..vehicle.model import Model, SinePrescription
+from .files import load_scene, scene_from_dict
 from .laws import describe_laws
-from .scene import SceneError, load_scene, scene_from_dict
 
 
 def _joint_text(model: Model, k: int) -> str:

@@ -1,4 +1,4 @@
-"""Scenes: the ``jaxtree-scene/1`` JSON format, a Python builder, and validation.
+"""Scenes: the Python builder (:func:`build_model`) and the validation of what a scene says.
 
 The format is defined in the docstring of ``make_scenes.py`` of the shared
 reference scenes (bundled here under ``jaxtree/scenes``); jaxtree's optional keys
@@ -10,14 +10,10 @@ and the field at fault.
 
 from __future__ import annotations
 
-import abc
 import dataclasses
-import json
-import os
 import pathlib
-import tempfile
-from collections.abc import Callable, Iterable, Sequence
-from typing import Any, ClassVar, NamedTuple
+from collections.abc import Iterable, Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -36,120 +32,22 @@ from ..vehicle.profiles import (
 )
 from ..vehicle.topology import Topology
 from ..vehicle.validate import body_label as _where
-from .appendages import parse_appendages
+from .joints import (
+    SHAPED,
+    Body,
+    Free,
+    Joint,
+    Prescribed,
+    PrescribedRamp,
+    PrescribedSine,
+    PrescribedSmoothStep,
+    PrescribedTable,
+    SpringDamper,
+)
 from .keys import unknown_keys
-from .laws import laws_to_dict, prescribed_joints, with_scene_laws
 
 FORMAT = "jaxtree-scene/1"
-_SCENES = pathlib.Path(__file__).resolve().parents[2] / "scenes"  # jaxtree/scenes
-
-
-# ----------------------------------------------------------------------------- joints
-class Joint(abc.ABC):
-    """The law of one hinge, a closed family (Def. 21, Sec. II B): :class:`Free` and
-    :class:`SpringDamper` give the joint torque ``tau_k`` of Eq. (1) (the model's `sprung`
-    hinges); :class:`PrescribedSine`, :class:`PrescribedRamp`, :class:`PrescribedSmoothStep`,
-    :class:`PrescribedTable` and :class:`Prescribed` prescribe ``gamma_k(t)``
-    kinematically (the model's `prescribed` hinges, moved to the right side of Eq. 1). Laws of
-    the whole state act beside them at run time: a user law ``tau(t, state, params)`` and a
-    controller with internal states (:mod:`jaxtree.control`), arguments of
-    :func:`jaxtree.simulate` or carried by the model from its scene's ``control``. `kind` is the
-    scene format's joint kind."""
-
-    kind: ClassVar[str]
-
-
-@dataclasses.dataclass(frozen=True)
-class Free(Joint):
-    """A hinge with no torque law (tau_k = 0 unless a controller adds one)."""
-
-    kind: ClassVar[str] = "free"
-
-
-@dataclasses.dataclass(frozen=True)
-class SpringDamper(Joint):
-    """``tau_k = -stiffness * gamma_k - damping * gamma_dot_k``."""
-
-    stiffness: float
-    damping: float = 0.0
-    kind: ClassVar[str] = "spring_damper"
-
-
-@dataclasses.dataclass(frozen=True)
-class PrescribedSine(Joint):
-    """Prescribed ``gamma_k(t) = amplitude * sin(frequency * t + phase)`` (the scene's ``sine``)."""
-
-    amplitude: float
-    frequency: float
-    phase: float = 0.0
-    kind: ClassVar[str] = "prescribed"
-
-
-@dataclasses.dataclass(frozen=True)
-class _PrescribedTransition(Joint):
-    """A prescribed move from `initial` to `final` over `duration` from `start` (the fields of
-    the scene's ``ramp`` and ``smooth_step``; the subclass names the profile)."""
-
-    final: float
-    duration: float
-    initial: float = 0.0
-    start: float = 0.0
-    kind: ClassVar[str] = "prescribed"
-
-
-@dataclasses.dataclass(frozen=True)
-class PrescribedRamp(_PrescribedTransition):
-    """Prescribed ``gamma_k(t) = initial + (final - initial) clip((t - start) / duration, 0, 1)``
-    (the scene's ``ramp``: constant rate inside, held before and after)."""
-
-    function: ClassVar[str] = "ramp"
-
-
-@dataclasses.dataclass(frozen=True)
-class PrescribedSmoothStep(_PrescribedTransition):
-    """Prescribed ``gamma_k(t) = initial + (final - initial) (10 s^3 - 15 s^4 + 6 s^5)``,
-    ``s = clip((t - start) / duration, 0, 1)`` (the scene's ``smooth_step``: rate and
-    acceleration zero at both ends)."""
-
-    function: ClassVar[str] = "smooth_step"
-
-
-@dataclasses.dataclass(frozen=True)
-class PrescribedTable(Joint):
-    """Prescribed ``gamma_k(t)`` through tabulated ``(times, angles)`` (the scene's ``table``): a
-    cubic Hermite curve with centred-difference slopes, zero slope at the first and last
-    point, constant outside the table (:mod:`jaxtree.profiles`)."""
-
-    times: Any
-    angles: Any
-    kind: ClassVar[str] = "prescribed"
-    function: ClassVar[str] = "table"
-
-
-_SHAPED = (PrescribedRamp, PrescribedSmoothStep)
-
-
-@dataclasses.dataclass(frozen=True)
-class Prescribed(Joint):
-    """Prescribed ``gamma_k(t) = fn(t)`` for any JAX-differentiable scalar function of time."""
-
-    fn: Callable
-    kind: ClassVar[str] = "prescribed"
-
-
-@dataclasses.dataclass(frozen=True)
-class Body:
-    """One body of the tree (Sec. II D input). The first body is the reference body b_0 and
-    has no hinge fields; every other body names its `parent` (index or name, Def. 4)."""
-
-    name: str
-    mass: float
-    inertia: Any
-    parent: int | str | None = None
-    axis: Any = None
-    hinge_on_parent: Any = None
-    hinge_on_body: Any = None
-    joint: Any = Free()
+SCENES = pathlib.Path(__file__).resolve().parents[2] / "scenes"  # jaxtree/scenes
 
 
 # ----------------------------------------------------------------------------- validation
@@ -260,7 +158,7 @@ def _joint(joint, k, name):
             _scalar(j.frequency, k, name, "joint.frequency"),
             _scalar(j.phase, k, name, "joint.phase"),
         )
-    if isinstance(j, _SHAPED):
+    if isinstance(j, SHAPED):
         fields = {f: _scalar(getattr(j, f), k, name, f"joint.{f}") for f in ("final", "duration", "initial", "start")}
         if fields["duration"] <= 0:
             raise SceneError(f"{_where(k, name)}: field 'joint.duration' must be > 0, got {fields['duration']}")
@@ -510,7 +408,7 @@ def _joint_laws(joints: list[Joint], n: int) -> _JointLaws:
             laws.sine.append((k, j))
         elif isinstance(j, Prescribed):
             laws.funcs.append((k, j))
-        elif isinstance(j, _SHAPED):
+        elif isinstance(j, SHAPED):
             laws.shaped.append((k, j))
         elif isinstance(j, PrescribedTable):
             laws.tables.append((k, j))
@@ -595,123 +493,3 @@ def _body_from_dict(d, k):
         if field not in d:
             raise SceneError(f"{_where(k, name)}: field {field!r} is missing")
     return Body(**{key: d[key] for key in _BODY_KEYS if key in d})
-
-
-# ----------------------------------------------------------------------------- JSON
-_SCENE_KEYS = {"format", "name", "description", "bodies", "initial", "loads", "control", "orbit", "appendages"}
-
-
-def scene_from_dict(data: dict, base_dir=None) -> Model:
-    """Build a model from a parsed ``jaxtree-scene/1`` document.
-
-    Besides the bodies and the initial state, the optional keys ``loads``, ``control`` and
-    ``orbit`` give the model its external loads, hinge laws and orbit
-    (:mod:`jaxtree.scene_laws`; docs/guide.md, "Loads and laws in a scene").
-
-    Raises :class:`SceneError` naming the body and the field of any invalid entry, and for an
-    unknown key anywhere (naming it, its place and the nearest known key); keys of the user's own
-    begin with ``"x-"`` and are read past (not written back by :func:`scene_to_dict`)."""
-    if not isinstance(data, dict):
-        raise SceneTypeError(f"scene: expected a JSON object, got {short(data)}")
-    if data.get("format") != FORMAT:
-        raise SceneError(f"scene: field 'format' must be {FORMAT!r}, got {short(data.get('format'))}")
-    unknown_keys(data, _SCENE_KEYS, "scene")
-    if "bodies" not in data or not isinstance(data["bodies"], list):
-        raise SceneError("scene: field 'bodies' must be a list")
-    for field in ("name", "description"):
-        if not isinstance(data.get(field, ""), str):
-            raise SceneTypeError(f"scene: field {field!r} must be a string, got {short(data[field])}")
-    initial = data.get("initial")
-    if initial is not None and not isinstance(initial, dict):
-        raise SceneTypeError(f"scene: field 'initial' must be an object, got {short(initial)}")
-
-    model = with_scene_laws(build_model(data["bodies"], initial, name=data.get("name", "")), data)
-    specs = parse_appendages(data.get("appendages"), model.names, base_dir)
-    return dataclasses.replace(model, appendages=specs) if specs else model
-
-
-def scene_path(name: str) -> pathlib.Path:
-    """Path of a bundled reference scene, e.g. ``scene_path("fig4")``."""
-    p = _SCENES / f"{name}.json"
-    if not p.exists():
-        raise FileNotFoundError(f"no bundled scene {name!r}; available: {list_scenes()}")
-    return p
-
-
-def list_scenes() -> list[str]:
-    """Names of the bundled reference scenes."""
-    return sorted(p.stem for p in _SCENES.glob("*.json"))
-
-
-def load_scene(path) -> Model:
-    """Load a ``jaxtree-scene/1`` JSON file; a bare name (``"fig4"``) loads a bundled scene."""
-    p = pathlib.Path(path)
-    if not p.exists() and p.suffix == "" and p.parent == pathlib.Path("."):
-        p = scene_path(str(path))
-    with open(p) as f:
-        try:
-            data = json.load(f)
-        except json.JSONDecodeError as e:
-            raise SceneError(f"{p}: not valid JSON ({e})") from None
-    return scene_from_dict(data, p.parent)
-
-
-def scene_to_dict(model: Model, description: str = "", base_dir=None) -> dict:
-    """The ``jaxtree-scene/1`` document of a model, with its loads, control laws and orbit.
-
-    Raises ValueError for what has no JSON form: a prescription, load or law given as a Python
-    function (or another class than the scene format's)."""
-
-    # the arrays on the host first: indexing JAX arrays one by one compiles an operation per shape
-    model = jax.tree_util.tree_map(lambda x: np.asarray(x) if isinstance(x, jax.Array) else x, model)
-    prescribed = prescribed_joints(model)
-    laws = laws_to_dict(model)
-    f = lambda a: np.asarray(a, dtype=float).tolist()
-    bodies = [{"name": model.names[0], "mass": float(model.mass[0]), "inertia": f(model.inertia[0])}]
-    for k in range(1, model.n + 1):
-        if k in prescribed:
-            joint = prescribed[k]
-        elif k in model.sprung:
-            joint = {
-                "kind": "spring_damper",
-                "stiffness": float(model.stiffness[k - 1]),
-                "damping": float(model.damping[k - 1]),
-            }
-        else:
-            joint = {"kind": "free"}
-        bodies.append(
-            {
-                "name": model.names[k],
-                "mass": float(model.mass[k]),
-                "inertia": f(model.inertia[k]),
-                "parent": model.topology.parents[k - 1],
-                "axis": f(model.axis[k - 1]),
-                "hinge_on_parent": f(model.hinge_on_parent[k - 1]),
-                "hinge_on_body": f(model.hinge_on_body[k - 1]),
-                "joint": joint,
-            }
-        )
-    s = model.initial
-    return {
-        "format": FORMAT,
-        "name": model.name,
-        "description": description,
-        "bodies": bodies,
-        "initial": {"gamma": f(s.gamma), "gamma_dot": f(s.gamma_dot), "omega0": f(s.omega0), "attitude_dcm": f(s.dcm)},
-        **laws,
-        **({"appendages": [a.to_dict(base_dir) for a in model.appendages]} if model.appendages else {}),
-    }
-
-
-def save_scene(model: Model, path, description: str = "") -> None:
-    """Write a model as ``jaxtree-scene/1`` JSON, atomically (temporary file, then rename)."""
-    path = pathlib.Path(path)
-    text = json.dumps(scene_to_dict(model, description, path.parent.resolve()), indent=1) + "\n"
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
