@@ -17,8 +17,9 @@ import scipy.linalg
 from scipy.integrate import solve_ivp
 from scipy.integrate._ivp import radau as scipy_radau
 
-from jaxtree._src.integration import radau
-from jaxtree._src.integration.radau import Radau5, Radau5Interpolation
+from jaxtree._src.integration import lu, radau_collocation
+from jaxtree._src.integration.radau import Radau5
+from jaxtree._src.integration.radau_collocation import Radau5Interpolation
 
 jax.config.update("jax_enable_x64", True)
 
@@ -123,21 +124,27 @@ def vdp_solve(y0, solver=None):
 
 
 def test_constants_agree_with_scipy_radau():
-    assert np.allclose(radau.C, scipy_radau.C, rtol=0, atol=ULPS)
-    assert np.isclose(radau.GAMMA, scipy_radau.MU_REAL, rtol=ULPS)
-    assert np.isclose(radau.ALPHA - 1j * radau.BETA, scipy_radau.MU_COMPLEX, rtol=ULPS)
+    assert np.allclose(radau_collocation.C, scipy_radau.C, rtol=0, atol=ULPS)
+    assert np.isclose(radau_collocation.GAMMA, scipy_radau.MU_REAL, rtol=ULPS)
+    assert np.isclose(radau_collocation.ALPHA - 1j * radau_collocation.BETA, scipy_radau.MU_COMPLEX, rtol=ULPS)
     # the same eigenvectors; scipy takes the conjugate one (third column of opposite sign)
-    assert np.allclose(radau.T * [1, 1, -1], scipy_radau.T, rtol=0, atol=ULPS_10)
-    assert np.allclose(radau.T_INV * [[1], [1], [-1]], scipy_radau.TI, rtol=0, atol=ULPS_100)
-    assert np.allclose(radau.E, scipy_radau.E, rtol=0, atol=ULPS_10)
+    assert np.allclose(radau_collocation.T * [1, 1, -1], scipy_radau.T, rtol=0, atol=ULPS_10)
+    assert np.allclose(radau_collocation.T_INV * [[1], [1], [-1]], scipy_radau.TI, rtol=0, atol=ULPS_100)
+    assert np.allclose(radau_collocation.E, scipy_radau.E, rtol=0, atol=ULPS_10)
     # scipy's P[i] holds the coefficients of tau, tau^2, tau^3 of the collocation polynomial
-    assert np.allclose(radau.LAGRANGE[:, 2::-1], scipy_radau.P, rtol=0, atol=ROUNDOFF)
-    assert np.allclose(radau.LAGRANGE[:, 3], 0.0)
+    assert np.allclose(radau_collocation.LAGRANGE[:, 2::-1], scipy_radau.P, rtol=0, atol=ROUNDOFF)
+    assert np.allclose(radau_collocation.LAGRANGE[:, 3], 0.0)
     # the defining block form of the transformation
-    block = radau.T_INV @ np.linalg.inv(radau.A) @ radau.T
-    expected = np.array([[radau.GAMMA, 0, 0], [0, radau.ALPHA, -radau.BETA], [0, radau.BETA, radau.ALPHA]])
+    block = radau_collocation.T_INV @ np.linalg.inv(radau_collocation.A) @ radau_collocation.T
+    expected = np.array(
+        [
+            [radau_collocation.GAMMA, 0, 0],
+            [0, radau_collocation.ALPHA, -radau_collocation.BETA],
+            [0, radau_collocation.BETA, radau_collocation.ALPHA],
+        ]
+    )
     assert np.allclose(block, expected, rtol=0, atol=ROUNDOFF)
-    assert np.allclose(radau.A.sum(axis=1), radau.C, atol=ULPS)
+    assert np.allclose(radau_collocation.A.sum(axis=1), radau_collocation.C, atol=ULPS)
 
 
 # ------------------------------------------------------------------------------------------
@@ -299,7 +306,7 @@ def test_interpolation_passes_through_the_stages():
     zs = jnp.array([[0.1, 0.2], [0.3, -0.1], [0.5, 0.4]])
     interp = Radau5Interpolation(t0=t0, t1=t0 + h, y0=y0, zs=zs)
     np.testing.assert_allclose(interp.evaluate(t0), y0, atol=INTERP_ULPS)
-    for c, z in zip(radau.C, zs):
+    for c, z in zip(radau_collocation.C, zs):
         np.testing.assert_allclose(interp.evaluate(t0 + c * h), y0 + z, atol=INTERP_STAGES)
     np.testing.assert_allclose(
         interp.evaluate(t0 + 0.2 * h, t0 + 0.7 * h),
@@ -369,14 +376,14 @@ def test_vmapped_factorizations_run_in_inline_groups():
     n, size = 24, 200
     a = rng.standard_normal((size, n, n)) + 1j * rng.standard_normal((size, n, n)) + 5 * np.eye(n)
     b = rng.standard_normal((size, n)) + 1j * rng.standard_normal((size, n))
-    solve = jax.jit(jax.vmap(lambda a, b: radau._lu_solve(radau._lu_factor(a), b)))
+    solve = jax.jit(jax.vmap(lambda a, b: lu.lu_solve(lu.lu_factor(a), b)))
     x = np.asarray(solve(jnp.asarray(a), jnp.asarray(b)))
     expected = np.stack([scipy.linalg.lu_solve(scipy.linalg.lu_factor(a[i]), b[i]) for i in range(size)])
     np.testing.assert_allclose(x, expected, rtol=1e-12, atol=1e-12)
     if jax.default_backend() == "cpu":
-        group = radau._inline_group(jnp.asarray(a), 2.0 * n**3 / 3.0)
+        group = lu.inline_group(jnp.asarray(a), 2.0 * n**3 / 3.0)
         assert 1 <= group < size
-        jaxpr = jax.make_jaxpr(jax.vmap(radau._lu_factor))(jnp.asarray(a)).jaxpr
+        jaxpr = jax.make_jaxpr(jax.vmap(lu.lu_factor))(jnp.asarray(a)).jaxpr
         shapes = [e.invars[0].aval.shape for e in _equations(jaxpr) if e.primitive.name == "lu"]
         assert shapes and all(s[0] <= group for s in shapes), shapes
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..equations.dynamics import rotational_equations
 from ..equations.kinematics import full_precision
-from ..integration.radau import jacobian_by_parts
+from ..integration.jacobian import jacobian_by_parts
 from ..numerics import eager_jit
 from ..vehicle.model import State
 from .model import HybridModel

@@ -29,7 +29,8 @@ from ..equations.dynamics import (
 from ..numerics import program_jit
 from ..vehicle import hinges
 from ..vehicle.model import Model, State
-from .radau import Radau5, jacobian_by_parts
+from .jacobian import jacobian_by_parts
+from .radau import Radau5
 
 
 class Problem(eqx.Module):

@@ -97,8 +97,8 @@ transformed tolerance.
 
 Dense output
 ------------
-:class:`Radau5Interpolation` evaluates the collocation polynomial, the cubic through (t0, y0) and
-(t0 + c_i h, y0 + Z_i): order 3 between the step points (local error O(h⁴)).
+:class:`~.radau_collocation.Radau5Interpolation` evaluates the collocation polynomial, the cubic
+through (t0, y0) and (t0 + c_i h, y0 + Z_i): order 3 between the step points (local error O(h⁴)).
 
 Statistics
 ----------
@@ -109,6 +109,14 @@ of the vector field outside the Jacobian (`num_rhs`; three per Newton iteration)
 diffrax rolls the state back on rejected steps, they count the work of the accepted step attempts
 only; ``sol.stats["num_rejected_steps"]`` says how many attempts were discarded (each cost at most
 one Jacobian, one factorization and `max_newton` iterations).
+
+Where the parts live
+--------------------
+This module holds the solver (:class:`Radau5State`, :class:`Radau5`: the Newton iteration, the
+error estimate, the reuse of J and its factors). The method's coefficients and its collocation
+polynomial (the dense output) are in :mod:`.radau_collocation`; the LU factorizations, which stay
+inline under ``vmap`` on a CPU, in :mod:`.lu`; the Jacobians that :func:`jaxtree.simulate` and
+:func:`jaxtree.simulate_hybrid` give the solver, by parts, in :mod:`.jacobian`.
 """
 
 from __future__ import annotations
@@ -121,136 +129,21 @@ import equinox as eqx
 import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
-import jax.scipy.linalg as jsl
 import numpy as np
 import optimistix as optx
 from jax import Array
 from jax.flatten_util import ravel_pytree
 
 from ..numerics import forward_only
+from .lu import lu_factor, lu_solve
+from .radau_collocation import ALPHA, BETA, GAMMA, T_INV, C, E, Radau5Interpolation, T, lagrange_weights
 
 __all__ = ["Radau5", "Radau5Interpolation", "Radau5State"]
-
-
-def _constants():
-    """The tableau, transformation and error coefficients of Radau IIA(5), in float64 numpy."""
-    s6 = np.sqrt(6.0)
-    c = np.array([(4.0 - s6) / 10.0, (4.0 + s6) / 10.0, 1.0])
-    a = np.array(
-        [
-            [(88.0 - 7.0 * s6) / 360.0, (296.0 - 169.0 * s6) / 1800.0, (-2.0 + 3.0 * s6) / 225.0],
-            [(296.0 + 169.0 * s6) / 1800.0, (88.0 + 7.0 * s6) / 360.0, (-2.0 - 3.0 * s6) / 225.0],
-            [(16.0 - s6) / 36.0, (16.0 + s6) / 36.0, 1.0 / 9.0],
-        ]
-    )
-    gamma = 3.0 + 3.0 ** (2.0 / 3.0) - 3.0 ** (1.0 / 3.0)
-    alpha = 3.0 + 0.5 * (3.0 ** (1.0 / 3.0) - 3.0 ** (2.0 / 3.0))
-    beta = 0.5 * (3.0 ** (5.0 / 6.0) + 3.0 ** (7.0 / 6.0))
-    a_inv = np.linalg.inv(a)
-
-    def eigvec(lam):
-        # (A⁻¹ - λ I) v = 0 with v[2] = 1: the first two rows fix v[0], v[1]
-        m = a_inv - lam * np.eye(3)
-        v01 = np.linalg.solve(m[:2, :2], -m[:2, 2])
-        return np.array([v01[0], v01[1], 1.0 + 0.0j])
-
-    real_vec = np.real(eigvec(gamma + 0.0j))
-    cplx_vec = eigvec(alpha - 1j * beta)  # A⁻¹ [u, w] = [u, w] [[α, -β], [β, α]] for u + iw
-    t = np.column_stack([real_vec, np.real(cplx_vec), np.imag(cplx_vec)])
-    t_inv = np.linalg.inv(t)
-    # error estimate: e = (b̂ - b)ᵀ A⁻¹ / γ0 with the embedded weights (γ0, b̂) of order 3, γ0 = 1/γ
-    e = np.array([-(13.0 + 7.0 * s6) / 3.0, (-13.0 + 7.0 * s6) / 3.0, -1.0 / 3.0])
-    # collocation polynomial: Lagrange basis on the nodes (0, c1, c2, 1) for the three stage values,
-    # as polynomial coefficients in τ = (t - t0)/h, highest power first
-    nodes = np.concatenate([[0.0], c])
-    lagrange = np.zeros((3, 4))
-    for j in range(1, 4):
-        others = np.delete(nodes, j)
-        lagrange[j - 1] = np.poly(others) / np.prod(nodes[j] - others)
-    return c, a, gamma, alpha, beta, t, t_inv, e, lagrange
-
-
-C, A, GAMMA, ALPHA, BETA, T, T_INV, E, LAGRANGE = _constants()
-
-
-def jacobian_by_parts(fn, parts, groups) -> Array:
-    """``d fn(*parts) / d [parts]`` as one matrix, its columns in the order of `parts`, by one
-    ``jax.jacfwd`` pass per group of parts (tuples of indices; parts that are None or empty are
-    left out). In a pass the other parts carry no tangent, so what depends on them alone is
-    evaluated once, not once per column: the Jacobians that :func:`jaxtree.simulate` and
-    :func:`jaxtree.simulate_hybrid` give :class:`Radau5` (the configuration, then the rates; the
-    large variables, then the modal coordinates)."""
-    columns = {}
-    for group in groups:
-        idx = tuple(i for i in group if parts[i] is not None and parts[i].size > 0)
-        if not idx:
-            continue
-
-        def field(*chosen, idx=idx):
-            p = list(parts)
-            for i, v in zip(idx, chosen):
-                p[i] = v
-            return fn(*p)
-
-        blocks = jax.jacfwd(field, argnums=tuple(range(len(idx))))(*(parts[i] for i in idx))
-        columns.update(zip(idx, blocks))
-    return jnp.concatenate([columns[i] for i in sorted(columns)], axis=1)
-
-
-def _lagrange_weights(tau: Array) -> Array:
-    """Weights of the stage increments Z_1..3 in the collocation polynomial at `tau` (any shape)."""
-    powers = jnp.stack([tau**3, tau**2, tau, jnp.ones_like(tau)], axis=-1)
-    return powers @ jnp.asarray(LAGRANGE.T, dtype=tau.dtype)
 
 
 def _mix(m: np.ndarray | Array, z: Array) -> Array:
     """`m @ z` for a 3×3 coefficient matrix and a (3, n) block of stage vectors, at full precision."""
     return jnp.dot(jnp.asarray(m, dtype=z.dtype), z, precision=jax.lax.Precision.HIGHEST)
-
-
-# jaxlib's CPU LAPACK kernels split a batch worth more than ~2e5 flops into tasks on XLA's
-# intra-op pool and block the calling pool thread until they finish; two such calls running at
-# once (Radau5's real and complex factorizations are independent, and XLA:CPU runs independent
-# operations concurrently) can each hold a pool thread while their tasks wait: a vmapped Radau5
-# run of 64 stiff chains hung so on 2 cores (benchmarks/FINDINGS.md, "Two host devices: the LAPACK
-# deadlock"). Under vmap on a CPU the factorizations therefore run in groups small
-# enough to stay inline (``lax.map`` over groups of members).
-_LAPACK_INLINE_FLOPS = 2e5
-
-
-def _inline_group(a, flops_per_member):
-    return max(1, int(_LAPACK_INLINE_FLOPS / (flops_per_member * (4 if jnp.iscomplexobj(a) else 1))))
-
-
-def _grouped(fn, flops):
-    """`fn` whose ``vmap`` on a CPU runs the members by ``lax.map`` in inline-sized groups."""
-
-    @jax.custom_batching.custom_vmap
-    def call(*args):
-        return fn(*args)
-
-    @call.def_vmap
-    def _rule(axis_size, in_batched, *args):
-        args = [a if b else jnp.broadcast_to(a, (axis_size, *a.shape)) for a, b in zip(args, in_batched)]
-        if jax.default_backend() == "cpu":
-            out = jax.lax.map(lambda xs: fn(*xs), args, batch_size=_inline_group(args[0], flops(args[0])))
-        else:
-            out = jax.vmap(fn)(*args)
-        return out, jax.tree_util.tree_map(lambda _: True, out)
-
-    return call
-
-
-_lu_factor_grouped = _grouped(jsl.lu_factor, lambda a: 2.0 * a.shape[-1] ** 3 / 3.0)
-
-
-def _lu_factor(a):
-    """``jax.scipy.linalg.lu_factor`` of a matrix that carries no derivative (the iteration
-    matrices are ``stop_gradient``-ed: ``custom_vmap`` has no transpose)."""
-    return _lu_factor_grouped(jax.lax.stop_gradient(a))
-
-
-_lu_solve = jsl.lu_solve
 
 
 class Radau5State(eqx.Module):
@@ -286,30 +179,6 @@ class Radau5State(eqx.Module):
             "num_newton": self.num_newton,
             "num_rhs": self.num_rhs,
         }
-
-
-class Radau5Interpolation(dfx.AbstractLocalInterpolation):
-    """Dense output of one Radau5 step: the collocation polynomial through (t0, y0) and the three
-    stage values (order 3 between step points)."""
-
-    t0: Any
-    t1: Any
-    y0: Any
-    zs: Any  # like y0, each leaf with a leading axis of 3: Z_1, Z_2, Z_3
-
-    def evaluate(self, t0: Any, t1: Any = None, left: bool = True) -> Any:
-        del left
-        if t1 is not None:
-            return jax.tree_util.tree_map(lambda a, b: a - b, self.evaluate(t1), self.evaluate(t0))
-        dt = self.t1 - self.t0
-        zero = dt == 0
-        tau = jnp.where(zero, 0.0, (t0 - self.t0) / jnp.where(zero, 1.0, dt))
-
-        def leaf(y, z):
-            w = _lagrange_weights(jnp.asarray(tau, dtype=z.dtype))
-            return y + jnp.tensordot(w, z, axes=1, precision=jax.lax.Precision.HIGHEST)
-
-        return jax.tree_util.tree_map(leaf, self.y0, self.zs)
 
 
 def _with_tols():
@@ -420,9 +289,9 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
         n = jac.shape[0]
         eye = jnp.eye(n, dtype=dtype)
         cdtype = jnp.promote_types(dtype, jnp.complex64)
-        lu_r, piv_r = _lu_factor((GAMMA / h) * eye - jac)
+        lu_r, piv_r = lu_factor((GAMMA / h) * eye - jac)
         shift = jnp.asarray(ALPHA + 1j * BETA, dtype=cdtype) / h.astype(cdtype)
-        lu_c, piv_c = _lu_factor(shift * eye.astype(cdtype) - jac.astype(cdtype))
+        lu_c, piv_c = lu_factor(shift * eye.astype(cdtype) - jac.astype(cdtype))
         return jax.lax.stop_gradient((lu_r, piv_r, lu_c, piv_c))
 
     # ---------------------------------------------------------------------------------------
@@ -499,8 +368,8 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
             k, w, z, dynold, thqold, theta, faccon, _ = carry
             fs = jax.vmap(fun)(stage_t, y_flat + z)
             rhs = _mix(T_INV, fs)
-            d_real = _lu_solve((lu_r, piv_r), rhs[0] - gamma_h * w[0])
-            d_cplx = _lu_solve(
+            d_real = lu_solve((lu_r, piv_r), rhs[0] - gamma_h * w[0])
+            d_cplx = lu_solve(
                 (lu_c, piv_c), (rhs[1] + 1j * rhs[2]).astype(cdtype) - shift_h * (w[1] + 1j * w[2]).astype(cdtype)
             )
             dw = jnp.stack([d_real, d_cplx.real, d_cplx.imag])
@@ -557,7 +426,7 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
 
         def err_body(carry):
             i, _, x = carry
-            e = fix * _lu_solve((lu_r, piv_r), fun(t0, x) + ez)
+            e = fix * lu_solve((lu_r, piv_r), fun(t0, x) + ez)
             return i + 1, e, y_flat + e
 
         def err_more(carry):
@@ -591,7 +460,7 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
 
         # starting values: the last collocation polynomial, extrapolated
         c = jnp.asarray(C, dtype=dtype)
-        weights = _lagrange_weights(1.0 + c * (h_t / st.h_last).astype(dtype))  # (3 new stages, 3 old)
+        weights = lagrange_weights(1.0 + c * (h_t / st.h_last).astype(dtype))  # (3 new stages, 3 old)
         z_extrap = _mix(weights, st.zs) - st.zs[2]
         z_start = jnp.where(fresh_start, jnp.zeros_like(st.zs), z_extrap)
         stage_t = t0 + jnp.asarray(C, dtype=tdtype) * h_t
