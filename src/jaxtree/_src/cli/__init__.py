@@ -36,7 +36,7 @@ the same name would replace when first imported.
 
 from __future__ import annotations
 
-from ..campaigns.chunked import solver_named
+from ..campaigns.chunked_config import solver_named
 from ..integration.simulate import simulate
 from .common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_USAGE, SOLVERS, SUBCOMMANDS, UserError
 from .dispatch import main, one_line_warnings

@@ -13,7 +13,7 @@ import re
 import sys
 import threading
 
-from ..campaigns.chunked import parse_hinges
+from ..campaigns.chunked_config import parse_hinges
 from ..errors import SceneError
 from ..io import output
 from ..io.result_files import load_result

@@ -12,7 +12,8 @@ import time
 
 import numpy as np
 
-from ..campaigns.chunked import ChunkedRunError, chunked_config, simulate_to_file
+from ..campaigns.chunked import simulate_to_file
+from ..campaigns.chunked_config import ChunkedRunError, chunked_config
 from ..integration.autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
 from ..io import output, plots
 from ..io.drift import change_text, drift_causes, near_zero
@@ -38,7 +39,7 @@ class _Interrupted(KeyboardInterrupt):
 
 
 def _config(args, model):
-    """The run's configuration (:func:`~jaxtree._src.campaigns.chunked.chunked_config` of the options)."""
+    """The run's configuration (:func:`~jaxtree._src.campaigns.chunked_config.chunked_config` of the options)."""
     return chunked_config(
         model,
         args.t1,

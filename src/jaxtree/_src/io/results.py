@@ -98,7 +98,7 @@ _OPTIONAL = ("n_modes", "cutoff", "modal_damping")
 
 def run_attrs(model: Model, config: dict) -> dict:
     """The attributes that a chunked run's result file stores for its configuration
-    (:func:`jaxtree._src.campaigns.chunked.chunked_config`): the scene's text
+    (:func:`jaxtree._src.campaigns.chunked_config.chunked_config`): the scene's text
     (:func:`scene_json`) and the options in a form netCDF keeps (no None, no mixed types)."""
     out = {"scene": scene_json(model), **config}
     for key in _OPTIONAL:
