@@ -14,12 +14,12 @@ from PIL import Image
 import jaxtree
 from jaxtree._src import cli
 from jaxtree._src.integration import autosolver
-from jaxtree._src.io import plots
+from jaxtree._src.io import figures, history_plots, mode_plots, work_precision_plot
 from jaxtree._src.io.results import simulation_dataset
 
 matplotlib.use("Agg")
 
-# smallest legible sizes at plots.DPI (points)
+# smallest legible sizes at figures.DPI (points)
 LEAST_TITLE_PT, LEAST_TICK_PT = 9.0, 8.0
 
 
@@ -49,7 +49,7 @@ def _synthetic(model, t, gamma, energy, momentum):
 
 def check_figure(fig, png):
     """No empty panel; every labelled curve in its panel's legend; images with a colour bar;
-    legible titles and ticks; the PNG at plots.DPI."""
+    legible titles and ticks; the PNG at figures.DPI."""
     for ax in fig.axes:
         if ax.get_label() == "<colorbar>":
             continue
@@ -82,9 +82,9 @@ def check_figure(fig, png):
     with Image.open(png) as im:
         w, h = im.size
         dpi = im.info.get("dpi", (0, 0))[0]
-    assert round(dpi) == plots.DPI >= 120
+    assert round(dpi) == figures.DPI >= 120
     # matplotlib truncates the size in inches x dpi to whole pixels
-    assert abs(w - fig.get_figwidth() * plots.DPI) < 1 and abs(h - fig.get_figheight() * plots.DPI) < 1
+    assert abs(w - fig.get_figwidth() * figures.DPI) < 1 and abs(h - fig.get_figheight() * figures.DPI) < 1
 
 
 def _panel(fig, text):
@@ -93,7 +93,7 @@ def _panel(fig, text):
 
 
 def test_fig4_histories_group_hinges_show_the_rotor_and_style_the_runs(fig4_runs, tmp_path):
-    fig = plots.plot_histories(fig4_runs, tmp_path / "h.png", drift=True)
+    fig = history_plots.plot_histories(fig4_runs, tmp_path / "h.png", drift=True)
     check_figure(fig, tmp_path / "h.png")
     sol = fig4_runs["euler123"]
     # the rotor (hinge 4) as its spin rate, in a panel of its own and its legend
@@ -124,7 +124,7 @@ def test_fig4_histories_group_hinges_show_the_rotor_and_style_the_runs(fig4_runs
     # the main job's figure is this one
     assert jaxtree.save_plot(tmp_path / "job.png", fig4_runs, title="fig4")
     with Image.open(tmp_path / "job.png") as im:
-        assert im.size == (w := round(13 * plots.DPI), im.size[1]) and w >= 1560
+        assert im.size == (w := round(13 * figures.DPI), im.size[1]) and w >= 1560
 
 
 def test_many_appendage_hinges_become_a_heat_map_with_a_colour_bar(tmp_path):
@@ -134,9 +134,9 @@ def test_many_appendage_hinges_become_a_heat_map_with_a_colour_bar(tmp_path):
     E = np.full_like(t, 10.0) * (1 + 1e-13 * np.sin(t))
     H = np.tile([0.0, 3.0, 0.0], (len(t), 1))
     ds = _synthetic(model, t, gamma, E, H)
-    roles = plots.hinge_roles(model, gamma)
+    roles = history_plots.hinge_roles(model, gamma)
     assert roles.branch == () and roles.rotors == () and roles.appendages == (tuple(range(model.n)),)
-    fig = plots.plot_histories(ds, tmp_path / "h.png")
+    fig = history_plots.plot_histories(ds, tmp_path / "h.png")
     check_figure(fig, tmp_path / "h.png")
     heat = _panel(fig, "appendage")
     np.testing.assert_array_equal(heat.images[0].get_array(), gamma.T)
@@ -152,7 +152,7 @@ def test_drift_is_drawn_on_the_scale_that_shows_its_size(tmp_path):
     gamma = 0.05 * np.cos(np.outer(t, np.full(model.n, 7.7)))
     E = 2.0 * (1 - 0.29 * (1 - np.exp(-t / 5)) / (1 - np.exp(-4)))
     H = np.tile([0.0, 3.0, 0.0], (len(t), 1)) + 1e-15 * np.sin(np.outer(t, [1.0, 2.0, 3.0]))
-    fig = plots.plot_drift(_synthetic(model, t, gamma, E, H), tmp_path / "d.png")
+    fig = history_plots.plot_drift(_synthetic(model, t, gamma, E, H), tmp_path / "d.png")
     check_figure(fig, tmp_path / "d.png")
     energy, momentum = fig.axes
     title = energy.get_title().replace("\n", " ")
@@ -164,7 +164,7 @@ def test_drift_is_drawn_on_the_scale_that_shows_its_size(tmp_path):
     assert np.nanmax(y) < 3e-15 and np.all(np.isnan(y) | (y > 0))
     # from rest: absolute only
     rest_E, rest_H = 0.5 * (1 - np.cos(t)), np.outer(np.sin(t), [0.0, 0.0, 2.0])
-    fig = plots.plot_drift(_synthetic(model, t, gamma, rest_E, rest_H), tmp_path / "r.png")
+    fig = history_plots.plot_drift(_synthetic(model, t, gamma, rest_E, rest_H), tmp_path / "r.png")
     energy, momentum = fig.axes
     title = energy.get_title().replace("\n", " ")
     assert energy.get_yscale() == "linear" and "%" not in title and "near zero" in title
@@ -174,9 +174,11 @@ def test_drift_is_drawn_on_the_scale_that_shows_its_size(tmp_path):
 def test_mode_shapes_and_work_precision_render(tmp_path):
     model = jaxtree.load_scene("wings")
     shapes = np.eye(model.n)[:, :3]
-    fig = plots.plot_mode_shapes(model, shapes, [1.0, 2.0, 3.0], tmp_path / "m.png")
+    fig = mode_plots.plot_mode_shapes(model, shapes, [1.0, 2.0, 3.0], tmp_path / "m.png")
     check_figure(fig, tmp_path / "m.png")
-    fig = plots.plot_work_precision({"a": ([1e-6, 1e-9], [0.1, 0.3]), "b": ([1e-5], [0.2])}, tmp_path / "w.png")
+    fig = work_precision_plot.plot_work_precision(
+        {"a": ([1e-6, 1e-9], [0.1, 0.3]), "b": ([1e-5], [0.2])}, tmp_path / "w.png"
+    )
     check_figure(fig, tmp_path / "w.png")
 
 
@@ -204,18 +206,18 @@ def test_many_fast_hinges_over_a_long_run_are_drawn_as_their_amplitude(tmp_path)
     amplitude a decaying as exp(-t / 50) reads a exp(-t / 50) (to the decay within a bin)."""
     model = jaxtree.load_scene("fig4")
     t = np.linspace(0.0, 100.0, 20001)
-    roles = plots.hinge_roles(model, np.zeros((2, model.n)))
+    roles = history_plots.hinge_roles(model, np.zeros((2, model.n)))
     app = [k for c in roles.appendages for k in c]
     amp = 0.1 * (1 + np.arange(len(app)))
     gamma = np.zeros((len(t), model.n))
     gamma[:, app] = amp * np.exp(-t / 50)[:, None] * np.sin(30.0 * t[:, None] + np.arange(len(app)))
     E = np.full_like(t, 10.0)
     H = np.tile([0.0, 3.0, 0.0], (len(t), 1))
-    fig = plots.plot_histories(_synthetic(model, t, gamma, E, H), tmp_path / "h.png")
+    fig = history_plots.plot_histories(_synthetic(model, t, gamma, E, H), tmp_path / "h.png")
     check_figure(fig, tmp_path / "h.png")
     ax = _panel(fig, "appendage")
     assert any("amplitude" in tx.get_text() for tx in ax.texts)
     for j, line in enumerate(ax.lines[: len(app)]):
         tc, a = np.asarray(line.get_xdata()), np.asarray(line.get_ydata())
-        assert len(a) == plots.ENVELOPE_BINS
+        assert len(a) == history_plots.ENVELOPE_BINS
         np.testing.assert_allclose(a, amp[j] * np.exp(-tc / 50), rtol=2e-2)

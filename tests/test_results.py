@@ -258,7 +258,7 @@ def _hub_and_panel(offset=True):
 def test_tree_segments_of_a_hinged_panel_match_the_closed_form():
     """Hub and one panel hinged about b2: the panel's mass center sits at p + R_2(a) (0.5, 0, 0)
     from the hub's, and the drawing is measured from the system mass center."""
-    from jaxtree._src.io.plots import tree_segments
+    from jaxtree._src.io.mode_plots import tree_segments
 
     model = _hub_and_panel()
     a = 0.4
@@ -274,16 +274,16 @@ def test_plots_draw_the_given_data(short_run, tmp_path):
     import matplotlib
 
     matplotlib.use("Agg")
-    from jaxtree._src.io import plots
+    from jaxtree._src.io import history_plots, mode_plots, work_precision_plot
 
     sol = short_run
-    fig = plots.plot_histories(sol, tmp_path / "h.png")
+    fig = history_plots.plot_histories(sol, tmp_path / "h.png")
     line = fig.axes[0].lines[0]
     np.testing.assert_array_equal(line.get_ydata(), np.asarray(sol.gamma)[:, 0])
-    fig = plots.plot_drift(sol, tmp_path / "d.png")
+    fig = history_plots.plot_drift(sol, tmp_path / "d.png")
     E = np.asarray(sol.energy)
     np.testing.assert_allclose(fig.axes[0].lines[0].get_ydata(), E - E[0])  # J
-    fig = plots.plot_work_precision(
+    fig = work_precision_plot.plot_work_precision(
         {"a": ([1e-6, 1e-3, 1e-9], [0.2, 0.1, 0.4]), "b": {"error": [1e-4], "time": [0.3]}}, tmp_path / "w.png"
     )
     ax = fig.axes[0]
@@ -291,9 +291,9 @@ def test_plots_draw_the_given_data(short_run, tmp_path):
     np.testing.assert_array_equal(ax.lines[0].get_xdata(), [0.1, 0.2, 0.4])
     np.testing.assert_array_equal(ax.lines[0].get_ydata(), [1e-3, 1e-6, 1e-9])
     model = _hub_and_panel()
-    fig = plots.plot_mode_shapes(model, np.array([[1.0]]), [7.0], tmp_path / "s.png", amplitude=0.3)
+    fig = mode_plots.plot_mode_shapes(model, np.array([[1.0]]), [7.0], tmp_path / "s.png", amplitude=0.3)
     blue = [ln for ln in fig.axes[0].lines if ln.get_color() == "C0"][0]
-    seg = plots.tree_segments(model, jnp.array([0.3]))[0]
+    seg = mode_plots.tree_segments(model, jnp.array([0.3]))[0]
     np.testing.assert_allclose(np.stack(blue.get_data_3d(), 1), seg, atol=ROUNDOFF_SEGMENTS)
     for name in ("h.png", "d.png", "w.png", "s.png"):
         assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -8,7 +8,7 @@ import matplotlib
 from PIL import Image
 
 import jaxtree
-from jaxtree._src.io.plots import DPI
+from jaxtree._src.io.figures import DPI
 
 matplotlib.use("Agg")
 HERE = pathlib.Path(__file__).parent

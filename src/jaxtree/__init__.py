@@ -233,6 +233,15 @@ from ._src.integration.rk4 import RK4 as RK4
 from ._src.integration.simulate import simulate as simulate
 from ._src.integration.solution import Solution as Solution
 from ._src.integration.solution import check_solution as check_solution
+from ._src.io.history_plots import (
+    plot_drift as plot_drift,
+)
+from ._src.io.history_plots import (
+    plot_histories as plot_histories,
+)
+from ._src.io.mode_plots import (
+    plot_mode_shapes as plot_mode_shapes,
+)
 from ._src.io.output import (
     atomic_write as atomic_write,
 )
@@ -250,18 +259,6 @@ from ._src.io.output import (
 )
 from ._src.io.output import (
     summary as summary,
-)
-from ._src.io.plots import (
-    plot_drift as plot_drift,
-)
-from ._src.io.plots import (
-    plot_histories as plot_histories,
-)
-from ._src.io.plots import (
-    plot_mode_shapes as plot_mode_shapes,
-)
-from ._src.io.plots import (
-    plot_work_precision as plot_work_precision,
 )
 from ._src.io.result_files import (
     load_result as load_result,
@@ -283,6 +280,9 @@ from ._src.io.viewer import (
 )
 from ._src.io.viewer import (
     write_mode_animation as write_mode_animation,
+)
+from ._src.io.work_precision_plot import (
+    plot_work_precision as plot_work_precision,
 )
 from ._src.linear.linearize import (
     LinearSystem as LinearSystem,

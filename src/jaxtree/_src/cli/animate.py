@@ -7,7 +7,7 @@ import pathlib
 
 import numpy as np
 
-from ..io import plots
+from ..io import history_plots, mode_plots
 from .common import UserError, existing, model_of, open_result, use_matplotlib, wrote
 
 
@@ -99,11 +99,11 @@ def cmd_plot(args) -> int:
         model = model_of(ds, args.result)
         files = [f"{prefix}_shapes.png"]
         existed = existing(files)
-        plots.plot_mode_shapes(model, ds, path=files[0])
+        mode_plots.plot_mode_shapes(model, ds, path=files[0])
     else:
         files = [f"{prefix}_histories.png", f"{prefix}_drift.png"]
         existed = existing(files)
-        plots.plot_histories(ds, files[0])
-        plots.plot_drift(ds, files[1])
+        history_plots.plot_histories(ds, files[0])
+        history_plots.plot_drift(ds, files[1])
     print(wrote(files, existed))
     return 0

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..appendage.files import scene_appendages
 from ..hybrid.linear import linearize
-from ..io import plots
+from ..io import mode_plots
 from ..io.result_files import command_line, write_netcdf
 from ..io.results import modes_dataset
 from ..linear.linearize import structure
@@ -68,7 +68,7 @@ def cmd_modes(args) -> int:
     if not args.no_plot:
         if use_matplotlib():
             png = args.plot if args.plot else str(out.with_suffix(".png"))
-            plots.plot_mode_shapes(model, ds, path=png, modes=list(range(min(args.show, md.nu))))
+            mode_plots.plot_mode_shapes(model, ds, path=png, modes=list(range(min(args.show, md.nu))))
             written.append(png)
         else:
             say("matplotlib is not installed: no mode-shape plot (pip install 'jaxtree[plot]')")

@@ -15,7 +15,7 @@ import numpy as np
 from ..campaigns.chunked import simulate_to_file
 from ..campaigns.chunked_config import ChunkedRunError, chunked_config
 from ..integration.autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
-from ..io import output, plots
+from ..io import history_plots, output
 from ..io.drift import change_text, drift_causes, near_zero
 from ..io.result_files import command_line, to_solution
 from .common import (
@@ -235,8 +235,8 @@ def _exports(args, out, ds):
             say("matplotlib is not installed: no plots (pip install 'jaxtree[plot]')")
             return written
         prefix = args.plot if args.plot else str(out.with_suffix("")) if out.suffix == ".nc" else str(out)
-        plots.plot_histories(ds, f"{prefix}_histories.png")
-        plots.plot_drift(ds, f"{prefix}_drift.png")
+        history_plots.plot_histories(ds, f"{prefix}_histories.png")
+        history_plots.plot_drift(ds, f"{prefix}_drift.png")
         written += [f"{prefix}_histories.png", f"{prefix}_drift.png"]
     return written
 

@@ -1,6 +1,6 @@
 """What a run's energy and angular-momentum histories say: their change, absolute and (where the
 initial value is not near zero) relative, and what may change them. Shared by the summaries
-(:mod:`.output`, the command line) and the drift plots (:mod:`.plots`)."""
+(:mod:`.output`, the command line) and the drift plots (:mod:`.history_plots`)."""
 
 from __future__ import annotations
 

@@ -15,7 +15,7 @@ import numpy as np
 from ..integration.solution import Solution
 from .drift import change_text, drift_causes
 from .files import atomic_write as atomic_write
-from .plots import plot_histories
+from .history_plots import plot_histories
 
 
 def histories(sol: Solution) -> dict[str, np.ndarray]:
@@ -122,7 +122,7 @@ def warm_writers(*, netcdf: bool = True, plot: bool = True) -> None:
             import matplotlib  # noqa: F401
         except ImportError:
             return
-        from .plots import DPI, new_figure, plot_style
+        from .figures import DPI, new_figure, plot_style
 
         with plot_style():
             fig = new_figure(figsize=(3, 2), layout="constrained")

@@ -1,29 +1,24 @@
-"""Plots (matplotlib): time histories, energy and momentum drift, mode shapes drawn as the
-deformed tree, and work-precision diagrams.
+"""Plots of a simulation's time histories (matplotlib): the hinges grouped by the role they play
+(branch, rotors, appendages), omega0 and the direction cosines (:func:`plot_histories`), and the
+energy and angular-momentum change (:func:`plot_drift`).
 
-Every function returns the :class:`matplotlib.figure.Figure` and, given a `path`, also writes
-it as a PNG atomically (temporary file, then rename). Results are taken as a
-:class:`jaxtree.Solution` or as the :class:`xarray.Dataset` of a result file
-(:func:`jaxtree.load_result`). matplotlib is an optional dependency (``pip install
-jaxtree[plot]``); it is imported when a plot is made.
+Results are taken as a :class:`jaxtree.Solution` or as the :class:`xarray.Dataset` of a result
+file (:func:`jaxtree.load_result`), or a mapping of run names to either. The figure, its style and
+the PNG written are :mod:`.figures`'.
 """
 
 from __future__ import annotations
 
-import io
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..equations.dynamics import configuration
 from ..vehicle.model import Model
 from .drift import drift_causes, near_zero
-from .files import atomic_write
+from .figures import new_figure, plot_style, save_png
 from .result_files import model_of
 
-# Every PNG written here: at 120 dpi a 9 pt label is 15 px high.
-DPI = 120
 # Curves in one panel with a legend; beyond it an appendage's hinges become a time-hinge heat map.
 LEGEND_MAX = 12
 # A relative energy or momentum change beyond this is drawn on a linear axis (work done, energy
@@ -35,42 +30,6 @@ ENVELOPE_CYCLES = 100
 ENVELOPE_BINS = 100
 # One line style per run (one colour per quantity).
 STYLES = ("-", "--", ":", "-.")
-_RC = {
-    "font.size": 9,
-    "axes.titlesize": 10,
-    "axes.labelsize": 9,
-    "xtick.labelsize": 8,
-    "ytick.labelsize": 8,
-    "legend.fontsize": 8,
-    "figure.titlesize": 11,
-}
-
-
-def plot_style():
-    """Font sizes that read at :data:`DPI` (matplotlib's rc settings for the figure being made)."""
-    import matplotlib
-
-    return matplotlib.rc_context(_RC)
-
-
-def new_figure(**kw):
-    """A new figure outside pyplot's state (a plot made here never becomes pyplot's current
-    figure, and nothing is left open in pyplot)."""
-    try:
-        import mpl_toolkits.mplot3d  # noqa: F401  (registers the 3d projection)
-        from matplotlib.figure import Figure
-    except ImportError as e:
-        raise ImportError("plots need matplotlib (pip install 'jaxtree[plot]')") from e
-    return Figure(**kw)
-
-
-def _save(fig, path):
-    if path is None:
-        return
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI)
-    with atomic_write(path) as fh:
-        fh.write(buf.getvalue())
 
 
 # the histories a plot reads: its key, and the name in a Solution or a result Dataset
@@ -445,7 +404,7 @@ def plot_histories(result, path=None, *, title: str | None = None, drift: bool =
             if i >= len(panels) - 2:
                 ax.set_xlabel("t (s)")
         fig.suptitle(title if title is not None else _heading(runs))
-    _save(fig, path)
+    save_png(fig, path)
     return fig
 
 
@@ -476,151 +435,5 @@ def plot_drift(result, path=None, *, title: str | None = None):
         for ax in axes:
             ax.set_xlabel("t (s)")
         fig.suptitle(title if title is not None else _heading(runs))
-    _save(fig, path)
-    return fig
-
-
-def tree_segments(model: Model, gamma) -> np.ndarray:
-    """The tree as line segments at hinge angles `gamma` (n,): for each hinge k a polyline
-    ``[mass center of the parent, hinge point h_k, mass center of body k]`` (n, 3, 3), from
-    the system mass center in {b0} components (:func:`jaxtree.configuration`)."""
-    import jax.numpy as jnp
-
-    cfg = configuration(model, jnp.asarray(gamma, jnp.result_type(model.mass)))
-    rho, hinge = np.asarray(cfg.rho), np.asarray(cfg.hinge)
-    par = np.asarray(model.topology.parents)
-    return np.stack([rho[par], hinge, rho[1:]], axis=1)
-
-
-def _draw_tree(ax, segments, rho0, **kw):
-    for seg in segments:
-        ax.plot(seg[:, 0], seg[:, 1], seg[:, 2], **kw)
-    ax.scatter([rho0[0]], [rho0[1]], [rho0[2]], color=kw.get("color", "k"), s=18)
-
-
-def _equal_box(ax, pts):
-    lo, hi = pts.min(0), pts.max(0)
-    mid, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-9)
-    ax.set_xlim(mid[0] - half, mid[0] + half)
-    ax.set_ylim(mid[1] - half, mid[1] + half)
-    ax.set_zlim(mid[2] - half, mid[2] + half)
-    ax.set_box_aspect((1, 1, 1), zoom=0.82)  # room inside the axes for the tick and axis labels
-
-
-def plot_mode_shapes(
-    model: Model,
-    shapes,
-    frequencies=None,
-    path=None,
-    *,
-    gamma=None,
-    modes: Sequence[int] | None = None,
-    amplitude: float = 0.3,
-    labels: Sequence[str] | None = None,
-    title: str | None = None,
-):
-    """Mode shapes drawn as the deformed tree (3D line drawings), one panel per mode.
-
-    - `shapes` (n, k): each column a mode's hinge angles on all n hinges (zero off the small
-      set), e.g. ``hinge_shape`` of a modes result, or a :class:`xarray.Dataset` of a modes
-      result (then `frequencies`, `gamma`, `labels` come from it);
-    - `frequencies` (k,) rad/s; `gamma` (n,): the nominal angles (default zero); `modes`: which
-      columns to draw (default the first six); `amplitude`: the largest hinge angle of a drawn
-      shape, in rad.
-
-    Each panel shows the nominal tree in grey and ``gamma + amplitude * shape / max|shape|``
-    and ``gamma - ...`` in colour (the two extremes of the oscillation).
-    """
-    if hasattr(shapes, "data_vars"):
-        ds = shapes
-        frequencies = ds["frequency"].values if frequencies is None else frequencies
-        gamma = ds["gamma_nominal"].values if gamma is None else gamma
-        labels = [str(s) for s in ds["mode_label"].values] if labels is None else labels
-        shapes = ds["hinge_shape"].values
-    shapes = np.real(np.asarray(shapes))
-    n, k = shapes.shape
-    if n != model.n:
-        raise ValueError(f"plot_mode_shapes: shapes has {n} rows, the model has {model.n} hinges")
-    g0 = np.zeros(n) if gamma is None else np.asarray(gamma, float)
-    modes = list(range(min(k, 6))) if modes is None else [int(j) for j in modes]
-    cols = min(3, len(modes))
-    rows = (len(modes) + cols - 1) // cols
-    with plot_style():
-        fig = new_figure(figsize=(4.6 * cols, 4.6 * rows + 0.5))
-        _draw_modes(fig, model, shapes, g0, modes, rows, cols, amplitude, frequencies, labels)
-        fig.suptitle(
-            title
-            if title is not None
-            else f"{model.name}: mode shapes (grey: nominal; blue/red: +/- {amplitude:g} rad at the largest hinge)"
-        )
-        # tight_layout does not measure 3D axes' labels: the margins by hand, the drawings shrunk
-        # inside their axes (_equal_box), a row's titles clear of the row above
-        top = 1.0 - 1.0 / (4.6 * rows + 0.5)
-        fig.subplots_adjust(left=0.01, right=0.97, bottom=0.02, top=top, wspace=0.05, hspace=0.12)
-    _save(fig, path)
-    return fig
-
-
-def _draw_modes(fig, model, shapes, g0, modes, rows, cols, amplitude, frequencies, labels):
-    n = model.n
-    nominal = tree_segments(model, g0)
-    for i, j in enumerate(modes):
-        ax = fig.add_subplot(rows, cols, i + 1, projection="3d")
-        phi = shapes[:, j]
-        scale = amplitude / max(float(np.abs(phi).max()), 1e-300)
-        pts = [nominal.reshape(-1, 3)]
-        _draw_tree(ax, nominal, nominal[0, 0] if n else np.zeros(3), color="0.6", lw=1.2)
-        for sign, color in ((1.0, "C0"), (-1.0, "C3")):
-            seg = tree_segments(model, g0 + sign * scale * phi)
-            _draw_tree(ax, seg, seg[0, 0] if n else np.zeros(3), color=color, lw=1.4)
-            pts.append(seg.reshape(-1, 3))
-        _equal_box(ax, np.concatenate(pts))
-        head = f"mode {j + 1}"
-        if frequencies is not None:
-            f = float(np.asarray(frequencies)[j])
-            head += f": {f:.4g} rad/s ({f / (2 * np.pi):.4g} Hz)"
-        if labels is not None and j < len(labels) and labels[j]:
-            head += "\n" + str(labels[j])
-        ax.set_title(head, fontsize=9)
-        ax.set_xlabel("x (m)")
-        ax.set_ylabel("y (m)")
-        ax.set_zlabel("z (m)")
-
-
-def plot_work_precision(
-    methods: Mapping[str, Any],
-    path=None,
-    *,
-    title: str = "work-precision",
-    error_label: str = "error",
-    time_label: str = "run time (s)",
-):
-    """Error against run time, one line per method (log-log).
-
-    `methods` maps a method's name to its points, either ``(errors, times)`` (two arrays of one
-    length, e.g. one point per tolerance) or a mapping with keys ``"error"`` and ``"time"``.
-    Points are joined in order of increasing time. Non-positive or non-finite points are skipped.
-    """
-    with plot_style():
-        fig = new_figure(figsize=(7, 5))
-        ax = fig.subplots()
-        markers = "osD^v<>ph*"
-        for i, (name, pts) in enumerate(methods.items()):
-            if isinstance(pts, Mapping):
-                err, tim = pts["error"], pts["time"]
-            else:
-                err, tim = pts
-            err, tim = np.asarray(err, float).ravel(), np.asarray(tim, float).ravel()
-            if err.shape != tim.shape:
-                raise ValueError(f"plot_work_precision: {name!r} has {err.size} errors and {tim.size} times")
-            ok = np.isfinite(err) & np.isfinite(tim) & (err > 0) & (tim > 0)
-            order = np.argsort(tim[ok])
-            ax.loglog(tim[ok][order], err[ok][order], marker=markers[i % len(markers)], lw=1.2, ms=5, label=str(name))
-        ax.set_xlabel(time_label)
-        ax.set_ylabel(error_label)
-        ax.set_title(title)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
-        fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path)
     return fig
