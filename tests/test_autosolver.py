@@ -12,6 +12,7 @@ import pytest
 
 import jaxtree
 from jaxtree._src.integration import autosolver as au
+from jaxtree._src.integration import autosolver_cost as cost
 
 SPAN = 10.0
 SLOW, FAST, ZETA_FAST = 1.0, 5.0e3, 1e-3  # rad/s; the fast mode lightly damped: it never dies out
@@ -48,15 +49,15 @@ def test_the_predicted_steps_follow_the_fast_modes_amplitude(fast_amplitude):
     rtol = 1e-6
     # the fast mode's displacement and the matching rate of a free oscillation
     y0 = jnp.asarray([1.0, fast_amplitude, 0.0, 0.0])
-    _, choice = au.choose_for_field(two_oscillators, None, y0, 0.0, SPAN, rtol=rtol, atol=rtol, cost_ratio=au.RHO)
+    _, choice = au.choose_for_field(two_oscillators, None, y0, 0.0, SPAN, rtol=rtol, atol=rtol, cost_ratio=cost.RHO)
     explicit = steps(dfx.Dopri8(), y0, rtol)
     implicit = steps(jaxtree.Radau5(), y0, rtol)
     assert 1 / 3 <= choice.explicit_steps / explicit <= 3, (choice, explicit)
     assert 1 / 3 <= choice.implicit_steps / implicit <= 3, (choice, implicit)
     if fast_amplitude < rtol:
-        assert choice.name == "Radau5" and implicit * au.RHO < explicit, (choice, explicit, implicit)
+        assert choice.name == "Radau5" and implicit * cost.RHO < explicit, (choice, explicit, implicit)
     else:
-        assert choice.name == "Dopri8" and implicit * au.RHO > explicit, (choice, explicit, implicit)
+        assert choice.name == "Dopri8" and implicit * cost.RHO > explicit, (choice, explicit, implicit)
 
 
 def test_modal_amplitudes_of_a_free_oscillation_and_of_a_suddenly_applied_load():
@@ -68,11 +69,11 @@ def test_modal_amplitudes_of_a_free_oscillation_and_of_a_suddenly_applied_load()
     A = np.array([[0.0, 1.0], [-(w**2), 0.0]])
     x0 = 1e-3
     y0 = np.array([x0, 0.0])
-    lam, a, _ = au.modal_amplitudes(A, (A @ y0)[None, :], np.array([0.0]), y0, rtol, atol)
+    lam, a, _ = cost.modal_amplitudes(A, (A @ y0)[None, :], np.array([0.0]), y0, rtol, atol)
     np.testing.assert_allclose(np.sort(np.abs(lam)), [w, w])
     np.testing.assert_allclose(a, w * x0 / 2 / atol, rtol=1e-9)
     f = 3.0
-    lam, a, _ = au.modal_amplitudes(A, np.array([[0.0, f]]), np.array([0.0]), np.zeros(2), rtol, atol)
+    lam, a, _ = cost.modal_amplitudes(A, np.array([[0.0, f]]), np.array([0.0]), np.zeros(2), rtol, atol)
     np.testing.assert_allclose(a, f / (2 * w) / atol, rtol=1e-9)
 
 
@@ -87,8 +88,8 @@ def test_a_ramped_load_rings_a_fast_mode_by_its_quasi_static_lag():
     dt = ts[1] - ts[0]
     ramp = np.clip(ts - 0.5, 0.0, 1.0)  # f' = 1 over a second
     jump = (ts >= 1.0).astype(float)
-    _, a_ramp, _ = au.modal_amplitudes(A, np.stack([0 * ts, ramp], 1), ts, np.zeros(2), rtol, atol)
-    _, a_jump, _ = au.modal_amplitudes(A, np.stack([0 * ts, jump], 1), ts, np.zeros(2), rtol, atol)
+    _, a_ramp, _ = cost.modal_amplitudes(A, np.stack([0 * ts, ramp], 1), ts, np.zeros(2), rtol, atol)
+    _, a_jump, _ = cost.modal_amplitudes(A, np.stack([0 * ts, jump], 1), ts, np.zeros(2), rtol, atol)
     np.testing.assert_allclose(a_ramp, 1.0 / (2 * w**2) / atol, rtol=1e-6)
     np.testing.assert_allclose(a_jump, 1.0 / (2 * dt * w**2) / atol, rtol=1e-6)
 

@@ -13,7 +13,7 @@ from PIL import Image
 
 import jaxtree
 from jaxtree._src import cli
-from jaxtree._src.integration import autosolver
+from jaxtree._src.integration import save_grid
 from jaxtree._src.io import figures, history_plots, mode_plots, work_precision_plot
 from jaxtree._src.io.results import simulation_dataset
 
@@ -186,10 +186,10 @@ def test_default_save_points_resolve_the_fastest_hinge(capsys):
     """20 save points per period of the fastest sprung hinge that still rings, at least 101; a
     note when --points gives fewer than 8 (the wings' 101 points over 20 s gave 4)."""
     wings = jaxtree.load_scene("wings")
-    points, rate = autosolver.save_points(wings, 20.0)
+    points, rate = save_grid.save_points(wings, 20.0)
     assert 7.0 < rate < 8.0  # the wing panels' spring against their inertia (7.74 rad/s)
-    assert autosolver.samples_per_period(points, 20.0, rate) >= autosolver.SAMPLES_PER_PERIOD
-    assert autosolver.save_points(jaxtree.load_scene("appendix_b"), 10.0) == (101, 0.0)  # no spring: 101
+    assert save_grid.samples_per_period(points, 20.0, rate) >= save_grid.SAMPLES_PER_PERIOD
+    assert save_grid.save_points(jaxtree.load_scene("appendix_b"), 10.0) == (101, 0.0)  # no spring: 101
 
     def args(points):
         return argparse.Namespace(t0=0.0, t1=20.0, points=points)

@@ -171,12 +171,12 @@ def test_a_rebound_name_keeps_the_kept_programs_off(monkeypatch):
     """A name of jaxtree's rebound at run time (a module constant, a class's method) is reported
     by `rebound` while it lasts, and a program called meanwhile is traced as before: not read from
     disk, not written there."""
-    from jaxtree._src.integration import autosolver
+    from jaxtree._src.integration import autosolver_linearize
 
     assert programs.rebound() is None
     with monkeypatch.context() as m:
-        m.setattr(autosolver, "SAMPLES", autosolver.SAMPLES + 1)
-        assert programs.rebound() == "jaxtree._src.integration.autosolver.SAMPLES"
+        m.setattr(autosolver_linearize, "SAMPLES", autosolver_linearize.SAMPLES + 1)
+        assert programs.rebound() == "jaxtree._src.integration.autosolver_linearize.SAMPLES"
         calls = []
         assert programs.call(_solve(), (), {}, None, lambda: calls.append(1) or "traced") == "traced"
         assert calls == [1]

@@ -17,9 +17,10 @@ import diffrax
 import jax.numpy as jnp
 import numpy as np
 
-from ..integration.autosolver import choose_solver, save_points
+from ..integration.autosolver import choose_solver
 from ..integration.core import default_tolerance
 from ..integration.radau import Radau5
+from ..integration.save_grid import save_points
 from ..linear.linearize import resolve_hinges
 from ..vehicle.model import Model
 

@@ -19,7 +19,7 @@ import numpy as np
 import jaxtree
 
 from .. import programs
-from ..integration.autosolver import save_points
+from ..integration.save_grid import save_points
 from ..integration.simulate import simulate
 from ..io import output
 from ..io.result_files import command_line, save_result

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..campaigns.chunked import simulate_to_file
 from ..campaigns.chunked_config import ChunkedRunError, chunked_config
-from ..integration.autosolver import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
+from ..integration.save_grid import MAX_SAVE_POINTS, SAMPLES_LEAST, SAMPLES_PER_PERIOD, samples_per_period, save_points
 from ..io import history_plots, output
 from ..io.drift import change_text, drift_causes, near_zero
 from ..io.result_files import command_line, to_solution
