@@ -408,13 +408,8 @@ def simulate(
     # every argument is checked: from here on JAX may trace
     if not (grid is not None or user_saveat):
         saveat = jnp.asarray(saveat, dtype) if is_traced(saveat) else np.asarray(saveat, dtype)
-    X0 = Xd0 = None
-    if isinstance(translation, tuple):
-        X0, Xd0 = translation
-        translation = True
-    elif translation and model.orbit is not None:  # start on the scene's orbit
-        X0, Xd0 = model.orbit.position(jnp.asarray(t0, dtype)), model.orbit.velocity(jnp.asarray(t0, dtype))
-    problem = make_problem(model, att, law, controller, params, bool(translation))
+    translation, X0, Xd0 = _mass_center_start(model, translation, t0, dtype)
+    problem = make_problem(model, att, law, controller, params, translation)
     y_flat = None
     if solver is None or isinstance(solver, str):
         y_flat = packed_start(problem, y0, X0, Xd0)
@@ -435,14 +430,8 @@ def simulate(
     check_start = bool(diagnostics) and traced
     opts = _Options(has_guard, user_event, int(max_steps), grid, user_saveat, bool(throw and traced), check_start)
 
-    def as_array(x):  # (a Python or numpy number put on the device: no program compiled for it)
-        if x is None:
-            return None
-        if isinstance(x, (int, float, np.number, np.ndarray)):
-            return jax.device_put(np.asarray(x, dtype))
-        return jnp.asarray(x, dtype)
-
-    arrays = (as_array(X0), as_array(Xd0), as_array(t0), as_array(t1), as_array(rtol), as_array(atol), as_array(dt0))
+    dev = lambda x: _on_device(x, dtype)
+    arrays = (dev(X0), dev(Xd0), dev(t0), dev(t1), dev(rtol), dev(atol), dev(dt0))
     packed = None
     if not traced:
         y_flat = packed_start(problem, y0, X0, Xd0) if y_flat is None else y_flat
@@ -452,16 +441,42 @@ def simulate(
         sol = _solve(problem, y0, run, opts)
     if diagnostics and packed is not None:  # (an eager run)
         sol = _singular_start_after(sol, problem, packed[0], arrays[2])
+    sol = _finished(sol, model, law, controller, params, diagnostics, n_saved)
+    sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
+    if throw and not traced:
+        check_solution(sol)
+    return sol
+
+
+def _mass_center_start(model: Model, translation, t0, dtype):
+    """``(integrated, X0, X_dot0)`` of simulate's `translation`: given as a pair, on the scene's
+    orbit at `t0`, at rest at the origin (None, None), or not integrated."""
+    if isinstance(translation, tuple):
+        return True, *translation
+    if translation and model.orbit is not None:  # start on the scene's orbit
+        t = jnp.asarray(t0, dtype)
+        return True, model.orbit.position(t), model.orbit.velocity(t)
+    return bool(translation), None, None
+
+
+def _on_device(x, dtype):
+    """`x` as an array of `dtype` (None stays None); a Python or numpy number is put on the device,
+    so that no program compiles for it."""
+    if x is None:
+        return None
+    if isinstance(x, (int, float, np.number, np.ndarray)):
+        return jax.device_put(np.asarray(x, dtype))
+    return jnp.asarray(x, dtype)
+
+
+def _finished(sol: Solution, model: Model, law, controller, params, diagnostics: bool, n_saved) -> Solution:
+    """`sol` with its energy, momentum and hold-torque histories (NaN without `diagnostics`), cut
+    to the `n_saved` rows asked for where the save grid was padded to its bucket."""
     if diagnostics:
         sol = _with_diagnostics(sol, model, law, controller, params, n_saved)
     else:
         sol = _without_diagnostics(sol, model)
-    sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
-    if n_saved is not None:
-        sol = _cut(sol, n_saved)
-    if throw and not traced:
-        check_solution(sol)
-    return sol
+    return sol if n_saved is None else _cut(sol, n_saved)
 
 
 def _singular_start_after(sol: Solution, problem: Problem, y, t0) -> Solution:
