@@ -240,7 +240,7 @@ def _settings(
 # batch_first_min() members on (its program's cost per call amortized over the members), and more
 # gained nothing measurable while the first chunk (compile and run) and the wait for a chunk's
 # slowest member grew: 512 fig4_free runs on two devices in chunks of 128 / 256 / 512, 6.55 / 6.49 /
-# 7.49 s, first calls 17.4 / 19.2 / 23.2 s; in chunks of 64 (32 a device, under the threshold) 2.5x
+# 7.49 s, first calls 17.4 / 19.2 / 23.2 s; in chunks of 64 (32 a device, under the threshold) 2.4x
 # slower (benchmarks/FINDINGS.md, "Chunks sized by cost"). A chunk's histories stay within
 # CHUNK_MEMORY of the machine's memory (each member's saved states held about three times over: the
 # solve's saves, its histories, the host's copy).
