@@ -109,7 +109,7 @@ def solve_plain(model, state, t, tau, gdd_p, one=None):
     """Eq. (1) by the model's method; under ``jax.vmap`` of at least :func:`batch_first_min`
     members, by the batch-first recursion of :mod:`jaxtree._src.equations.batched` (the same
     accelerations to round-off)."""
-    one = _solve_one if one is None else one
+    one = solve_one if one is None else one
     dyn, static = eqx.partition((model, state, t, tau, gdd_p), eqx.is_array)
     # custom_vmap sees a flat list of arrays: its JVP compares pytree structures in which None
     # leaves (eqx.partition's placeholders) would not match
@@ -185,10 +185,6 @@ def batch_first(model, state, t=0.0, tau=None, gdd_p=None, *, stages=None, scan_
 def solve_one(model, state, t, tau, gdd_p):
     """Eq. (1) for one member by the model's method (no batching rule): what ``jax.vmap`` of the
     solve runs for fewer than :func:`batch_first_min` members."""
-    return _solve_one(model, state, t, tau, gdd_p)
-
-
-def _solve_one(model, state, t, tau, gdd_p):
     if articulated.resolve_method(model) == "articulated":
         return _solve_articulated(model, state, t, tau, gdd_p)
     A, rhs = rotational_equations(model, state, t, tau)
