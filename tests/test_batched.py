@@ -115,6 +115,17 @@ def test_the_accelerators_stages_on_a_cpu(scenes):
         solve.batch_first(model, s, 0.3, stages="cond")
 
 
+def test_a_scanned_run_of_one_level(scenes):
+    """fig4_free's levels (widths 2, 2, 3, 2, 1; only the second continues the first slot for
+    slot) with every chained run scanned: a run of a single level has its axis of levels too."""
+    model = scenes["fig4_free"]
+    s = states(model, 5, size=3)
+    units = solve.batched._units(solve.batched.plan(model.topology.parents, (), ()).levels, 1)
+    assert ("run", 2, 2) in units
+    batch = jax.jit(lambda s: solve.batch_first(model, s, 0.3, scan_min=1))(s)
+    assert_same(batch, one_by_one(model, s, members=range(3)), model, s)
+
+
 @pytest.mark.parametrize("name", scene_names())
 def test_every_bundled_scene(scenes, name):
     model = scenes[name]

@@ -360,12 +360,12 @@ class _Pass(NamedTuple):
     dtype: Any
 
 
-def _level_data(x: Inputs, starts, a, b):
-    """The inputs of levels a..b (1-based), with a leading axis of levels when b > a."""
+def _level_data(x: Inputs, starts, a, b, run=False):
+    """The inputs of levels a..b (1-based), with a leading axis of levels for a `run` (a scan's)."""
 
     def rows(arr, first=0):  # hinge rows; body rows with first = 1 (row 0: b_0)
         out = arr[first + starts[a - 1] : first + starts[b]]
-        return out if a == b else out.reshape((b - a + 1, -1) + out.shape[1:])
+        return out.reshape((b - a + 1, -1) + out.shape[1:]) if run else out
 
     brows = functools.partial(rows, first=1)
     return dict(
@@ -469,8 +469,8 @@ def _solve(pl: Plan, x: Inputs, stage, scan_min: int):
 
     # --- outward: kinematics; inward: articulated inertias
     K0 = stacked(z3, w0, z3)  # (c, w, v) of b_0
-    _, saved = _sweep(units, functools.partial(_kinematics_step, ps), K0, lambda u: data(*_span(u)))
-    art_in = lambda u: (saved[u], data(*_span(u)))
+    _, saved = _sweep(units, functools.partial(_kinematics_step, ps), K0, lambda u: data(*_span(u), u[0] == "run"))
+    art_in = lambda u: (saved[u], data(*_span(u), u[0] == "run"))
     step = functools.partial(_articulate_step, ps)
     carry, art = _sweep(units, step, None, art_in, reverse=True, start=nothing_outboard)
 
@@ -483,7 +483,7 @@ def _solve(pl: Plan, x: Inputs, stage, scan_min: int):
     pivots = split_stacked(Ld, (15, 6))[1]
 
     # --- outward: accelerations
-    acc_in = lambda u: (saved[u], art[u], data(*_span(u)))
+    acc_in = lambda u: (saved[u], art[u], data(*_span(u), u[0] == "run"))
     _, out = _sweep(units, functools.partial(_accelerate_step, ps), a0, acc_in)
     rows = [tuple(z.reshape((-1,) + z.shape[2:]) if u[0] == "run" else z for z in out[u]) for u in units]
     q_rows, hold_rows = [r[0] for r in rows], [r[1] for r in rows]
