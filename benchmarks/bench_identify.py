@@ -193,7 +193,7 @@ def main():
     print(text)
     results = HERE / "results"
     results.mkdir(exist_ok=True)
-    from jaxtree._src.io.files import atomic_write
+    from jaxtree._src.atomic import atomic_write
 
     with atomic_write(results / "bench_identify.txt", "w") as fh:
         fh.write(text + "\n")

@@ -47,7 +47,6 @@ from ._src.appendage import read_matrix_market as read_matrix_market
 from ._src.appendage import read_op4 as read_op4
 from ._src.appendage import save_appendage as save_appendage
 from ._src.appendage import save_fe as save_fe
-from ._src.appendage import scene_appendages as scene_appendages
 from ._src.campaigns.campaign import (
     monte_carlo as monte_carlo,
 )
@@ -317,6 +316,7 @@ from ._src.linear.modes import (
 from ._src.linear.modes import (
     modes as modes,
 )
+from ._src.scene.appendages import scene_appendages as scene_appendages
 from ._src.scene.check import (
     SceneReport as SceneReport,
 )

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import jax
 import numpy as np
 
-from jaxtree._src.io.files import atomic_write
+from jaxtree._src.atomic import atomic_write
 from jaxtree._src.io.work_precision_plot import plot_work_precision
 from jaxtree.bench.cases import CASES, GOALS, IMPLICIT, IMPLICIT_STEP_CAP, REFERENCE_TOL, STEP_CAP, TARGETS
 

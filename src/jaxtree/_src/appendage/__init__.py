@@ -22,7 +22,6 @@ from .files import read_matrix_market as read_matrix_market
 from .files import read_op4 as read_op4
 from .files import save_appendage as save_appendage
 from .files import save_fe as save_fe
-from .files import scene_appendages as scene_appendages
 from .model import Appendage as Appendage
 from .model import appendage as appendage
 from .model import held_interface_modes as held_interface_modes

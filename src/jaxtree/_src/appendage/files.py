@@ -29,18 +29,16 @@ A file written from one build and read back gives the same appendage to the last
 
 from __future__ import annotations
 
-import dataclasses
-import functools
 import pathlib
 
 import jax.numpy as jnp
 import numpy as np
 
+from ..atomic import atomic_write
 from ..errors import SceneError
 from ..hybrid.substructure import Terms
-from ..io.files import atomic_write
-from .fe import Elements, FEModel, PlateElements, beam, plate, plate_edge
-from .model import Appendage, appendage
+from .fe import Elements, FEModel, PlateElements
+from .model import Appendage
 
 FE_FORMAT = "jaxtree-fe/1"
 APPENDAGE_FORMAT = "jaxtree-appendage/1"
@@ -385,57 +383,3 @@ def load_appendage(path) -> Appendage:
             (int(a), int(b)) for a, b in np.asarray(data.get("edges", np.zeros((0, 2))), np.int64).reshape(-1, 2)
         ),
     )
-
-
-@functools.lru_cache(maxsize=64)
-def _from_spec(spec, mtime) -> Appendage:
-    del mtime  # part of the cache key: a file written again is read again
-    if spec.file is not None:
-        with np.load(spec.file, allow_pickle=False) as data:
-            fmt = str(data["format"]) if "format" in data.files else ""
-        if fmt == APPENDAGE_FORMAT:
-            ap = load_appendage(spec.file)
-            if ap.body != spec.body:
-                raise SceneError(
-                    f"appendage {spec.name!r}: {pathlib.Path(spec.file).name} was computed for body {ap.body!r}, "
-                    f"the scene fixes it to {spec.body!r}"
-                )
-            return dataclasses.replace(ap, name=spec.name) if ap.name != spec.name else ap
-        fe = load_fe(spec.file)
-    elif spec.plate is not None:
-        args = spec.plate_arguments()
-        na, nb = args.pop("n_length"), args.pop("n_width")
-        fe = plate(args.pop("length"), args.pop("width"), na, nb, **args)
-    else:
-        args = spec.beam_arguments()
-        fe = beam(args.pop("length"), args.pop("elements"), area=args.pop("area"), **args)
-    interface = spec.interface
-    if interface is None:
-        interface = plate_edge(na, nb) if spec.plate is not None else (0,)
-    frame = None if spec.frame is None else np.asarray(spec.frame)
-    try:
-        return appendage(
-            fe,
-            spec.body,
-            interface=interface,
-            point=spec.point,
-            frame=frame,
-            n_modes=spec.modes,
-            tol=spec.tol,
-            damping=spec.damping,
-            outputs=spec.outputs,
-            geometric=spec.geometric,
-            name=spec.name,
-        )
-    except SceneError as e:
-        raise SceneError(f"appendage {spec.name!r}: {e}") from None
-
-
-def scene_appendages(model) -> tuple[Appendage, ...]:
-    """The finite-element appendages the scene of `model` declares (its ``appendages``), built (and
-    cached per entry and file) for :func:`jaxtree.hybrid_model`'s `appendages`."""
-    out = []
-    for spec in getattr(model, "appendages", ()):
-        mtime = pathlib.Path(spec.file).stat().st_mtime_ns if spec.file is not None else 0
-        out.append(_from_spec(spec, mtime))
-    return tuple(out)

@@ -21,7 +21,6 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from ..appendage.files import scene_appendages
 from ..errors import SceneError
 from ..hybrid import hybrid_model, simulate_hybrid
 from ..hybrid.model import appendage_body
@@ -31,6 +30,7 @@ from ..integration.failures import MESSAGES, SimulationError, failure_kind
 from ..integration.simulate import simulate
 from ..io.results import body_positions, simulation_dataset
 from ..linear.modes import ModalError
+from ..scene.appendages import scene_appendages
 from ..vehicle.model import State
 from .chunked_config import ChunkedRunError, parse_hinges, solver_named
 

@@ -12,7 +12,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from ..io.files import atomic_write
+from ..atomic import atomic_write
 from ..io.results import clean_attrs
 
 

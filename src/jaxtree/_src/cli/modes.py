@@ -8,13 +8,13 @@ import pathlib
 import jax.numpy as jnp
 import numpy as np
 
-from ..appendage.files import scene_appendages
 from ..hybrid.linear import linearize
 from ..io import mode_plots
 from ..io.result_files import command_line, write_netcdf
 from ..io.results import modes_dataset
 from ..linear.linearize import structure
 from ..linear.modes import ModalError, modes
+from ..scene.appendages import scene_appendages
 from .common import UserError, existing, hinges, open_scene, say, use_matplotlib, wrote
 
 

@@ -132,7 +132,7 @@ def run(args, model, matplotlib_ok: bool) -> int:
         plot_residuals(fit, times, plot)
         written.append(plot)
     if args.out:
-        from ..io.files import atomic_write
+        from ..atomic import atomic_write
 
         doc = {
             "scene": model.name,

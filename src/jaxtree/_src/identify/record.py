@@ -101,7 +101,7 @@ def load_record(path, model: Model, sensors=None) -> tuple[np.ndarray, dict]:
 
 def save_record_csv(path, times, measurements: dict) -> None:
     """Write `measurements` (dict sensor -> (T, ...)) at `times` as a CSV record (atomically)."""
-    from ..io.files import atomic_write
+    from ..atomic import atomic_write
 
     header, columns = ["time"], [np.asarray(times, float)]
     for name, a in measurements.items():
@@ -128,7 +128,7 @@ def plot_residuals(fit, times, path=None, member: int = 0):
 
     from matplotlib.figure import Figure
 
-    from ..io.files import atomic_write
+    from ..atomic import atomic_write
 
     names = list(fit.residuals)
     fig = Figure(figsize=(8.0, 1.9 * len(names) + 0.6), layout="constrained")

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import io
 
-from .files import atomic_write
+from ..atomic import atomic_write
 
 # Every PNG written here: at 120 dpi a 9 pt label is 15 px high.
 DPI = 120

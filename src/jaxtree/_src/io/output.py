@@ -12,9 +12,9 @@ from typing import Any, cast
 import jax
 import numpy as np
 
+from ..atomic import atomic_write as atomic_write
 from ..integration.solution import Solution
 from .drift import change_text, drift_causes
-from .files import atomic_write as atomic_write
 from .history_plots import plot_histories
 
 

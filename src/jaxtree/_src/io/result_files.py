@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..atomic import atomic_write
 from ..equations.attitude import get_attitude
 from ..integration.failures import KINDS
 from ..integration.problem import Problem
@@ -39,7 +40,6 @@ from ..integration.solution import Solution
 from ..linear.modes import Modes
 from ..scene.files import scene_from_dict
 from ..vehicle.model import Model, State
-from .files import atomic_write
 from .results import (
     ENGINE,
     RESULT_FORMAT,

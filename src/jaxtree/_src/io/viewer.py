@@ -44,9 +44,9 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from ..atomic import atomic_write
 from ..equations.dynamics import configuration
 from ..vehicle.model import Model
-from .files import atomic_write
 
 MAX_FRAMES = 2000  # frames embedded in a page at most (evenly decimated beyond)
 MAX_BODY_FRAMES = 250_000  # frames x bodies at most: caps a page near 9 MB for large trees

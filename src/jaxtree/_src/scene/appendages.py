@@ -20,16 +20,21 @@ Each entry is an object:
 
 This module parses and checks the entries (errors name the appendage and the field) into
 :class:`AppendageSpec` records that a :class:`~jaxtree._src.vehicle.model.Model` carries as a
-static field; :func:`jaxtree.scene_appendages` builds the appendages from them.
+static field, and builds the appendages from them (:func:`scene_appendages`, through
+:mod:`jaxtree._src.appendage`: the files, the generators and the held-interface modes).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import pathlib
 
 import numpy as np
 
+from ..appendage.fe import beam, plate, plate_edge
+from ..appendage.files import APPENDAGE_FORMAT, load_appendage, load_fe
+from ..appendage.model import Appendage, appendage
 from ..errors import SceneError, SceneTypeError, short
 from ..values import as_float, rotation
 from .keys import unknown_keys
@@ -247,4 +252,60 @@ def parse_appendages(entries, names, base_dir=None) -> tuple[AppendageSpec, ...]
         out.append(AppendageSpec(name=name, body=body, **kw))
     if len({s.name for s in out}) < len(out):
         raise SceneError("scene: two appendages share a name")
+    return tuple(out)
+
+
+@functools.lru_cache(maxsize=64)
+def _built(spec: AppendageSpec, mtime) -> Appendage:
+    """The appendage of one entry (its file read, or its beam or plate generated, and reduced to
+    its held-interface modes), kept per entry and file version."""
+    del mtime  # part of the cache key: a file written again is read again
+    if spec.file is not None:
+        with np.load(spec.file, allow_pickle=False) as data:
+            fmt = str(data["format"]) if "format" in data.files else ""
+        if fmt == APPENDAGE_FORMAT:
+            ap = load_appendage(spec.file)
+            if ap.body != spec.body:
+                raise SceneError(
+                    f"appendage {spec.name!r}: {pathlib.Path(spec.file).name} was computed for body {ap.body!r}, "
+                    f"the scene fixes it to {spec.body!r}"
+                )
+            return dataclasses.replace(ap, name=spec.name) if ap.name != spec.name else ap
+        fe = load_fe(spec.file)
+    elif spec.plate is not None:
+        args = spec.plate_arguments()
+        na, nb = args.pop("n_length"), args.pop("n_width")
+        fe = plate(args.pop("length"), args.pop("width"), na, nb, **args)
+    else:
+        args = spec.beam_arguments()
+        fe = beam(args.pop("length"), args.pop("elements"), area=args.pop("area"), **args)
+    interface = spec.interface
+    if interface is None:
+        interface = plate_edge(na, nb) if spec.plate is not None else (0,)
+    frame = None if spec.frame is None else np.asarray(spec.frame)
+    try:
+        return appendage(
+            fe,
+            spec.body,
+            interface=interface,
+            point=spec.point,
+            frame=frame,
+            n_modes=spec.modes,
+            tol=spec.tol,
+            damping=spec.damping,
+            outputs=spec.outputs,
+            geometric=spec.geometric,
+            name=spec.name,
+        )
+    except SceneError as e:
+        raise SceneError(f"appendage {spec.name!r}: {e}") from None
+
+
+def scene_appendages(model) -> tuple[Appendage, ...]:
+    """The finite-element appendages the scene of `model` declares (its ``appendages``, parsed into
+    :class:`AppendageSpec` records above), built (and cached per entry and file) for :func:`jaxtree.hybrid_model`'s `appendages`."""
+    out = []
+    for spec in getattr(model, "appendages", ()):
+        mtime = pathlib.Path(spec.file).stat().st_mtime_ns if spec.file is not None else 0
+        out.append(_built(spec, mtime))
     return tuple(out)

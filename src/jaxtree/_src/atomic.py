@@ -1,5 +1,6 @@
-"""Result files written atomically: a temporary file beside the target, renamed over it when
-the write succeeded (a crash or an interrupt never leaves a half-written file)."""
+"""Every file jaxtree writes (results, plots, records, stores, finite-element files) is written
+atomically: a temporary file beside the target, renamed over it when the write succeeded (a
+crash or an interrupt never leaves a half-written file)."""
 
 from __future__ import annotations
 
