@@ -64,6 +64,7 @@ from .components import (
     split_stacked,
     stacked,
     sym_apply,
+    total,
 )
 
 # ----------------------------------------------------------------------------- static plan
@@ -267,15 +268,15 @@ def _articulate(M21, p, carry, S, tau, free):
         pA = tuple(p[i] + carry[21 + i] for i in range(6))
     M = dict(zip(PAIRS, IA))
     U = sym_apply(M, S)
-    D = sum(S[i] * U[i] for i in range(6))
+    D = total([S[i] * U[i] for i in range(6)])
     # the pivot D against the scale of I^A along S (its diagonal): at round-off level the hinge
     # is singular (gimbal lock) and the member's accelerations are NaN, as the dense solve's
-    scale = sum(S[i] * S[i] * M[(i, i)] for i in range(6))
+    scale = total([S[i] * S[i] * M[(i, i)] for i in range(6)])
     tol = SINGULAR_PIVOT * float(np.sqrt(6.0)) * float(jnp.finfo(jnp.result_type(D)).eps)
     Dinv = jnp.where(D > tol * scale, 1.0 / D, jnp.nan)
     if free is not None:
         Dinv = jnp.where(free > 0, Dinv, 0.0)
-    u = tau - sum(S[i] * pA[i] for i in range(6))
+    u = tau - total([S[i] * pA[i] for i in range(6)])
     return stacked(IA, pA, U, (Dinv, u))
 
 
@@ -298,7 +299,7 @@ def _accelerate(a_prev, cb, S, U, Dinv, u, gdd, free, all_locked):
     if all_locked:
         q = gdd + jnp.zeros_like(a[0])
     else:
-        q = (u - sum(U[i] * a[i] for i in range(6))) * Dinv
+        q = (u - total([U[i] * a[i] for i in range(6)])) * Dinv
         if free is not None:
             q = q + gdd * (1.0 - free)
     return stacked(tuple(a[i] + S[i] * q for i in range(6)), (q,))
@@ -307,7 +308,7 @@ def _accelerate(a_prev, cb, S, U, Dinv, u, gdd, free, all_locked):
 def _hold(a, IA, pA, S, tau):
     """Stage: the holding torque ``S . (I^A a + p^A) - tau`` of a level's locked hinges."""
     f = add(sym_apply(dict(zip(PAIRS, IA)), a), pA)
-    return sum(S[i] * f[i] for i in range(6)) - tau
+    return total([S[i] * f[i] for i in range(6)]) - tau
 
 
 def _hold_from(a, A, Sc, tau):
@@ -360,27 +361,35 @@ class _Pass(NamedTuple):
     dtype: Any
 
 
-def _level_data(x: Inputs, starts, a, b, run=False):
-    """The inputs of levels a..b (1-based), with a leading axis of levels for a `run` (a scan's)."""
+def _unit_data(x: Inputs, starts, units):
+    """The inputs of each unit's levels ``{unit: {field: rows}}``, a run's with a leading axis of
+    levels (a scan's): every array split once at the units' first rows (one operation an array,
+    not one a unit and pass)."""
+    cuts = [int(starts[_span(u)[0] - 1]) for u in units[1:]]
 
-    def rows(arr, first=0):  # hinge rows; body rows with first = 1 (row 0: b_0)
-        out = arr[first + starts[a - 1] : first + starts[b]]
-        return out.reshape((b - a + 1, -1) + out.shape[1:]) if run else out
+    def pieces(arr, first=0):  # hinge rows; body rows with first = 1 (row 0: b_0)
+        parts = jnp.split(arr, [first + c for c in ([0] if first else []) + cuts])[first:]
+        return [
+            p.reshape((_span(u)[1] - _span(u)[0] + 1, -1) + p.shape[1:]) if u[0] == "run" else p
+            for u, p in zip(units, parts)
+        ]
 
-    brows = functools.partial(rows, first=1)
-    return dict(
-        g=tuple(rows(c) for c in x.axis),
-        hp=tuple(rows(c) for c in x.hinge_on_parent),
-        hb=tuple(rows(c) for c in x.hinge_on_body),
-        gam=rows(x.gamma),
-        gd=rows(x.gamma_dot),
-        tau=rows(x.tau),
-        gdd=rows(x.gdd),
-        m=brows(x.mass),
-        J={k: brows(c) for k, c in x.inertia.items()},
-        F=None if x.force is None else tuple(brows(c) for c in x.force),
-        T=None if x.torque is None else tuple(brows(c) for c in x.torque),
+    bpieces = functools.partial(pieces, first=1)
+    fields = dict(
+        g=tuple(pieces(c) for c in x.axis),
+        hp=tuple(pieces(c) for c in x.hinge_on_parent),
+        hb=tuple(pieces(c) for c in x.hinge_on_body),
+        gam=pieces(x.gamma),
+        gd=pieces(x.gamma_dot),
+        tau=pieces(x.tau),
+        gdd=pieces(x.gdd),
+        m=bpieces(x.mass),
+        J={k: bpieces(c) for k, c in x.inertia.items()},
+        F=None if x.force is None else tuple(bpieces(c) for c in x.force),
+        T=None if x.torque is None else tuple(bpieces(c) for c in x.torque),
     )
+    pick = lambda f, i: jax.tree_util.tree_map(lambda p: p[i], f, is_leaf=lambda z: isinstance(z, list))
+    return {u: {k: None if f is None else pick(f, i) for k, f in fields.items()} for i, u in enumerate(units)}
 
 
 def _free(lv: _Level, dtype):
@@ -449,7 +458,6 @@ def _solve(pl: Plan, x: Inputs, stage, scan_min: int):
     starts = np.cumsum([0] + [len(lv.bodies) for lv in levels])
     dtype = x.gamma.dtype
     ps = _Pass(levels, stage, dtype)
-    data = functools.partial(_level_data, x, starts)
 
     # --- b_0
     w0 = tuple(jnp.broadcast_to(a, jnp.broadcast_shapes(*[jnp.shape(z) for z in x.omega0])) for a in x.omega0)
@@ -462,6 +470,7 @@ def _solve(pl: Plan, x: Inputs, stage, scan_min: int):
     p0 = split_stacked(stage(lambda M, w, F, T: _bias(M, z3, w, z3, F, T, None), M0, w0, F0, T0), (6,))[0]
 
     units = _units(levels, scan_min)
+    data = _unit_data(x, starts, units)
 
     def nothing_outboard(u):  # the inward carry entering the deepest levels' run
         shape = (len(levels[u[1] - 1].bodies),) + jnp.shape(x.gamma)[1:]
@@ -469,8 +478,8 @@ def _solve(pl: Plan, x: Inputs, stage, scan_min: int):
 
     # --- outward: kinematics; inward: articulated inertias
     K0 = stacked(z3, w0, z3)  # (c, w, v) of b_0
-    _, saved = _sweep(units, functools.partial(_kinematics_step, ps), K0, lambda u: data(*_span(u), u[0] == "run"))
-    art_in = lambda u: (saved[u], data(*_span(u), u[0] == "run"))
+    _, saved = _sweep(units, functools.partial(_kinematics_step, ps), K0, lambda u: data[u])
+    art_in = lambda u: (saved[u], data[u])
     step = functools.partial(_articulate_step, ps)
     carry, art = _sweep(units, step, None, art_in, reverse=True, start=nothing_outboard)
 
@@ -483,7 +492,7 @@ def _solve(pl: Plan, x: Inputs, stage, scan_min: int):
     pivots = split_stacked(Ld, (15, 6))[1]
 
     # --- outward: accelerations
-    acc_in = lambda u: (saved[u], art[u], data(*_span(u), u[0] == "run"))
+    acc_in = lambda u: (saved[u], art[u], data[u])
     _, out = _sweep(units, functools.partial(_accelerate_step, ps), a0, acc_in)
     rows = [tuple(z.reshape((-1,) + z.shape[2:]) if u[0] == "run" else z for z in out[u]) for u in units]
     q_rows, hold_rows = [r[0] for r in rows], [r[1] for r in rows]

@@ -6,6 +6,7 @@ all written out so that XLA's fused loops run along the members."""
 from __future__ import annotations
 
 import functools
+import operator
 from typing import Any
 
 import jax.numpy as jnp
@@ -15,6 +16,12 @@ from ..numerics import SINGULAR_PIVOT
 
 # A 3-vector is a tuple of three arrays of one shape (bodies of a level, members); a symmetric
 # 6 x 6 matrix a dict {(i, j): array} over i <= j.
+
+
+def total(terms: list):
+    """The sum of `terms` in order, from the first (Python's ``sum`` starts from 0: one addition
+    more in every traced sum); 0 when there are none."""
+    return functools.reduce(operator.add, terms) if terms else 0
 
 
 def cross(a, b):
@@ -51,7 +58,7 @@ def sym(M, i, j):
 
 def sym_apply(M, x):
     """``M @ x`` for a symmetric 6 x 6 M and a 6-tuple x."""
-    return tuple(sum(sym(M, i, j) * x[j] for j in range(6)) for i in range(6))
+    return tuple(total([sym(M, i, j) * x[j] for j in range(6)]) for i in range(6))
 
 
 def body_inertia(m, J, c):
@@ -85,7 +92,7 @@ def components_of(a):
     """The components of a stacked array or of a tuple of chunks (leading axes)."""
     if isinstance(a, (tuple, list)):
         return tuple(c for chunk in a for c in components_of(chunk))
-    return tuple(a[i] for i in range(a.shape[0]))
+    return tuple(jnp.unstack(a))  # one primitive (indexing each component traced two each)
 
 
 def split_stacked(a, sizes):
@@ -112,10 +119,10 @@ def ldl6(M21):
     M = dict(zip(PAIRS, M21))
     L, d = {}, []
     for j in range(6):
-        s = sym(M, j, j) - sum(L[(j, k)] * L[(j, k)] * d[k] for k in range(j))
+        s = sym(M, j, j) - total([L[(j, k)] * L[(j, k)] * d[k] for k in range(j)])
         d.append(s)
         for i in range(j + 1, 6):
-            L[(i, j)] = (sym(M, i, j) - sum(L[(i, k)] * L[(j, k)] * d[k] for k in range(j))) / s
+            L[(i, j)] = (sym(M, i, j) - total([L[(i, k)] * L[(j, k)] * d[k] for k in range(j)])) / s
     return stacked(tuple(L[(i, j)] for j in range(6) for i in range(j + 1, 6)), tuple(d))
 
 
@@ -126,10 +133,10 @@ def ldl6_solve(Ld, b, diag):
     L = dict(zip(names, Lc))
     y = []
     for i in range(6):
-        y.append(b[i] - sum(L[(i, k)] * y[k] for k in range(i)))
+        y.append(b[i] - total([L[(i, k)] * y[k] for k in range(i)]))
     x: list[Any] = [None] * 6
     for i in reversed(range(6)):
-        x[i] = y[i] / d[i] - sum(L[(k, i)] * x[k] for k in range(i + 1, 6))
+        x[i] = y[i] / d[i] - total([L[(k, i)] * x[k] for k in range(i + 1, 6)])
     tol = SINGULAR_PIVOT * float(np.sqrt(6.0)) * float(jnp.finfo(d[0].dtype).eps)
     ok = functools.reduce(jnp.logical_and, [d[i] > tol * diag[i] for i in range(6)])
     return stacked(tuple(jnp.where(ok, xi, jnp.nan) for xi in x))
