@@ -99,6 +99,19 @@ class BenchReport:
         """Markdown lines drawn from the rows: the fastest settings per case and target, where
         explicit solvers stall, what float32 and the modal formulations give, and the solver
         that the data recommends per group of cases. Regenerated with the report."""
+        out, wins = self._fastest_table()
+        out.append("")
+        out += self._stall_lines()
+        out += self._failure_lines()
+        out.append("")
+        out += self._float32_lines()
+        out += self._modal_lines()
+        out += self._win_lines(wins)
+        return out
+
+    def _fastest_table(self) -> tuple[list[str], dict[str, dict[str, int]]]:
+        """The findings' table of the fastest runs per case and target, jaxtree's and the peers',
+        with the solver of each of jaxtree's fastest runs counted per group of cases."""
         out = [
             "## Findings (drawn from the rows below)",
             "",
@@ -122,31 +135,39 @@ class BenchReport:
                 if r is not None:
                     tally = wins.setdefault(group, {})
                     tally[r["solver"]] = tally.get(r["solver"], 0) + 1
-        out.append("")
+        return out, wins
+
+    def _stall_lines(self) -> list[str]:
+        """The findings' lines on jaxtree's runs that stalled at the step cap, collapsed or were
+        left unrun as unstable, per case; none when there are no such runs."""
         stalls = [
             r for r in self.rows if r["engine"] == "jaxtree" and r["status"] in ("stalled", "collapsed", "unstable")
         ]
-        if stalls:
-            out.append(
-                f"Runs held at the step cap ({STEP_CAP} explicit, {IMPLICIT_STEP_CAP} implicit steps: *stalled*), "
-                "whose step size collapsed below the minimum step (*collapsed*) or beyond RK4's stability region "
-                "(*unstable*, not run):"
-            )
-            by_case: dict[str, list[str]] = {}
-            for r in stalls:
-                kind = "implicit" if r["solver"] in IMPLICIT else "explicit"
-                form = "" if r["formulation"] == "full" else f" [{r['formulation']}]"
-                by_case.setdefault(r["case"], []).append(
-                    f"{r['solver']}{form} ({kind}) {setting_text(r)} {r['status']}"
-                )
-            out += [f"- {c}: " + ", ".join(v) for c, v in by_case.items()]
-            out.append("")
+        if not stalls:
+            return []
+        out = [
+            f"Runs held at the step cap ({STEP_CAP} explicit, {IMPLICIT_STEP_CAP} implicit steps: *stalled*), "
+            "whose step size collapsed below the minimum step (*collapsed*) or beyond RK4's stability region "
+            "(*unstable*, not run):"
+        ]
+        by_case: dict[str, list[str]] = {}
+        for r in stalls:
+            kind = "implicit" if r["solver"] in IMPLICIT else "explicit"
+            form = "" if r["formulation"] == "full" else f" [{r['formulation']}]"
+            by_case.setdefault(r["case"], []).append(f"{r['solver']}{form} ({kind}) {setting_text(r)} {r['status']}")
+        out += [f"- {c}: " + ", ".join(v) for c, v in by_case.items()]
+        out.append("")
+        return out
+
+    def _failure_lines(self) -> list[str]:
+        """The findings' lines naming the failed runs (or none) and the runs that ``simulate``
+        refused for a singular initial state."""
         failed = [r for r in self.rows if r["status"] == "failed"]
-        out.append(
+        out = [
             "Failed runs: "
             + (", ".join(f"{r['case']} {r['method']} {setting_text(r)} ({r['note']})" for r in failed) or "none")
             + "."
-        )
+        ]
         refused = [r for r in self.rows if r["status"] == "refused"]
         if refused:
             out.append(
@@ -154,46 +175,63 @@ class BenchReport:
                 + ", ".join(f"{r['case']} {r['method']} {setting_text(r)}" for r in refused)
                 + "."
             )
-        out.append("")
+        return out
+
+    def _float32_lines(self) -> list[str]:
+        """The findings' line on the float32 runs: the smallest error reached per case, with its
+        setting and time; none when no float32 run succeeded."""
         f32 = [r for r in self.rows if r["formulation"] == "float32" and r["status"] == "ok"]
-        if f32:
-            parts = []
-            for case in dict.fromkeys(r["case"] for r in f32):
-                rs = [r for r in f32 if r["case"] == case]
-                best = min(rs, key=lambda r: r["error"])
-                parts.append(f"{case} {best['error']:.1e} ({setting_text(best)}, {_ms(best['time_s'])})")
-            out += [
-                "Float32 (the model cast; error against the float64 reference, smallest reached): "
-                + ", ".join(parts)
-                + ".",
-                "",
-            ]
+        if not f32:
+            return []
+        parts = []
+        for case in dict.fromkeys(r["case"] for r in f32):
+            rs = [r for r in f32 if r["case"] == case]
+            best = min(rs, key=lambda r: r["error"])
+            parts.append(f"{case} {best['error']:.1e} ({setting_text(best)}, {_ms(best['time_s'])})")
+        return [
+            "Float32 (the model cast; error against the float64 reference, smallest reached): "
+            + ", ".join(parts)
+            + ".",
+            "",
+        ]
+
+    def _modal_lines(self) -> list[str]:
+        """The findings' lines on the modal formulations: the cheapest run of each per case, set
+        against the full Eq. (1) run by the same solver at the same setting; none without them."""
         modal = [r for r in self.rows if r["formulation"] not in ("full", "float32") and r["status"] == "ok"]
-        if modal:
-            out.append(
-                "Modal formulations (their error is the model's, against the full Eq. 1: it stays as the tolerance "
-                "tightens), cheapest run of each against the full Eq. (1) by the same solver at the same tolerance:"
-            )
-            for case in dict.fromkeys(r["case"] for r in modal):
-                parts = []
-                for form in dict.fromkeys(r["formulation"] for r in modal if r["case"] == case):
-                    rs = [r for r in modal if r["case"] == case and r["formulation"] == form]
-                    r = min(rs, key=lambda r: r["time_s"])
-                    full = [
-                        x for x in self.rows
-                        if x["case"] == case and x["formulation"] == "full" and x["solver"] == r["solver"]
-                        and x["setting"] == r["setting"] and x["status"] == "ok"
-                    ]  # fmt: skip
-                    vs = f" (full: {_ms(full[0]['time_s'])}, {full[0].get('steps', '')} steps)" if full else ""
-                    parts.append(f"{form} error {r['error']:.1e}, {_ms(r['time_s'])}, {r.get('steps', '')} steps{vs}")
-                out.append(f"- {case}: " + "; ".join(parts))
-            out.append("")
-        if wins:
-            out.append("The solver of jaxtree's fastest run to 1e-6 and 1e-9, counted per group of cases:")
-            for group, tally in wins.items():
-                ranked = sorted(tally.items(), key=lambda kv: -kv[1])
-                out.append(f"- {group}: " + ", ".join(f"{k} {v}" for k, v in ranked))
-            out.append("")
+        if not modal:
+            return []
+        out = [
+            "Modal formulations (their error is the model's, against the full Eq. 1: it stays as the tolerance "
+            "tightens), cheapest run of each against the full Eq. (1) by the same solver at the same tolerance:"
+        ]
+        for case in dict.fromkeys(r["case"] for r in modal):
+            parts = []
+            for form in dict.fromkeys(r["formulation"] for r in modal if r["case"] == case):
+                rs = [r for r in modal if r["case"] == case and r["formulation"] == form]
+                r = min(rs, key=lambda r: r["time_s"])
+                full = [
+                    x for x in self.rows
+                    if x["case"] == case and x["formulation"] == "full" and x["solver"] == r["solver"]
+                    and x["setting"] == r["setting"] and x["status"] == "ok"
+                ]  # fmt: skip
+                vs = f" (full: {_ms(full[0]['time_s'])}, {full[0].get('steps', '')} steps)" if full else ""
+                parts.append(f"{form} error {r['error']:.1e}, {_ms(r['time_s'])}, {r.get('steps', '')} steps{vs}")
+            out.append(f"- {case}: " + "; ".join(parts))
+        out.append("")
+        return out
+
+    @staticmethod
+    def _win_lines(wins: dict[str, dict[str, int]]) -> list[str]:
+        """The findings' lines ranking the solvers of jaxtree's fastest runs per group of cases,
+        as counted by :meth:`_fastest_table`; none when it counted nothing."""
+        if not wins:
+            return []
+        out = ["The solver of jaxtree's fastest run to 1e-6 and 1e-9, counted per group of cases:"]
+        for group, tally in wins.items():
+            ranked = sorted(tally.items(), key=lambda kv: -kv[1])
+            out.append(f"- {group}: " + ", ".join(f"{k} {v}" for k, v in ranked))
+        out.append("")
         return out
 
     def to_markdown(self, plots: dict[str, str] | None = None) -> str:
