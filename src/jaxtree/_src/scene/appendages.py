@@ -163,6 +163,88 @@ def _generator(b, key, keys, required, where) -> tuple:
     return tuple(items)
 
 
+def _appendage_body(e: dict, names, where: str):
+    """The body that an appendage entry is fixed to, checked: a name of `names` as given, or an index into them."""
+    body = e["body"]
+    if isinstance(body, str):
+        if body not in names:
+            raise SceneError(f"{where}: field 'body' names no body: {short(body)}; bodies: {list(names)}")
+    elif isinstance(body, bool) or not isinstance(body, (int, np.integer)) or not 0 <= int(body) < len(names):
+        raise SceneError(f"{where}: field 'body' must be a body name or an index 0..{len(names) - 1}")
+    else:
+        body = int(body)
+    return body
+
+
+def _appendage_source(e: dict, where: str, base_dir) -> dict:
+    """An appendage entry's one source of modes as keyword arguments of :class:`AppendageSpec`: its file
+    (resolved against `base_dir`; a file of precomputed modes admits none of the fields that it fixes) or a
+    beam's or plate's generator arguments."""
+    given = [k for k in ("file", "beam", "plate") if k in e]
+    if len(given) != 1:
+        raise SceneError(f"{where}: give exactly one of 'file' (a .npz), 'beam' and 'plate' (a generator's arguments)")
+    kw: dict = {}
+    if given[0] == "file":
+        f = e["file"]
+        if not isinstance(f, str):
+            raise SceneTypeError(f"{where}: field 'file' must be a path, got {short(f)}")
+        p = pathlib.Path(f)
+        if not p.is_absolute() and base_dir is not None:
+            p = pathlib.Path(base_dir) / p
+        if not p.is_file():
+            raise SceneError(f"{where}: field 'file': no such file {str(p)!r}")
+        kw["file"] = str(p.resolve())
+        if _is_precomputed(p):
+            fixed = sorted(set(e) & {"point", "frame", "modes", "tol", "interface", "damping", "outputs", "geometric"})
+            if fixed:
+                raise SceneError(
+                    f"{where}: {p.name} holds precomputed modes (jaxtree-appendage/1), which fix "
+                    f"{', '.join(fixed)}; leave them out of the scene"
+                )
+    else:
+        key = given[0]
+        keys, required = (_BEAM_KEYS, _BEAM_REQUIRED) if key == "beam" else (_PLATE_KEYS, _PLATE_REQUIRED)
+        kw[key] = _generator(e[key], key, keys, required, where)
+    return kw
+
+
+def _appendage_options(e: dict, where: str) -> dict:
+    """An appendage entry's optional fields (point, frame, modes, tol, damping, interface, outputs,
+    geometric), checked, as keyword arguments of :class:`AppendageSpec`."""
+    kw: dict = {}
+    if "point" in e:
+        kw["point"] = tuple(float(x) for x in as_float(e["point"], f"{where}: field 'point'", (3,)))
+    if "frame" in e:
+        C = rotation(as_float(e["frame"], f"{where}: field 'frame'", (3, 3)), f"{where}: field 'frame'")
+        kw["frame"] = tuple(tuple(float(x) for x in row) for row in C)
+    if "modes" in e:
+        m = e["modes"]
+        if m != "auto" and (isinstance(m, bool) or not isinstance(m, int) or m < 1):
+            raise SceneError(f"{where}: field 'modes' must be a positive integer or 'auto', got {short(m)}")
+        kw["modes"] = m
+    if "tol" in e:
+        t = float(as_float(e["tol"], f"{where}: field 'tol'", ()))
+        if not 0 < t < 1:
+            raise SceneError(f"{where}: field 'tol' must be in (0, 1), got {t}")
+        kw["tol"] = t
+    if "damping" in e:
+        z = float(as_float(e["damping"], f"{where}: field 'damping'", ()))
+        if z < 0:
+            raise SceneError(f"{where}: field 'damping' must be >= 0, got {z}")
+        kw["damping"] = z
+    if "interface" in e:
+        kw["interface"] = _ints(e["interface"], where, "interface")
+        if not kw["interface"]:
+            raise SceneError(f"{where}: field 'interface' is empty")
+    if "outputs" in e:
+        kw["outputs"] = _ints(e["outputs"], where, "outputs")
+    if "geometric" in e:
+        if not isinstance(e["geometric"], bool):
+            raise SceneTypeError(f"{where}: field 'geometric' must be true or false, got {short(e['geometric'])}")
+        kw["geometric"] = e["geometric"]
+    return kw
+
+
 def parse_appendages(entries, names, base_dir=None) -> tuple[AppendageSpec, ...]:
     """The scene's ``appendages`` list as checked :class:`AppendageSpec` records; `names` are the
     model's body names, `base_dir` the scene file's folder (files are relative to it)."""
@@ -182,73 +264,9 @@ def parse_appendages(entries, names, base_dir=None) -> tuple[AppendageSpec, ...]
         unknown_keys(e, _KEYS, where)
         if "body" not in e:
             raise SceneError(f"{where}: field 'body' is missing (the body it is fixed to)")
-        body = e["body"]
-        if isinstance(body, str):
-            if body not in names:
-                raise SceneError(f"{where}: field 'body' names no body: {short(body)}; bodies: {list(names)}")
-        elif isinstance(body, bool) or not isinstance(body, (int, np.integer)) or not 0 <= int(body) < len(names):
-            raise SceneError(f"{where}: field 'body' must be a body name or an index 0..{len(names) - 1}")
-        else:
-            body = int(body)
-        given = [k for k in ("file", "beam", "plate") if k in e]
-        if len(given) != 1:
-            raise SceneError(
-                f"{where}: give exactly one of 'file' (a .npz), 'beam' and 'plate' (a generator's arguments)"
-            )
-        kw: dict = {}
-        if given[0] == "file":
-            f = e["file"]
-            if not isinstance(f, str):
-                raise SceneTypeError(f"{where}: field 'file' must be a path, got {short(f)}")
-            p = pathlib.Path(f)
-            if not p.is_absolute() and base_dir is not None:
-                p = pathlib.Path(base_dir) / p
-            if not p.is_file():
-                raise SceneError(f"{where}: field 'file': no such file {str(p)!r}")
-            kw["file"] = str(p.resolve())
-            if _is_precomputed(p):
-                fixed = sorted(
-                    set(e) & {"point", "frame", "modes", "tol", "interface", "damping", "outputs", "geometric"}
-                )
-                if fixed:
-                    raise SceneError(
-                        f"{where}: {p.name} holds precomputed modes (jaxtree-appendage/1), which fix "
-                        f"{', '.join(fixed)}; leave them out of the scene"
-                    )
-        else:
-            key = given[0]
-            keys, required = (_BEAM_KEYS, _BEAM_REQUIRED) if key == "beam" else (_PLATE_KEYS, _PLATE_REQUIRED)
-            kw[key] = _generator(e[key], key, keys, required, where)
-        if "point" in e:
-            kw["point"] = tuple(float(x) for x in as_float(e["point"], f"{where}: field 'point'", (3,)))
-        if "frame" in e:
-            C = rotation(as_float(e["frame"], f"{where}: field 'frame'", (3, 3)), f"{where}: field 'frame'")
-            kw["frame"] = tuple(tuple(float(x) for x in row) for row in C)
-        if "modes" in e:
-            m = e["modes"]
-            if m != "auto" and (isinstance(m, bool) or not isinstance(m, int) or m < 1):
-                raise SceneError(f"{where}: field 'modes' must be a positive integer or 'auto', got {short(m)}")
-            kw["modes"] = m
-        if "tol" in e:
-            t = float(as_float(e["tol"], f"{where}: field 'tol'", ()))
-            if not 0 < t < 1:
-                raise SceneError(f"{where}: field 'tol' must be in (0, 1), got {t}")
-            kw["tol"] = t
-        if "damping" in e:
-            z = float(as_float(e["damping"], f"{where}: field 'damping'", ()))
-            if z < 0:
-                raise SceneError(f"{where}: field 'damping' must be >= 0, got {z}")
-            kw["damping"] = z
-        if "interface" in e:
-            kw["interface"] = _ints(e["interface"], where, "interface")
-            if not kw["interface"]:
-                raise SceneError(f"{where}: field 'interface' is empty")
-        if "outputs" in e:
-            kw["outputs"] = _ints(e["outputs"], where, "outputs")
-        if "geometric" in e:
-            if not isinstance(e["geometric"], bool):
-                raise SceneTypeError(f"{where}: field 'geometric' must be true or false, got {short(e['geometric'])}")
-            kw["geometric"] = e["geometric"]
+        body = _appendage_body(e, names, where)
+        kw = _appendage_source(e, where, base_dir)
+        kw.update(_appendage_options(e, where))
         out.append(AppendageSpec(name=name, body=body, **kw))
     if len({s.name for s in out}) < len(out):
         raise SceneError("scene: two appendages share a name")
