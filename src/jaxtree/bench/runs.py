@@ -480,6 +480,48 @@ def _plan(case: BenchCase, solvers, tolerances, quick, formulations):
     return plan
 
 
+def _jaxtree_runs(case: BenchCase, plan, refs, pair, choice, repeats, budget, bar) -> list[dict]:
+    """jaxtree's rows of one case: each formulation and solver of `plan` over its settings, against the other
+    solver's reference of `pair`; RK4 is not run past its stability limit, a ladder stops after a failed or slow run."""
+    rows: list[dict] = []
+    # energy is conserved without dampers, loads and prescribed hinges (whose motors do work)
+    conservative = (
+        not np.any(np.asarray(case.model.damping) != 0.0)
+        and case.model.loads is None
+        and case.model.prescription is None
+    )
+    for form, solver, settings in plan:
+        runner = _Runner(case, form)
+        ref = refs[pair[1] if solver == pair[0] else pair[0]]
+        cap = IMPLICIT_STEP_CAP if solver in IMPLICIT else STEP_CAP
+        skip = ""
+        for setting in settings:
+            label = f"{case.name} {form} {solver} {setting:g}"
+            h = case.t1 / (case.n_save - 1) / setting
+            if solver == "RK4" and h * choice.fastest > RK4_STABILITY:
+                rows.append(
+                    _row_of(case, form, "jaxtree", solver, setting, None, None, math.nan, math.nan,
+                            dict(status="unstable", note=f"h |lambda|max = {h * choice.fastest:.3g} > "
+                                 f"{RK4_STABILITY} (RK4's stability limit): not run"))
+                )  # fmt: skip
+                bar.step(label)
+                continue
+            if skip:
+                rows.append(
+                    _row_of(case, form, "jaxtree", solver, setting, None, None, math.nan, math.nan,
+                            dict(status="skipped", note=skip))
+                )  # fmt: skip
+                bar.step(label)
+                continue
+            rows.append(_jaxtree_row(case, form, solver, setting, runner.call(solver, setting, cap), ref,
+                                     repeats, budget, cap, conservative))  # fmt: skip
+            last = rows[-1]
+            if last["status"] != "ok" or last["time_s"] > SLOW_S:
+                skip = f"skipped: {last['status']} or slower than {SLOW_S:g} s at {setting_text(last)}"
+            bar.step(label)
+    return rows
+
+
 def work_precision(
     cases: Sequence[str | BenchCase] | None = None,
     *,
@@ -541,41 +583,7 @@ def work_precision(
             )  # fmt: skip
             choice = choose_solver(case.model, case.t1)[1]
             auto[case.name] = str(choice)
-            # energy is conserved without dampers, loads and prescribed hinges (whose motors do work)
-            conservative = (
-                not np.any(np.asarray(case.model.damping) != 0.0)
-                and case.model.loads is None
-                and case.model.prescription is None
-            )
-            for form, solver, settings in plans[case.name]:
-                runner = _Runner(case, form)
-                ref = refs[pair[1] if solver == pair[0] else pair[0]]
-                cap = IMPLICIT_STEP_CAP if solver in IMPLICIT else STEP_CAP
-                skip = ""
-                for setting in settings:
-                    label = f"{case.name} {form} {solver} {setting:g}"
-                    h = case.t1 / (case.n_save - 1) / setting
-                    if solver == "RK4" and h * choice.fastest > RK4_STABILITY:
-                        rows.append(
-                            _row_of(case, form, "jaxtree", solver, setting, None, None, math.nan, math.nan,
-                                    dict(status="unstable", note=f"h |lambda|max = {h * choice.fastest:.3g} > "
-                                         f"{RK4_STABILITY} (RK4's stability limit): not run"))
-                        )  # fmt: skip
-                        bar.step(label)
-                        continue
-                    if skip:
-                        rows.append(
-                            _row_of(case, form, "jaxtree", solver, setting, None, None, math.nan, math.nan,
-                                    dict(status="skipped", note=skip))
-                        )  # fmt: skip
-                        bar.step(label)
-                        continue
-                    rows.append(_jaxtree_row(case, form, solver, setting, runner.call(solver, setting, cap), ref,
-                                             repeats, budget, cap, conservative))  # fmt: skip
-                    last = rows[-1]
-                    if last["status"] != "ok" or last["time_s"] > SLOW_S:
-                        skip = f"skipped: {last['status']} or slower than {SLOW_S:g} s at {setting_text(last)}"
-                    bar.step(label)
+            rows += _jaxtree_runs(case, plans[case.name], refs, pair, choice, repeats, budget, bar)
             if peers:
                 peer_rows, peer_checks = _peer_runs(
                     case, np.linspace(0.0, case.t1, case.n_save), refs[pair[0]], quick, repeats, budget, bar
