@@ -149,8 +149,11 @@ def plan(model, block: int | None = None) -> BlockPlan:
     return _plan(model.topology, tuple(model.massive), tuple(model.unknown_hinges), tuple(model.inert), int(size))
 
 
-@functools.lru_cache(maxsize=64)
-def _plan(topology, massive, unknown, inert, block):
+def _blocks(topology, massive, inert, block) -> list[tuple]:
+    """The tree cut into blocks of at most `block` hinges where it allows, grown outward from body 0, inert
+    hinges left out: per block its members (sorted bodies = hinges), the body it hangs from, its port (the
+    body its child blocks hang from, or -1: a massless branch body is never a port) and its parent block
+    (or -1 for body 0)."""
     n = topology.n
     inert = set(inert)
     children = [[c for c in ch if c not in inert] for ch in topology.children]
@@ -201,11 +204,14 @@ def _plan(topology, massive, unknown, inert, block):
 
     for c in children[0]:
         grow(c, -1)
+    return blocks
 
+
+def _slots(blocks, n, b, unknown, eps):
+    """The per-slot arrays of :class:`BlockPlan` for `blocks` padded to `b` slots: `hinge` (n for padding),
+    `unknown`, `inboard` and `to_port`, from the set of unknown hinges and the path elements `eps` of Def. 27
+    (``eps[s-1, k] = 1`` iff hinge s lies between b_0 and b_k)."""
     m = len(blocks)
-    b = max((len(x[0]) for x in blocks), default=1)
-    unknown = set(unknown)
-    eps = topology.path_elements  # eps[s-1, k]
     hinge = np.full((m, b), n, np.int64)
     unk = np.zeros((m, b))
     inboard = np.zeros((m, b, b))
@@ -219,6 +225,17 @@ def _plan(topology, massive, unknown, inert, block):
             for c, k2 in enumerate(members):
                 if eps[k - 1, k2]:
                     inboard[j, a, c] = 1.0
+    return hinge, unk, inboard, to_port
+
+
+@functools.lru_cache(maxsize=64)
+def _plan(topology, massive, unknown, inert, block):
+    n = topology.n
+    blocks = _blocks(topology, massive, inert, block)
+    m = len(blocks)
+    b = max((len(x[0]) for x in blocks), default=1)
+    eps = topology.path_elements  # eps[s-1, k]
+    hinge, unk, inboard, to_port = _slots(blocks, n, b, set(unknown), eps)
     depth = []
     for _members, _par, _port, pb in blocks:
         depth.append(1 if pb < 0 else depth[pb] + 1)
