@@ -313,23 +313,10 @@ def _drift_panel(ax, runs, which):
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, borderaxespad=0.0)
 
 
-def plot_histories(result, path=None, *, title: str | None = None, drift: bool = False):
-    """Time histories, hinges grouped by their role (:func:`hinge_roles`).
-
-    `result`: a :class:`jaxtree.Solution`, a result :class:`xarray.Dataset`, or a mapping of run
-    names to either (the same vehicle, e.g. two attitude variables): one colour per quantity, one
-    line style per run, every curve in its panel's legend. Panels: the branch's hinge angles and
-    rates; the rotors' spin rates; the appendages' hinge angles (curves, or a time-hinge heat map
-    when there are more than :data:`LEGEND_MAX`); omega0; the direction cosines C_ii; with
-    `drift`, the energy and angular-momentum change (as :func:`plot_drift`).
-    """
-    runs = _runs(result)
-    s0 = next(iter(runs.values()))
-    n = s0["gamma"].shape[1]
-    names = s0["names"] or [f"hinge {k}" for k in range(1, n + 1)]
-    pres = set(s0["prescribed"])
-    labels = [f"{k + 1} {names[k]}" + (" (prescribed)" if k + 1 in pres else "") for k in range(n)]
-    roles = hinge_roles(s0["model"], s0["gamma"], n)
+def _hinge_panels(runs, roles, labels) -> list:
+    """The panels of the hinges by role (:func:`hinge_roles`): the branch's angles and rates, the rotors' spin
+    rates and the appendages' angles (curves, or past :data:`LEGEND_MAX` hinges a heat map per run); each a
+    title and its drawing function."""
     panels: list = []
     if roles.branch:
         b = list(roles.branch)
@@ -370,23 +357,12 @@ def plot_histories(result, path=None, *, title: str | None = None, drift: bool =
                 _heat_map(fig, ax, s, app, roles.appendages, labels)
 
             panels.append((f"appendages: hinge angles, {len(app)} hinges{tag}", ("heat", heat)))
-    panels.append(
-        (
-            "$\\omega^0$ of $b_0$ in $\\{b^0\\}$ (rad/s)",
-            lambda ax: _curves(ax, runs, lambda s: s["omega0"], [f"$\\omega^0_{i + 1}$" for i in range(3)]),
-        )
-    )
-    panels.append(
-        (
-            "direction cosines $C_{ii}$ (Def. 9)",
-            lambda ax: _curves(
-                ax, runs, lambda s: s["dcm"][:, [0, 1, 2], [0, 1, 2]], [f"$C_{{{i}{i}}}$" for i in (1, 2, 3)]
-            ),
-        )
-    )
-    if drift:
-        panels.append((None, lambda ax: _drift_panel(ax, runs, "energy")))
-        panels.append((None, lambda ax: _drift_panel(ax, runs, "momentum")))
+    return panels
+
+
+def _panel_figure(panels, runs, title):
+    """The figure of `panels` (a title and a drawing function each), two a row on one time axis, headed by
+    `title` or else by the runs."""
     rows = (len(panels) + 1) // 2
     with plot_style():
         fig = new_figure(figsize=(13, 2.7 * rows + 0.5), layout="constrained")
@@ -404,6 +380,45 @@ def plot_histories(result, path=None, *, title: str | None = None, drift: bool =
             if i >= len(panels) - 2:
                 ax.set_xlabel("t (s)")
         fig.suptitle(title if title is not None else _heading(runs))
+    return fig
+
+
+def plot_histories(result, path=None, *, title: str | None = None, drift: bool = False):
+    """Time histories, hinges grouped by their role (:func:`hinge_roles`).
+
+    `result`: a :class:`jaxtree.Solution`, a result :class:`xarray.Dataset`, or a mapping of run
+    names to either (the same vehicle, e.g. two attitude variables): one colour per quantity, one
+    line style per run, every curve in its panel's legend. Panels: the branch's hinge angles and
+    rates; the rotors' spin rates; the appendages' hinge angles (curves, or a time-hinge heat map
+    when there are more than :data:`LEGEND_MAX`); omega0; the direction cosines C_ii; with
+    `drift`, the energy and angular-momentum change (as :func:`plot_drift`).
+    """
+    runs = _runs(result)
+    s0 = next(iter(runs.values()))
+    n = s0["gamma"].shape[1]
+    names = s0["names"] or [f"hinge {k}" for k in range(1, n + 1)]
+    pres = set(s0["prescribed"])
+    labels = [f"{k + 1} {names[k]}" + (" (prescribed)" if k + 1 in pres else "") for k in range(n)]
+    roles = hinge_roles(s0["model"], s0["gamma"], n)
+    panels = _hinge_panels(runs, roles, labels)
+    panels.append(
+        (
+            "$\\omega^0$ of $b_0$ in $\\{b^0\\}$ (rad/s)",
+            lambda ax: _curves(ax, runs, lambda s: s["omega0"], [f"$\\omega^0_{i + 1}$" for i in range(3)]),
+        )
+    )
+    panels.append(
+        (
+            "direction cosines $C_{ii}$ (Def. 9)",
+            lambda ax: _curves(
+                ax, runs, lambda s: s["dcm"][:, [0, 1, 2], [0, 1, 2]], [f"$C_{{{i}{i}}}$" for i in (1, 2, 3)]
+            ),
+        )
+    )
+    if drift:
+        panels.append((None, lambda ax: _drift_panel(ax, runs, "energy")))
+        panels.append((None, lambda ax: _drift_panel(ax, runs, "momentum")))
+    fig = _panel_figure(panels, runs, title)
     save_png(fig, path)
     return fig
 
