@@ -340,22 +340,7 @@ _HISTORIES = (
 
 @program_jit
 def _solve_hybrid(
-    hybrid,
-    y0,
-    t0,
-    t1,
-    ts,
-    rtol,
-    atol,
-    dt0,
-    solver,
-    controller,
-    max_steps,
-    report,
-    residual,
-    meter,
-    truncation,
-    q_start,
+    hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, max_steps, report, residual, meter, truncation, q_start
 ):
     # A non-finite start cannot be integrated (NaN error estimates give NaN steps until max_steps):
     # integrate the vehicle at rest in its place, report "nonfinite_start" and return NaN histories.
@@ -390,12 +375,7 @@ def _solve_hybrid(
     energy, momentum = jax.vmap(lambda st, y: _energy_and_momentum(hybrid, st, hybrid.appendage_coordinates(y)))(
         states, ys_h
     )
-    dyn = stat = q_end = app = None
-    if truncation and hybrid.truncation is not None:
-        dyn, stat, q_end = _truncation_estimate(hybrid, t0, ts_h, ys_h, q_start)
-    if truncation and hybrid.appendage_truncation is not None:
-        n_app = hybrid.appendage_truncation.lam_parts.shape[0]
-        app, _, _ = _truncation_estimate(hybrid, t0, ts_h, ys_h, jnp.zeros((n_app, 2), dtype), appendages=True)
+    dyn, stat, q_end, app = _truncation_histories(hybrid, t0, ts_h, ys_h, q_start, dtype) if truncation else (None,) * 4
     out = HybridSolution(
         ts=ts_h,
         omega0=states.omega0,
@@ -420,15 +400,28 @@ def _solve_hybrid(
         truncation_state=q_end,
         appendage_truncation=app,
     )
-    if report:
-        # Under a caller's jit/vmap: report failures from one host callback (for a whole batch).
-        def host(code, t, state, modal):
-            message = _hybrid_failure_message(code, t, state, modal)
-            if message is not None:
-                raise SimulationError(message)
-
-        report_failures(host, code != 0, jax.lax.stop_gradient((code, t_final, final, out.final_modal)))
+    if report:  # under a caller's jit/vmap: report failures from one host callback (for a whole batch)
+        report_failures(_raise_if_failed, code != 0, jax.lax.stop_gradient((code, t_final, final, out.final_modal)))
     return out
+
+
+def _raise_if_failed(code, t, state, modal):
+    """Raise :class:`jaxtree.SimulationError` with the report of the failed hybrid runs, if any."""
+    message = _hybrid_failure_message(code, t, state, modal)
+    if message is not None:
+        raise SimulationError(message)
+
+
+def _truncation_histories(hybrid: HybridModel, t0, ts, ys, q_start, dtype):
+    """``(truncation, truncation_static, truncation_state, appendage_truncation)`` of a run's
+    saved states (:func:`_truncation_estimate`; None where the model has no such terms)."""
+    dyn = stat = q_end = app = None
+    if hybrid.truncation is not None:
+        dyn, stat, q_end = _truncation_estimate(hybrid, t0, ts, ys, q_start)
+    if hybrid.appendage_truncation is not None:
+        n_app = hybrid.appendage_truncation.lam_parts.shape[0]
+        app, _, _ = _truncation_estimate(hybrid, t0, ts, ys, jnp.zeros((n_app, 2), dtype), appendages=True)
+    return dyn, stat, q_end, app
 
 
 @program_jit
