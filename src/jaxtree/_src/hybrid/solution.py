@@ -521,32 +521,11 @@ def simulate_hybrid(
     dtype = jnp.result_type(hybrid.model.mass)
     # (stacklevel 3: the caller of full_precision's wrapper)
     rtol, atol = tolerances("simulate_hybrid", rtol, atol, max_steps, dtype, stepsize_controller, stacklevel=3)
-    y0 = hybrid.model.initial if y0 is None else y0
-    if isinstance(y0, State):
-        check_state("simulate_hybrid", hybrid.model, y0)
-    if isinstance(y0, State):
-        y, residual, q_start = _pack_with_residual(hybrid, y0)
-    else:  # a flat state holds the retained modes only: the neglected ones start at rest
-        y, residual = jnp.asarray(y0, dtype), jnp.asarray(np.nan, dtype)
-        q_start = None if hybrid.truncation is None else jnp.zeros(hybrid.truncation.lam_parts.shape, dtype)
-    if truncation_start is not None:
-        q_start = jnp.asarray(truncation_start, dtype)
-    if y.shape != (hybrid.size,):
-        raise ValueError(f"simulate_hybrid: flat state of size {hybrid.size} expected, got {y.shape}")
+    y, residual, q_start = _hybrid_start(hybrid, y0, truncation_start, dtype)
     # an eager run's save grid is padded to its size bucket and the histories cut back after
     # (save_bucket): another number of save points or other times compile nothing
     exact = is_traced((hybrid, y, t0, t1, saveat, rtol, atol, dt0, solver, stepsize_controller, q_start))
-    if isinstance(saveat, (int, np.integer)) and not isinstance(saveat, bool):
-        if exact:
-            ts = jnp.linspace(jnp.asarray(t0, dtype), jnp.asarray(t1, dtype), int(saveat))
-        else:
-            ts = grid_times(t0, t1, int(saveat), dtype)
-    else:
-        ts = jnp.asarray(saveat, dtype) if exact else np.asarray(saveat, dtype)
-    check_times("simulate_hybrid", t0, t1, ts)
-    n_saved = None if exact or ts.shape[0] == 0 else ts.shape[0]
-    if n_saved is not None:
-        ts = padded_times(ts)
+    ts, n_saved = _hybrid_save_times(saveat, t0, t1, dtype, exact)
     t0a, t1a = jnp.asarray(t0, dtype), jnp.asarray(t1, dtype)
     dt0 = 1e-3 * (t1a - t0a) if dt0 is None else jnp.asarray(dt0, dtype)
     if solver is None or isinstance(solver, str):
@@ -583,7 +562,37 @@ def simulate_hybrid(
         size = sol.ts.shape[0]
         sol = dataclasses.replace(sol, **{k: cut_rows(getattr(sol, k), size, n_saved) for k in _HISTORIES})
     if throw and not traced:
-        message = _hybrid_failure_message(sol.failure, sol.t_final, sol.final, sol.final_modal)
-        if message is not None:
-            raise SimulationError(message)
+        _raise_if_failed(sol.failure, sol.t_final, sol.final, sol.final_modal)
     return sol
+
+
+def _hybrid_start(hybrid: HybridModel, y0, truncation_start, dtype):
+    """``(y, residual, q_start)`` of simulate_hybrid's `y0` (default the model's initial state):
+    the flat start, its projection residual and the neglected modes' start, checked."""
+    y0 = hybrid.model.initial if y0 is None else y0
+    if isinstance(y0, State):
+        check_state("simulate_hybrid", hybrid.model, y0)
+        y, residual, q_start = _pack_with_residual(hybrid, y0)
+    else:  # a flat state holds the retained modes only: the neglected ones start at rest
+        y, residual = jnp.asarray(y0, dtype), jnp.asarray(np.nan, dtype)
+        q_start = None if hybrid.truncation is None else jnp.zeros(hybrid.truncation.lam_parts.shape, dtype)
+    if truncation_start is not None:
+        q_start = jnp.asarray(truncation_start, dtype)
+    if y.shape != (hybrid.size,):
+        raise ValueError(f"simulate_hybrid: flat state of size {hybrid.size} expected, got {y.shape}")
+    return y, residual, q_start
+
+
+def _hybrid_save_times(saveat, t0, t1, dtype, exact: bool):
+    """``(ts, n_saved)``: simulate_hybrid's save times, checked; unless `exact` (traced inputs)
+    padded to their size bucket, with `n_saved` the number asked for (else None)."""
+    if isinstance(saveat, (int, np.integer)) and not isinstance(saveat, bool):
+        if exact:
+            ts = jnp.linspace(jnp.asarray(t0, dtype), jnp.asarray(t1, dtype), int(saveat))
+        else:
+            ts = grid_times(t0, t1, int(saveat), dtype)
+    else:
+        ts = jnp.asarray(saveat, dtype) if exact else np.asarray(saveat, dtype)
+    check_times("simulate_hybrid", t0, t1, ts)
+    n_saved = None if exact or ts.shape[0] == 0 else ts.shape[0]
+    return (ts if n_saved is None else padded_times(ts)), n_saved
