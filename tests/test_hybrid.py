@@ -811,6 +811,28 @@ def test_a_nonfinite_start_fails_at_once_under_jit(appendix):
         jaxtree.hybrid_model(model, (1, 2), 1, omega0=[0.0, 0.0, 1.0], basis="set", damping=[0.1, 0.2])
 
 
+def test_a_singular_start_is_reported_as_simulate_reports_it(fig4):
+    """The hybrid run checks its start as jaxtree.simulate does (one integration for both): at an
+    exact gimbal lock among the large hinges (gamma_3 = pi/2: the rotor's axis along the outer
+    gimbal's; numpy's condition number of Eq. (1) there above 1e15) the run fails at t0 as
+    "singular_start" with NaN histories, eagerly (tested once it failed) and under jit and vmap
+    (tested in the program) beside a regular member that runs to t1; the eager report says so."""
+    model, hm = fig4
+    start = fig4_initial(model, 0.05)
+    locked = start._replace(gamma=start.gamma.at[2].set(np.pi / 2))
+    assert np.linalg.cond(np.asarray(jaxtree.rotational_equations(model, locked)[0])) > 1e15
+    sol = jaxtree.simulate_hybrid(hm, 0.5, y0=locked, saveat=3, throw=False)
+    assert int(sol.failure) == int(jaxtree.Failure.SINGULAR_START) and float(sol.t_final) == 0.0
+    assert np.all(np.isnan(np.asarray(sol.gamma))) and np.all(np.isnan(np.asarray(sol.energy)))
+    both = jax.tree.map(lambda a, b: jnp.stack([a, b]), locked, start)
+    run = jax.jit(jax.vmap(lambda y: jaxtree.simulate_hybrid(hm, 0.5, y0=y, saveat=3, throw=False)))
+    sols = run(both)
+    assert list(np.asarray(sols.failure)) == [int(jaxtree.Failure.SINGULAR_START), 0]
+    assert list(np.asarray(sols.t_final)) == [0.0, 0.5] and np.all(np.isfinite(np.asarray(sols.gamma[1])))
+    with pytest.raises(jaxtree.SimulationError, match="singular at the initial state"):
+        jaxtree.simulate_hybrid(hm, 0.5, y0=locked, saveat=3)
+
+
 def test_truncation_ranks_damped_modes_by_their_rate_so_an_overdamped_fast_pair_is_left_out():
     """chain10 with a near-rigid, damped tip hinge: the first-order modes of the boom on its held
     hub include an overdamped pair (two real eigenvalues near -1e5, frequency 0). Truncation keeps

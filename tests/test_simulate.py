@@ -509,6 +509,8 @@ def test_nonfinite_start_under_vmap_fails_at_once_and_alone():
     assert int(np.max(np.asarray(sol.stats["num_steps"]))) < 10_000  # max_steps is 200_000
     clean = jax.jit(jax.vmap(run))(jnp.asarray([0.1, 0.2, 0.3]))
     assert maxdiff(sol.gamma[::2], clean.gamma[::2]) == 0.0  # the NaN member disturbs nothing
+    # alone and eager, without throw: the same kind (not taken for a singular Eq. 1 at the start)
+    assert int(run(g0[1]).failure) == int(jaxtree.Failure.NONFINITE_START)
     with pytest.raises(Exception, match="initial state is not finite"):
         jax.block_until_ready(
             jax.jit(lambda g: simulate(model, 3.0, y0=model.initial._replace(gamma=g[None])).gamma)(

@@ -64,7 +64,7 @@ PAIRS = np.triu_indices(6)
 class Truncation(eqx.Module):
     """Every flexible mode of the substructures (or of the set A), retained or not, as a decoupled
     complex first-order coordinate for the truncation estimate
-    (:func:`.solution._truncation_estimate`): ``q_j' = lam_j q_j + d_j . f`` under a generalized
+    (:func:`.truncation.truncation_estimate`): ``q_j' = lam_j q_j + d_j . f`` under a generalized
     force `f` (nu,) on the small rows, with the small angles ``y = Re(c q)``. Axis ``N``: the modes (both members of a first-order pair).
 
     - `c` (nu, N), `d` (N, nu), `lam` (N,) complex; `d0` (N, 2nu): ``q = d0 [y; y']`` (the

@@ -1,19 +1,9 @@
 """Simulation in hybrid coordinates: :func:`simulate_hybrid` integrates the right side of
-:mod:`.rhs` (Eqs. 118/121 of Likins 1972, Sec. III E) with the integration core of
-:func:`jaxtree.simulate` and returns a :class:`HybridSolution` (the physical histories rebuilt by
-Eqs. 111-112, energy and momentum for drift checks).
-
-**The error of the modes left out** (not in the seed). :func:`simulate_hybrid` reports the
-neglected modes' contribution to the small angles along the run (`truncation`, its largest entry
-per save time `truncation_error`; :func:`_truncation_estimate`): the generalized force that the
-hybrid motion leaves unbalanced on the small rows of Eq. (1) (:func:`_small_unbalanced`, the
-mode-acceleration method: the inertia loads of the base's and the retained modes'
-accelerations, springs, velocity products) drives each neglected mode's equation
-(``q_j' = lambda_j q_j + d_j . f``, :class:`~.model.Truncation`), solved exactly for that force
-interpolated linearly between the save times, from the start's content of the mode. For modes
-fast against the forcing this is the quasi-static (static-correction) response
-`truncation_static`; for slow ones, which a slew excites dynamically (a long boom), the
-quasi-static response is off by factors up to 12 where the dynamic one is within 20 %.
+:mod:`.rhs` (Eqs. 118/121 of Likins 1972, Sec. III E) by the integration that
+:func:`jaxtree.simulate` runs too (:mod:`jaxtree._src.integration.driver`: the same checks of the
+start, singular Eq. (1) included, the same controller, loop and failure codes) and returns a
+:class:`HybridSolution` (the physical histories rebuilt by Eqs. 111-112, energy and momentum for
+drift checks, and the error of the modes left out, :mod:`.truncation`).
 """
 
 from __future__ import annotations
@@ -29,7 +19,7 @@ import numpy as np
 from jax.typing import ArrayLike
 
 from ..cache import checks_without_callbacks
-from ..equations.dynamics import configuration_and_rates, energy_and_momentum, mass_center_velocities, unbalanced
+from ..equations.dynamics import configuration_and_rates, energy_and_momentum, mass_center_velocities
 from ..equations.kinematics import cross, full_precision
 from ..integration.autosolver import choose_for_field, given
 from ..integration.core import (
@@ -37,20 +27,20 @@ from ..integration.core import (
     check_state,
     check_times,
     cut_rows,
-    default_controller,
     grid_times,
-    integrate,
     padded_times,
     progress_meter,
     solver_statistics,
     tolerances,
 )
-from ..integration.failures import MESSAGES, Failure, SimulationError, failure_report, report_failures, result_code
+from ..integration.driver import drive, singular_after_failure
+from ..integration.failures import MESSAGES, Failure, SimulationError, failure_report, report_failures
 from ..integration.radau import Radau5
 from ..numerics import eager_jit, is_traced, program_jit
 from ..vehicle.model import State
 from .model import HybridModel, appendage_body
-from .rhs import equations_of_parts, hybrid_jacobian, hybrid_rhs, solve
+from .rhs import hybrid_jacobian, hybrid_rhs
+from .truncation import truncation_histories, truncation_start
 
 
 class HybridSolution(eqx.Module):
@@ -80,7 +70,7 @@ class HybridSolution(eqx.Module):
     continue the estimate in a next run (``simulate_hybrid(..., truncation_start=...)``).
     With finite-element appendages, `appendage_truncation` (T, sum of their held-interface
     coordinates): the neglected held-base modes' contribution to those coordinates, the same
-    estimate driven by the appendages' unbalanced force (:func:`_appendage_unbalanced`; from rest);
+    estimate driven by the appendages' unbalanced force (:func:`appendage_unbalanced`; from rest);
     :meth:`appendage_truncation_at` turns it into a node's displacement.
     """
 
@@ -170,11 +160,6 @@ class HybridSolution(eqx.Module):
         return jnp.max(norm(h - h[0])) / jnp.maximum(norm(h[0]), jnp.finfo(h.dtype).tiny)
 
 
-def _failure_code(result):
-    """0 for success, else the ``Solution.failure`` code of :func:`jaxtree.simulate`."""
-    return jnp.where(result == dfx.RESULTS.successful, 0, result_code(result))
-
-
 def _hybrid_failure_message(code, t, state, modal):
     """The report of failed hybrid runs (batch index, time, physical state, modal coordinates),
     or None when every run succeeded."""
@@ -249,89 +234,6 @@ def _energy_and_momentum(hm: HybridModel, state, coords=()):
     return T, H
 
 
-def _small_unbalanced(hm: HybridModel, t, y):
-    """The generalized force on the small rows left unbalanced by the hybrid motion at ``(t, y)``:
-    ``rhs - A x`` of Eq. (1) at the physical state and the hybrid's accelerations (the inertia
-    loads of the base's motion and of the retained modes, springs, velocity products, loads). Its
-    part along the retained modes is balanced by their equations (to second order); the rest
-    drives the neglected modes (mode-acceleration method)."""
-    model = hm.model
-    wd, gddL, acc = solve(hm, t, hm.unpack(y))
-    _, _, gL, gdL, _ = hm.unpack(y)
-    _, _, gddP = hm.large_configuration(t, gL, gdL)
-    dtype = y.dtype
-    gdd = jnp.zeros(model.n, dtype)
-    gdd = gdd.at[np.asarray(hm.large, np.int64) - 1].set(gddL)
-    gdd = gdd.at[np.asarray(hm.small, np.int64) - 1].set(hm.accel[: hm.nu] @ (acc * hm.keep_u().astype(dtype)))
-    if gddP is not None:
-        gdd = gdd.at[np.asarray(model.prescribed, np.int64) - 1].set(gddP)
-    f = unbalanced(model, hm.state(t, y), t, None, wd, gdd)
-    return f[np.asarray(hm.small, np.int64) + 2]
-
-
-def _appendage_unbalanced(hm: HybridModel, t, y):
-    """The unbalanced generalized force ``rhs - A x`` of Eq. (30) on the appendages' held-interface
-    coordinates at ``(t, y)``, the accelerations those of the hybrid model: the rows of its
-    :attr:`HybridModel.physical` model (Eq. 30 in the small coordinates themselves) at the small
-    motion that the retained modes make (zero when every mode is retained)."""
-    ph = hm.physical
-    assert ph is not None, "built by hybrid_model for a model with appendages"
-    parts = hm.unpack(y)
-    att, w, gL, gdL, s = parts
-    dtype = w.dtype
-    wd, gddL, acc = solve(hm, t, parts)
-    km = hm.keep_m().astype(dtype)
-    s_in = s * km
-    if hm.form == "real":
-        ds = jnp.concatenate([s_in[hm.n_modes :], acc * hm.keep.astype(dtype)])
-    else:
-        ds = acc * km
-    ns = hm.n_small
-    P = ph.positions[:, :ns]  # the physical model's coordinates: a permutation of the small ones
-    y_, yd_, ydd_ = (P.T @ (m @ v) for m, v in ((hm.positions, s_in), (hm.rates, s_in), (hm.rates, ds)))
-    mat, rhs = equations_of_parts(ph, t, (att, w, gL, gdL, jnp.concatenate([y_, yd_])))
-    r = mat @ jnp.concatenate([wd, gddL, ydd_]) - rhs
-    return -(P @ r[3 + len(hm.large) :])[hm.nu :]
-
-
-def _truncation_estimate(hm: HybridModel, t0, ts, ys, q_start, appendages: bool = False):
-    """``(dynamic (T, nu), static (T, nu), q at the last save time (N, 2))``: the neglected modes'
-    contribution to the small angles at the save times, driven by :func:`_small_unbalanced` (see
-    :func:`simulate_hybrid`). The force is interpolated linearly between save times (held at its
-    first value from `t0` to the first save time) and each neglected mode's equation solved
-    exactly on that interpolation, from `q_start` (N, 2) (real and imaginary parts: the
-    start's content of each mode, :func:`_truncation_start`, or a previous run's end)."""
-    tr = hm.appendage_truncation if appendages else hm.truncation
-    assert tr is not None, "called for a model built by hybrid_model"
-    dtype = ys.dtype
-    force = _appendage_unbalanced if appendages else _small_unbalanced
-    f = jax.vmap(lambda t, y: force(hm, t, y))(ts, ys)  # (T, nu)
-    w = tr.weights(hm.keep.astype(dtype))
-    lam = tr.lam
-    g = f.astype(lam.dtype) @ tr.d.T  # (T, N) modal forces
-    static = jnp.real((g * (w / -lam)) @ tr.c.T)
-    times = jnp.concatenate([jnp.reshape(t0, (1,)).astype(dtype), ts])
-    G = jnp.concatenate([g[:1], g], 0)
-    h = jnp.diff(times)[:, None].astype(lam.dtype)  # (T, 1)
-    z = lam * h
-    small = jnp.abs(z) < 1e-3
-    safe_lam = jnp.where(small, 1.0, lam)
-    safe_z = jnp.where(small, 1.0, z)
-    e = jnp.exp(z)
-    p1 = jnp.where(small, h * (1 + z / 2 + z * z / 6), (e - 1) / safe_lam)  # int_0^h e^{lam (h-s)} ds
-    p2 = jnp.where(small, h * (0.5 + z / 6 + z * z / 24), (e - 1 - z) / (safe_lam * safe_z))  # ... s / h ds
-
-    def step(q, k):
-        e_k, a_k, b_k, g0, g1 = k
-        q = e_k * q + g0 * a_k + (g1 - g0) * b_k
-        return q, q
-
-    q0 = jax.lax.complex(q_start[:, 0], q_start[:, 1])
-    q_end, qs = jax.lax.scan(step, q0, (e, p1, p2, G[:-1], G[1:]))
-    dynamic = jnp.real((qs * w) @ tr.c.T)
-    return dynamic, static, jnp.stack([jnp.real(q_end), jnp.imag(q_end)], -1)
-
-
 _HISTORIES = (
     "ts", "omega0", "dcm", "gamma", "gamma_dot", "modal", "ys", "energy", "angular_momentum",
     "truncation", "truncation_static", "truncation_error", "appendage_truncation",
@@ -340,11 +242,11 @@ _HISTORIES = (
 
 @program_jit
 def _solve_hybrid(
-    hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, max_steps, report, residual, meter, truncation, q_start
-):
-    # A non-finite start cannot be integrated (NaN error estimates give NaN steps until max_steps):
-    # integrate the vehicle at rest in its place, report "nonfinite_start" and return NaN histories.
-    finite_start = jnp.all(jnp.isfinite(y0))
+    hybrid, y0, t0, t1, ts, rtol, atol, dt0, solver, controller, max_steps, report, residual, meter, truncation, q_start,
+    check_start,
+):  # fmt: skip
+    # the shared integration (integration/driver.py): the start checked (finite; with
+    # `check_start`, Eq. (1) regular there), the default controller, the loop, the failure code
     dtype = y0.dtype
     model = hybrid.model
     rest = hybrid.pack(
@@ -352,30 +254,30 @@ def _solve_hybrid(
             jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype), hybrid.gamma_nominal.astype(dtype), jnp.zeros(model.n, dtype)
         )
     )
-    if controller is None:
-        controller = default_controller(rtol, atol, t0, t1)
-    ts_h, ys_h, t_final, y_final, sol = integrate(
+    driven = drive(
         hybrid_rhs,
-        solver,
+        hybrid,
+        y0,
         t0,
         t1,
-        dt0,
-        y0,
-        hybrid,
-        ts=ts,
+        solver=solver,
         controller=controller,
-        max_steps=max_steps,
-        progress_meter=meter,
-        start_ok=finite_start,
+        rtol=rtol,
+        atol=atol,
+        dt0=dt0,
         rest=rest,
+        max_steps=max_steps,
+        ts=ts,
+        progress_meter=meter,
+        check_start=check_start,
     )
-    code = jnp.where(finite_start, _failure_code(sol.result), int(Failure.NONFINITE_START))
+    ts_h, ys_h, t_final, y_final, sol, code = driven[:6]
     states = jax.vmap(hybrid.state)(ts_h, ys_h)
     final = hybrid.state(t_final, y_final)
     energy, momentum = jax.vmap(lambda st, y: _energy_and_momentum(hybrid, st, hybrid.appendage_coordinates(y)))(
         states, ys_h
     )
-    dyn, stat, q_end, app = _truncation_histories(hybrid, t0, ts_h, ys_h, q_start, dtype) if truncation else (None,) * 4
+    dyn, stat, q_end, app = truncation_histories(hybrid, t0, ts_h, ys_h, q_start, dtype) if truncation else (None,) * 4
     out = HybridSolution(
         ts=ts_h,
         omega0=states.omega0,
@@ -412,18 +314,6 @@ def _raise_if_failed(code, t, state, modal):
         raise SimulationError(message)
 
 
-def _truncation_histories(hybrid: HybridModel, t0, ts, ys, q_start, dtype):
-    """``(truncation, truncation_static, truncation_state, appendage_truncation)`` of a run's
-    saved states (:func:`_truncation_estimate`; None where the model has no such terms)."""
-    dyn = stat = q_end = app = None
-    if hybrid.truncation is not None:
-        dyn, stat, q_end = _truncation_estimate(hybrid, t0, ts, ys, q_start)
-    if hybrid.appendage_truncation is not None:
-        n_app = hybrid.appendage_truncation.lam_parts.shape[0]
-        app, _, _ = _truncation_estimate(hybrid, t0, ts, ys, jnp.zeros((n_app, 2), dtype), appendages=True)
-    return dyn, stat, q_end, app
-
-
 @program_jit
 def _jacobian(t, y, args: HybridModel):
     """:func:`.rhs.hybrid_jacobian`, jitted so that the solver's several traces share one jaxpr."""
@@ -446,16 +336,7 @@ def _pack_with_residual(hybrid: HybridModel, y0: State):
     S = np.asarray(hybrid.small, np.int64) - 1
     y = jnp.asarray(y0.gamma, dtype)[S] - hybrid.gamma_nominal.astype(dtype)[S]
     x0 = jnp.concatenate([y, jnp.asarray(y0.gamma_dot, dtype)[S]])
-    return hybrid.pack(y0), hybrid.projection_residual(y0), _truncation_start(hybrid, x0)
-
-
-def _truncation_start(hybrid: HybridModel, x0):
-    """Every mode's content ``d0 x0`` of a small motion ``x0 = [y; y']`` (real and imaginary
-    parts, (N, 2)), or None for a model without truncation terms."""
-    if hybrid.truncation is None:
-        return None
-    q = hybrid.truncation.d0 @ x0.astype(hybrid.truncation.lam.dtype)
-    return jnp.stack([jnp.real(q), jnp.imag(q)], -1)
+    return hybrid.pack(y0), hybrid.projection_residual(y0), truncation_start(hybrid, x0)
 
 
 @full_precision
@@ -556,7 +437,10 @@ def simulate_hybrid(
             progress_meter(progress),
             bool(truncation_error),
             q_start,
+            traced,  # an eager run tests its start for a singular Eq. (1) only once it failed (below)
         )
+    if not traced:
+        sol = _singular_start_after(sol, hybrid, y, t0a)
     sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
     if n_saved is not None:
         size = sol.ts.shape[0]
@@ -564,6 +448,18 @@ def simulate_hybrid(
     if throw and not traced:
         _raise_if_failed(sol.failure, sol.t_final, sol.final, sol.final_modal)
     return sol
+
+
+def _singular_start_after(sol: HybridSolution, hybrid: HybridModel, y, t0) -> HybridSolution:
+    """`sol` of an eager run, reported as a singular start (as the in-program test of a traced run
+    reports it: t_final `t0`, NaN histories) where it failed and Eq. (1) is singular at its
+    start (:func:`jaxtree._src.integration.driver.singular_after_failure`)."""
+    if int(sol.failure) == 0 or not bool(singular_after_failure(hybrid, t0, y)):
+        return sol
+    nan = lambda a: None if a is None else jnp.full_like(a, jnp.nan)
+    failure = jnp.asarray(int(Failure.SINGULAR_START), jnp.result_type(sol.failure))
+    start = dict(t_final=t0, final=hybrid.state(t0, y), final_modal=hybrid.modal(y))
+    return dataclasses.replace(sol, failure=failure, **start, **{k: nan(getattr(sol, k)) for k in _HISTORIES[1:]})
 
 
 def _hybrid_start(hybrid: HybridModel, y0, truncation_start, dtype):

@@ -1,7 +1,8 @@
-"""The driver shared by :func:`jaxtree.simulate` (Eq. 1), :func:`jaxtree.simulate_hybrid`
+"""What the drivers share, :func:`jaxtree.simulate` (Eq. 1), :func:`jaxtree.simulate_hybrid`
 (Eqs. 105-123) and the campaign runner: defaults of solver and step-size control, the checks of
-times, tolerances and the initial state before tracing, and one integration with the layout of
-save times (a history plus the final state) by :func:`diffrax.diffeqsolve`. Each formulation
+times, tolerances and the initial state before tracing, and the loop with the layout of save
+times (a history plus the final state) by :func:`diffrax.diffeqsolve` (:func:`integrate`, which
+:mod:`.driver` runs for both drivers). Each formulation
 supplies its vector field, its state packing and the text of its failure report
 (:mod:`.failures`); the solvers are diffrax's, :mod:`.radau`'s and :mod:`.rk4`'s.
 """

@@ -14,10 +14,9 @@ from __future__ import annotations
 import dataclasses
 import warnings
 from collections.abc import Callable
-from typing import Any, NamedTuple, cast
+from typing import Any, NamedTuple
 
 import diffrax as dfx
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -25,10 +24,9 @@ import numpy as np
 from ..cache import checks_without_callbacks
 from ..equations.attitude import AbstractAttitude, get_attitude
 from ..equations.control import AbstractController, with_model_laws
-from ..equations.dynamics import mass_matrix, unknown_rows
 from ..equations.kinematics import full_precision
 from ..errors import SceneError, SceneTypeError, SceneWarning, short
-from ..numerics import is_traced, program_jit, regular
+from ..numerics import is_traced, program_jit
 from ..values import as_float
 from ..vehicle.model import Model, State
 from ..vehicle.validate import check_model
@@ -40,21 +38,19 @@ from .core import (
     check_state,
     check_times,
     cut_rows,
-    default_controller,
     grid_times,
-    integrate,
     padded_times,
     progress_meter,
     solver_statistics,
     tolerances,
 )
-from .events import combine_events, guard_any
+from .driver import Driven, drive, singular_after_failure
+from .events import combine_events
 from .failures import (
     Failure,
     SimulationError,
     attitude_margin,
     format_failure,
-    result_code,
 )
 from .problem import Problem, make_problem, packed_start, problem_field, with_jacobian
 from .solution import Solution, check_solution, histories_of, report_from_callback, rhs_evaluations, run_diagnostics
@@ -107,18 +103,6 @@ def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controlle
         raise SceneTypeError(f"simulate: throw must be True or False, got {short(throw)}")
 
 
-def _singular(problem: Problem, t, y):
-    """True when the Eq. (1) matrix at (t, y) is singular to working precision (a pivot at
-    round-off level, :func:`~jaxtree._src.numerics.regular`): one factorization, no eigenvalues. An exactly singular matrix may leave the
-    factorization a pivot at round-off level instead of failing it, and the solve then returns
-    finite garbage; this catches both."""
-    model = problem.model
-    A = mass_matrix(model, problem.state(t, y).gamma)  # (the matrix alone: no rates, no loads)
-    u = unknown_rows(model)
-    A = A[np.ix_(u, u)]
-    return ~regular(jax.lax.linalg.cholesky(A, symmetrize_input=False), A)  # a failed factorization (NaN) too
-
-
 def _initial_step(problem: Problem, y0, t0, t1):
     """A first step of about 0.01 rad of the fastest rotation (no vector-field evaluation, so
     nothing more to compile); the step-size controller corrects it within a few steps."""
@@ -127,11 +111,6 @@ def _initial_step(problem: Problem, y0, t0, t1):
     rate = jnp.where(jnp.isfinite(rate), rate, 0.0)  # a non-finite state fails on the first steps
     h = jnp.minimum(1e-2 / (1.0 + rate), jnp.abs(t1 - t0))
     return jnp.where(t1 >= t0, h, -h)
-
-
-# The fields of a Solution that simulate fills in from run_diagnostics, compiled apart from the
-# solve: None until then (typed as the arrays they become; no Solution is returned with them None).
-_FILLED_BY_SIMULATE = cast(jax.Array, None)
 
 
 class _Options(NamedTuple):
@@ -167,44 +146,44 @@ class _Run(NamedTuple):
 
 
 @program_jit
-def _solve(problem: Problem, y0: State, run: _Run, opts: _Options):
+def _solve(problem: Problem, y0: State, run: _Run, opts: _Options) -> dict:
+    """The run's :class:`Solution` fields but its diagnostics (:func:`_fields`), by the shared
+    integration (:func:`.driver.drive`)."""
     dtype = jnp.result_type(problem.model.mass)
     # an eager call packs the start and the state at rest in a small program of their own: the
     # quaternion from C is then no part of the solve's program
     y, rest = run.packed if run.packed is not None else (problem.pack(y0, None, run.X0, run.Xd0), None)
-    start_ok, singular_start, rest = _start(problem, y, run.t0, opts.check_start, rest)
-    controller, dt0 = run.controller, run.dt0
-    if controller is None:
-        controller = default_controller(run.rtol, run.atol, run.t0, run.t1)
-        if dt0 is None:
-            # a choice of the discretization, not a function to differentiate (BacksolveAdjoint
-            # refuses a first step that carries a tangent)
-            dt0 = jax.lax.stop_gradient(_initial_step(problem, jnp.where(start_ok, y, rest), run.t0, run.t1))
+    if rest is None:
+        rest = problem.pack(_at_rest(problem.model, dtype))
     ts = None
     if not opts.user_saveat:
         ts = jnp.linspace(run.t0, run.t1, opts.grid, dtype=dtype) if opts.grid is not None else run.saveat
     solver = with_jacobian(run.solver)
-    ends = integrate(
+    driven = drive(
         problem_field,
-        solver,
+        problem,
+        y,
         run.t0,
         run.t1,
-        dt0,
-        y,
-        problem,
+        solver=solver,
+        controller=run.controller,
+        rtol=run.rtol,
+        atol=run.atol,
+        dt0=run.dt0,
+        rest=rest,
+        max_steps=opts.max_steps,
         ts=ts,
         saveat=run.saveat if opts.user_saveat else None,
-        controller=controller,
         adjoint=run.adjoint,
         event=run.event,
-        max_steps=opts.max_steps,
+        guard=(opts.has_guard, opts.user_event),
         progress_meter=run.progress_meter,
-        start_ok=start_ok,
-        rest=rest,
+        check_start=opts.check_start,
+        first_step=lambda y: _initial_step(problem, y, run.t0, run.t1),
     )
-    out = _solution(problem, opts, solver, dt0 is not None, (start_ok, singular_start), ends)
+    out = _fields(problem, solver, run.dt0 is not None or run.controller is None, driven)
     if opts.report_in_callback:
-        report_from_callback(out)
+        report_from_callback(out["failure"], out["t_final"], out["final"], out["margin"], problem)
     return out
 
 
@@ -215,77 +194,29 @@ def _at_rest(model: Model, dtype, xp=jnp) -> State:
     return State(xp.eye(3, dtype=dtype), z3, xp.zeros(n, dtype), xp.zeros(n, dtype))
 
 
-def _start(problem: Problem, y, t0, check: bool = True, rest=None):
-    """``(start_ok, singular_start, rest)`` of a flat start `y`.
-
-    A non-finite start cannot be integrated: NaN error estimates give NaN steps until max_steps
-    (a vmapped batch would wait for its worst member). Nor can a start where Eq. (1) is singular
-    to working precision (exact gimbal lock): the accelerations are undetermined, and the
-    factorization may even return finite garbage. Such a run integrates the vehicle at rest
-    (`rest`) in their place, reports "nonfinite_start" / "singular_start" and returns NaN histories.
-    Without `check` (simulate's ``diagnostics=False``) a singular start is not looked for: Eq. (1)'s
-    matrix is not assembled and factored a second time."""
-    dtype = jnp.result_type(problem.model.mass)
-    finite_start = jnp.all(jnp.isfinite(y))
-    if check:
-        singular_start = finite_start & _singular(problem, t0, jax.lax.stop_gradient(y))
-    else:
-        singular_start = jnp.zeros((), bool)
-    if rest is None:
-        rest = problem.pack(_at_rest(problem.model, dtype))
-    return finite_start & ~singular_start, singular_start, rest
-
-
-def _solution(problem: Problem, opts: _Options, solver, dt0_given: bool, start, ends) -> Solution:
-    """The :class:`Solution` of an integration: `start` ``(start_ok, singular_start)`` of
-    :func:`_start`, `ends` ``(ts, ys, t_final, y_final, diffrax solution)`` of ``integrate``; the
-    energy, momentum and hold torques are left to :func:`_with_diagnostics`."""
-    start_ok, singular_start = start
-    ts_h, ys_h, t_final, y_final, sol = ends
-    hist = histories_of(problem, ts_h, ys_h)
-    _, _, _, _, _, Xf, Xdf = problem.unpack(y_final)
-    mask = sol.event_mask
-    singular = jnp.asarray(False)
-    if opts.has_guard:
-        if opts.user_event:
-            mask, guard_mask = mask
-        else:
-            mask, guard_mask = None, mask
-        singular = guard_any(guard_mask)
+def _fields(problem: Problem, solver, dt0_given: bool, driven: Driven) -> dict:
+    """The fields of the run's :class:`Solution` from the shared integration's `driven`, all but
+    the energy, momentum and hold torques (a program of their own, :func:`_finished`)."""
+    hist = histories_of(problem, driven.ts, driven.ys)
+    _, _, _, _, _, Xf, Xdf = problem.unpack(driven.y_final)
+    sol = driven.sol
     stats = dict(sol.stats)
     stats["rhs_evaluations"] = rhs_evaluations(solver, sol.stats, dt0_given)
     stats.update(solver_statistics(solver, sol))
-    R = dfx.RESULTS
-    ok = (sol.result == R.successful) | ((sol.result == R.event_occurred) & ~singular)
-    failure = jnp.where(
-        start_ok,
-        jnp.where(ok, 0, result_code(sol.result, singular)),
-        jnp.where(singular_start, int(Failure.SINGULAR_START), int(Failure.NONFINITE_START)),
-    )
-    return Solution(
-        ts=ts_h,
-        gamma=hist["gamma"],
-        gamma_dot=hist["gamma_dot"],
-        omega0=hist["omega0"],
-        dcm=hist["dcm"],
-        attitude=hist["attitude"],
-        control_state=hist["control_state"],
-        X=hist["X"],
-        X_dot=hist["X_dot"],
-        hold_torque=_FILLED_BY_SIMULATE,
-        energy=_FILLED_BY_SIMULATE,
-        angular_momentum=_FILLED_BY_SIMULATE,
-        orthogonality=hist["orthogonality"],
-        t_final=t_final,
-        final=problem.state(t_final, y_final),
-        final_control_state=problem.control_state(y_final),
+    histories = ("gamma", "gamma_dot", "omega0", "dcm", "attitude", "control_state", "X", "X_dot", "orthogonality")
+    return dict(
+        ts=driven.ts,
+        **{k: hist[k] for k in histories},
+        t_final=driven.t_final,
+        final=problem.state(driven.t_final, driven.y_final),
+        final_control_state=problem.control_state(driven.y_final),
         final_X=Xf,
         final_X_dot=Xdf,
         result=sol.result,
-        event_mask=mask,
-        singular=singular,
-        margin=attitude_margin(problem, y_final),
-        failure=failure,
+        event_mask=driven.event_mask,
+        singular=driven.singular,
+        margin=attitude_margin(problem, driven.y_final),
+        failure=driven.failure,
         stats=stats,
         raw=sol,
         problem=problem,
@@ -438,11 +369,11 @@ def simulate(
         packed = (y_flat, packed_start(problem, jax.device_put(_at_rest(model, np.dtype(dtype), np)), None, None))
     run = _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, packed)
     with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
-        sol = _solve(problem, y0, run, opts)
+        fields = _solve(problem, y0, run, opts)
     if diagnostics and packed is not None:  # (an eager run)
-        sol = _singular_start_after(sol, problem, packed[0], arrays[2])
-    sol = _finished(sol, model, law, controller, params, diagnostics, n_saved)
-    sol = eqx.tree_at(lambda s: s.stats, sol, dict(sol.stats, solver=choice))
+        fields = _singular_start_after(fields, problem, packed[0], arrays[2])
+    fields["stats"] = dict(fields["stats"], solver=choice)
+    sol = _finished(fields, model, law, controller, params, diagnostics, n_saved)
     if throw and not traced:
         check_solution(sol)
     return sol
@@ -469,36 +400,33 @@ def _on_device(x, dtype):
     return jnp.asarray(x, dtype)
 
 
-def _finished(sol: Solution, model: Model, law, controller, params, diagnostics: bool, n_saved) -> Solution:
-    """`sol` with its energy, momentum and hold-torque histories (NaN without `diagnostics`), cut
-    to the `n_saved` rows asked for where the save grid was padded to its bucket."""
+def _finished(fields: dict, model: Model, law, controller, params, diagnostics: bool, n_saved) -> Solution:
+    """The :class:`Solution` of the run's `fields` (:func:`_fields`) and its energy, momentum and
+    hold-torque histories (NaN without `diagnostics`), cut to the `n_saved` rows asked for where
+    the save grid was padded to its bucket."""
     if diagnostics:
-        sol = _with_diagnostics(sol, model, law, controller, params, n_saved)
+        energy, momentum, hold = _diagnostics(fields, model, law, controller, params, n_saved)
     else:
-        sol = _without_diagnostics(sol, model)
-    return sol if n_saved is None else _cut(sol, n_saved)
+        T, dtype = fields["ts"].shape[0], fields["omega0"].dtype
+        nan = lambda *shape: jnp.full(shape, jnp.nan, dtype)
+        energy, momentum, hold = nan(T), nan(T, 3), nan(T, len(model.prescribed))
+    fields = dict(fields, energy=energy, angular_momentum=momentum, hold_torque=hold)
+    return Solution(**(fields if n_saved is None else _cut(fields, n_saved)))
 
 
-def _singular_start_after(sol: Solution, problem: Problem, y, t0) -> Solution:
-    """`sol` of an eager run, reported as a singular start (:attr:`Failure.SINGULAR_START`, t_final
-    `t0`, NaN histories, as the in-program test of a traced run reports it) where it failed and
-    Eq. (1) is singular at its start. The test compiles only for a run that failed: Eq. (1)'s solve
-    returns NaN at a pivot at round-off level (the test of :func:`_singular`), so such a start
-    fails, usually within a few rejected steps at `t0`."""
-    if int(sol.failure) == 0 or not bool(_singular_start(problem, t0, y)):
-        return sol
+def _singular_start_after(fields: dict, problem: Problem, y, t0) -> dict:
+    """The `fields` of an eager run, reported as a singular start (:attr:`Failure.SINGULAR_START`,
+    t_final `t0`, NaN histories, as the in-program test of a traced run reports it) where it
+    failed and Eq. (1) is singular at its start (:func:`.driver.singular_after_failure`)."""
+    if int(fields["failure"]) == 0:
+        return fields
+    if not bool(singular_after_failure(problem, t0, y)):
+        return fields
     nan = lambda a: None if a is None else jnp.full_like(a, jnp.nan)
     states = ("gamma", "gamma_dot", "omega0", "dcm", "attitude", "control_state", "X", "X_dot", "orthogonality")
-    failure = jnp.asarray(int(Failure.SINGULAR_START), jnp.result_type(sol.failure))
+    failure = jnp.asarray(int(Failure.SINGULAR_START), jnp.result_type(fields["failure"]))
     start = problem.state(t0, y)
-    return dataclasses.replace(
-        sol, failure=failure, t_final=t0, final=start, **{k: nan(getattr(sol, k)) for k in states}
-    )
-
-
-@eqx.filter_jit
-def _singular_start(problem: Problem, t0, y):
-    return _singular(problem, t0, y)
+    return dict(fields, failure=failure, t_final=t0, final=start, **{k: nan(fields[k]) for k in states})
 
 
 def _check_attitude_and_laws(attitude, controller, law) -> AbstractAttitude:
@@ -557,13 +485,13 @@ _HISTORIES = (
 )  # fmt: skip
 
 
-def _cut(sol: Solution, n: int) -> Solution:
-    """`sol`'s histories and its diffrax solution's saves cut to their first `n` rows."""
-    size = sol.ts.shape[0]
-    raw = sol.raw
+def _cut(fields: dict, n: int) -> dict:
+    """The histories of `fields` and its diffrax solution's saves cut to their first `n` rows."""
+    size = fields["ts"].shape[0]
+    raw = fields["raw"]
     if raw is not None:
         raw = dataclasses.replace(raw, ts=cut_rows(raw.ts, size, n), ys=cut_rows(raw.ys, size, n))
-    return dataclasses.replace(sol, raw=raw, **{k: cut_rows(getattr(sol, k), size, n) for k in _HISTORIES})
+    return dict(fields, raw=raw, **{k: cut_rows(fields[k], size, n) for k in _HISTORIES})
 
 
 def _check_finite_start(y0: State, X0, Xd0, t0, att: AbstractAttitude) -> None:
@@ -574,26 +502,17 @@ def _check_finite_start(y0: State, X0, Xd0, t0, att: AbstractAttitude) -> None:
         raise SimulationError(format_failure("nonfinite_start", t0, y0, np.nan, np.nan, att.name))
 
 
-def _without_diagnostics(sol: Solution, model: Model) -> Solution:
-    """`sol` with NaN energy, angular momentum and hold-torque histories (``diagnostics=False``)."""
-    T, dtype = sol.ts.shape[0], sol.omega0.dtype
-    nan = lambda *shape: jnp.full(shape, jnp.nan, dtype)
-    diag = (nan(T), nan(T, 3), nan(T, len(model.prescribed)))
-    return eqx.tree_at(lambda s: (s.energy, s.angular_momentum, s.hold_torque), sol, diag, is_leaf=lambda x: x is None)
-
-
-def _with_diagnostics(sol: Solution, model: Model, law, controller, params, count=None) -> Solution:
-    """`sol` with its energy, angular momentum and hold torques (see :func:`run_diagnostics`); of
-    its first `count` rows alone when given (a padded save grid)."""
+def _diagnostics(fields: dict, model: Model, law, controller, params, count=None):
+    """``(energy, angular momentum, hold torques)`` of the run's `fields` (see
+    :func:`run_diagnostics`); of their first `count` rows alone when given (a padded save grid)."""
     needs_law = model.prescription is not None
-    diag = run_diagnostics(
+    return run_diagnostics(
         model,
         law if needs_law else None,
         controller if needs_law else None,
         params if needs_law else None,
-        sol.ts,
-        State(sol.dcm, sol.omega0, sol.gamma, sol.gamma_dot),
-        sol.control_state if needs_law else None,
+        fields["ts"],
+        State(fields["dcm"], fields["omega0"], fields["gamma"], fields["gamma_dot"]),
+        fields["control_state"] if needs_law else None,
         count=None if count is None else jax.device_put(np.asarray(count, np.int32)),
     )
-    return eqx.tree_at(lambda s: (s.energy, s.angular_momentum, s.hold_torque), sol, diag, is_leaf=lambda x: x is None)

@@ -210,10 +210,10 @@ def rhs_evaluations(solver, stats, dt0_given: bool):
     return stats["num_steps"] * per_step + start
 
 
-def report_from_callback(out: Solution) -> None:
-    """Under a caller's jit/vmap the values are not known until run time: report failures from a
-    host callback, which raises with the time and state of every failed member."""
-    problem = out.problem
+def report_from_callback(failure, t_final, final: State, margin, problem: Problem) -> None:
+    """Under a caller's jit/vmap the values are not known until run time: report the failures of
+    a run (its ``Solution`` fields of these names) from a host callback, which raises with the
+    time and state of every failed member."""
     attitude_name, labels = problem.attitude.name, unknown_labels(problem.model)
 
     def host(code, t, state, margin, model, condition, direction):
@@ -224,8 +224,8 @@ def report_from_callback(out: Solution) -> None:
 
     report_failures(
         host,
-        out.failure != 0,
-        jax.lax.stop_gradient((out.failure, out.t_final, out.final, out.margin, problem.model)),
+        failure != 0,
+        jax.lax.stop_gradient((failure, t_final, final, margin, problem.model)),
         diagnose,
     )
 
