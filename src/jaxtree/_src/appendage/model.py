@@ -410,7 +410,7 @@ def appendage(
     interface=(0,),
     point=(0.0, 0.0, 0.0),
     frame=None,
-    n_modes="auto",
+    n_modes: int | str = "auto",
     tol: float = 1e-2,
     damping=0.0,
     outputs=(),

@@ -454,7 +454,7 @@ def _singular_start_after(sol: HybridSolution, hybrid: HybridModel, y, t0) -> Hy
     """`sol` of an eager run, reported as a singular start (as the in-program test of a traced run
     reports it: t_final `t0`, NaN histories) where it failed and Eq. (1) is singular at its
     start (:func:`jaxtree._src.integration.driver.singular_after_failure`)."""
-    if int(sol.failure) == 0 or not bool(singular_after_failure(hybrid, t0, y)):
+    if sol.failure is None or int(sol.failure) == 0 or not bool(singular_after_failure(hybrid, t0, y)):
         return sol
     nan = lambda a: None if a is None else jnp.full_like(a, jnp.nan)
     failure = jnp.asarray(int(Failure.SINGULAR_START), jnp.result_type(sol.failure))

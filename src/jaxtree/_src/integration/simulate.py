@@ -502,11 +502,11 @@ def _check_finite_start(y0: State, X0, Xd0, t0, att: AbstractAttitude) -> None:
         raise SimulationError(format_failure("nonfinite_start", t0, y0, np.nan, np.nan, att.name))
 
 
-def _diagnostics(fields: dict, model: Model, law, controller, params, count=None):
+def _diagnostics(fields: dict, model: Model, law, controller, params, count=None) -> tuple[Any, Any, Any]:
     """``(energy, angular momentum, hold torques)`` of the run's `fields` (see
     :func:`run_diagnostics`); of their first `count` rows alone when given (a padded save grid)."""
     needs_law = model.prescription is not None
-    return run_diagnostics(
+    out = run_diagnostics(
         model,
         law if needs_law else None,
         controller if needs_law else None,
@@ -516,3 +516,4 @@ def _diagnostics(fields: dict, model: Model, law, controller, params, count=None
         fields["control_state"] if needs_law else None,
         count=None if count is None else jax.device_put(np.asarray(count, np.int32)),
     )
+    return out[0], out[1], out[2]

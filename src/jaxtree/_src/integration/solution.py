@@ -179,9 +179,9 @@ def run_diagnostics(model: Model, law, controller, params, ts, states: State, zs
         out = _first_rows(row, rows, count, ts.shape[0])
     else:
         out = jax.lax.map(row, rows) if jax.default_backend() == "cpu" else jax.vmap(row)(rows)
+    energy, H, *hold = out
     if held:
-        return out
-    energy, H = out[0], out[1]
+        return energy, H, hold[0]
     # no hinge held: no column (and none through lax.map, whose batched form fails to reshape a
     # zero-sized axis)
     return energy, H, jnp.zeros((ts.shape[0], 0), states.gamma.dtype)
