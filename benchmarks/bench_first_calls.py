@@ -244,6 +244,10 @@ def main() -> None:
         print(machine())
         results = census([c.strip() for c in args.calls.split(";") if c.strip()])
         out = os.path.join(os.path.dirname(args.out), "bench_first_calls_census.json")
+        if set(results) != set(CALLS) and os.path.exists(out):  # some calls: the others' figures kept
+            with open(out) as f:
+                kept = json.load(f)
+            results = {**kept.get("calls", {}), **results}
         write_json(out, {"machine": machine(), "calls": results})
         return
     modes = ("one program", "op by op")
