@@ -35,7 +35,7 @@ from ..integration.core import (
 )
 from ..integration.driver import drive, singular_after_failure
 from ..integration.failures import MESSAGES, Failure, SimulationError, failure_report, report_failures
-from ..integration.radau import Radau5
+from ..integration.radau import with_jacobian
 from ..numerics import eager_jit, is_traced, program_jit
 from ..vehicle.model import State
 from .model import HybridModel, appendage_body
@@ -320,14 +320,6 @@ def _jacobian(t, y, args: HybridModel):
     return hybrid_jacobian(t, y, args)
 
 
-def _with_jacobian(solver):
-    """`solver`, and for a :class:`jaxtree.Radau5` without a Jacobian of its own the hybrid
-    model's structured one (:func:`.rhs.hybrid_jacobian`)."""
-    if isinstance(solver, Radau5) and solver.jacobian is None:
-        return eqx.tree_at(lambda s: s.jacobian, solver, _jacobian, is_leaf=lambda x: x is None)
-    return solver
-
-
 @program_jit
 def _pack_with_residual(hybrid: HybridModel, y0: State):
     # One compiled call: op by op (eagerly) the projection took ~50 ms of dispatches, more than
@@ -417,7 +409,7 @@ def simulate_hybrid(
         )
     else:
         choice = given(solver)
-    solver = _with_jacobian(solver)
+    solver = with_jacobian(solver, _jacobian)  # a Radau5 without one: the hybrid model's structured Jacobian
     traced = is_traced((hybrid, y, t0a, t1a, ts, rtol, atol, dt0, solver, stepsize_controller))
     with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
         sol = _solve_hybrid(

@@ -29,8 +29,8 @@ from ..equations.dynamics import (
 from ..numerics import program_jit
 from ..vehicle import hinges
 from ..vehicle.model import Model, State
+from . import radau
 from .jacobian import jacobian_by_parts
-from .radau import Radau5
 
 
 class Problem(eqx.Module):
@@ -198,9 +198,7 @@ def _problem_jacobian(t, y, args: Problem):
 def with_jacobian(solver):
     """`solver`, and for a :class:`jaxtree.Radau5` without a Jacobian of its own the problem's
     structured one (:meth:`Problem.jacobian`)."""
-    if isinstance(solver, Radau5) and solver.jacobian is None:
-        return eqx.tree_at(lambda s: s.jacobian, solver, _problem_jacobian, is_leaf=lambda x: x is None)
-    return solver
+    return radau.with_jacobian(solver, _problem_jacobian)
 
 
 @eqx.filter_jit

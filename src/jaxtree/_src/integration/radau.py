@@ -510,3 +510,12 @@ class Radau5(dfx.AbstractImplicitSolver[Radau5State], dfx.AbstractAdaptiveSolver
 
     def func(self, terms, t0, y0, args):
         return terms.vf(t0, y0, args)
+
+
+def with_jacobian(solver, jacobian):
+    """`solver`; a :class:`Radau5` without a Jacobian of its own gets `jacobian` (``jacobian(t, y,
+    args)``: the driver's structured one, :meth:`~jaxtree.Problem.jacobian` or
+    :func:`jaxtree.hybrid_jacobian`)."""
+    if isinstance(solver, Radau5) and solver.jacobian is None:
+        return eqx.tree_at(lambda s: s.jacobian, solver, jacobian, is_leaf=lambda x: x is None)
+    return solver
