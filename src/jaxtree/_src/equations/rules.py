@@ -160,22 +160,41 @@ def _solve_factored_jvp(primals, tangents):
 
 def _rule(primals, tangents):
     """``(accelerations, factor, their tangents)``: by :func:`_tangent_map` for a tree of at least
-    :data:`BATCH_FIRST_DERIVATIVES_MIN` bodies, else by the single-member rule in plain JAX (which
-    ``jax.vmap`` batches as it is)."""
-    wrapped = primals[0].n >= BATCH_FIRST_DERIVATIVES_MIN
-    acc, factor = _solve_factored(*primals) if wrapped else factored_one(*primals)
+    :data:`BATCH_FIRST_DERIVATIVES_MIN` bodies, else by :func:`member_jvp`."""
+    if primals[0].n < BATCH_FIRST_DERIVATIVES_MIN:
+        return member_jvp(primals, tangents)
+    acc, factor = _solve_factored(*primals)
+    spec, arr, dots = _differentiated_arrays(primals, tangents)
+    if spec is None:
+        return acc, factor, jax.tree_util.tree_map(jnp.zeros_like, acc)
+    if is_forward_only():  # never transposed nor differentiated again: no linear solve around it
+        return acc, factor, _tangent_of(spec, jax.jit(functools.partial(_tangent_one, spec)), arr, (acc, factor), dots)
+    return acc, factor, _tangent_map(spec, arr, (acc, factor), dots)
+
+
+def member_jvp(primals, tangents):
+    """``(accelerations, factor, their tangents)`` of Eq. (1) for one member by the
+    implicit-function rule in plain JAX, ``primals`` ``(model, state, t, tau, gdd_p)`` of a state
+    completed with its prescribed hinges: the derivative of trees under
+    :data:`BATCH_FIRST_DERIVATIVES_MIN` bodies, which ``jax.vmap`` batches as it is (and the peer
+    that ``benchmarks/bench_batch.py --tangents`` times against the batch-first tangents)."""
+    acc, factor = factored_one(*primals)
+    spec, arr, dots = _differentiated_arrays(primals, tangents)
+    if spec is None:
+        return acc, factor, jax.tree_util.tree_map(jnp.zeros_like, acc)
+    return acc, factor, _tangent_one(spec, arr, (acc, factor), dots)
+
+
+def _differentiated_arrays(primals, tangents):
+    """``(spec, arrays, tangents)`` of the leaves of `primals` that carry a tangent (:func:`_spec`),
+    or ``(None, None, None)`` when none does."""
     leaves, tree = jax.tree_util.tree_flatten(primals)
     tleaves = tree.flatten_up_to(tangents)
     diff = tuple(i for i, tl in enumerate(tleaves) if tl is not None)
     if not diff:
-        return acc, factor, jax.tree_util.tree_map(jnp.zeros_like, acc)
+        return None, None, None
     spec, arr = _spec(leaves, tree, diff)
-    dots = [jnp.asarray(tleaves[i], jnp.result_type(leaves[i])) for i in diff]
-    if not wrapped:
-        return acc, factor, _tangent_one(spec, arr, (acc, factor), dots)
-    if is_forward_only():  # never transposed nor differentiated again: no linear solve around it
-        return acc, factor, _tangent_of(spec, jax.jit(functools.partial(_tangent_one, spec)), arr, (acc, factor), dots)
-    return acc, factor, _tangent_map(spec, arr, (acc, factor), dots)
+    return spec, arr, [jnp.asarray(tleaves[i], jnp.result_type(leaves[i])) for i in diff]
 
 
 # Trees of at least this many bodies differentiate Eq. (1) through :func:`_tangent_map`, whose
@@ -183,7 +202,9 @@ def _rule(primals, tangents):
 # keep the single-member rule in plain JAX. On this 2-core CPU (64 members, tangents of all hinge
 # angles, 2026-11-27) the batch-first tangents ran fig4_free (4 bodies) 1.4x and chain10 2x faster
 # but compiled in 23-38 s against 3 s; chain50 ran 1.75x faster (jacfwd 1.49 against 2.60 ms a member)
-# and flex95 9x (6 tangents at 256 members: 125 against 1176 us a member).
+# and flex95 9x (6 tangents at 256 members: 125 against 1176 us a member). `benchmarks/bench_batch.py
+# --tangents K` times both forms, called explicitly (`member_jvp` and the batch-first recursion's JVP),
+# on any tree.
 BATCH_FIRST_DERIVATIVES_MIN = 16
 
 
