@@ -236,7 +236,9 @@ def tangents_case(model, size, args):
 
     members = jax.vmap(lambda w, g, gd, *d: jax.vmap(lambda *t: member(w, g, gd, *t))(*d))
     a, b = jax.jit(batch_first)(*xs, *dirs), jax.jit(members)(*xs, *dirs)
-    print(f"  {args.tangents} tangents: the two forms differ by {float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))):.1e}")
+    print(
+        f"  {args.tangents} tangents: the two forms differ by {float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))):.1e}"
+    )
     rows = []
     for label, fn in (("tangents, batch-first", batch_first), ("tangents, rule vmapped", members)):
         per, first = loop_timing(fn, xs + dirs, args.loop, args.repeats)
