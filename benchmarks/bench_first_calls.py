@@ -22,6 +22,13 @@ frame of jaxtree, diffrax or lineax in each operation's traceback; a custom_vmap
 rule's body has no traceback and is counted as "(rule body)").
 
     python benchmarks/bench_first_calls.py --census [--calls "simulate fig4_free;simulate wings"]
+
+**A notebook top to bottom** (``--notebook quickstart``): ``notebooks/<name>.ipynb`` executed in a
+fresh Jupyter kernel (nbclient, as the notebooks' test runs it; the kernel's start included),
+the cache off, divided by the yardstick's first call in a fresh process just before and just
+after it (their mean), alternated `--repeats` times.
+
+    python benchmarks/bench_first_calls.py --notebook quickstart [--repeats 3]
 """
 
 import argparse
@@ -70,6 +77,10 @@ print(json.dumps(out))
 CALLS = {
     "simulate fig4_free": ("m = jaxtree.load_scene('fig4_free')", "jaxtree.simulate(m, 10.0)"),
     "simulate wings": ("m = jaxtree.load_scene('wings')", "jaxtree.simulate(m, 10.0)"),
+    "simulate fig4 (the quickstart's)": (
+        "m = jaxtree.load_scene('fig4')",
+        "jaxtree.simulate(m, 10.0, saveat=1001, rtol=1e-9, atol=1e-9)",
+    ),
     "linearize + modes fig4_free": (
         "m = jaxtree.load_scene('fig4_free')",
         "jaxtree.modes(jaxtree.linearize(m, tuple(m.sprung))).frequencies",
@@ -225,6 +236,50 @@ def census(names) -> dict:
     return out
 
 
+def yardstick_process(tools: str, env: dict) -> float:
+    """The yardstick's first call (s) in a fresh process."""
+    done = subprocess.run(
+        [sys.executable, os.path.join(tools, "yardstick.py")], env=env, capture_output=True, text=True, check=True
+    )
+    return float(done.stdout.split()[1])
+
+
+def notebook(name: str, repeats: int) -> dict:
+    import time
+
+    import nbformat
+    from nbclient import NotebookClient
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    tools = os.path.join(here, "..", "..", "shared", "tools")
+    folder = os.path.join(here, "..", "notebooks")
+    env = dict(os.environ, JAXTREE_CACHE_DIR="0")
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)  # the kernel inherits this process's environment
+    runs = []
+    try:
+        for _ in range(repeats):
+            before = yardstick_process(tools, env)
+            nb = nbformat.read(os.path.join(folder, f"{name}.ipynb"), as_version=4)
+            t0 = time.perf_counter()
+            NotebookClient(nb, timeout=1800, kernel_name="python3", resources={"metadata": {"path": folder}}).execute()
+            wall = time.perf_counter() - t0
+            after = yardstick_process(tools, env)
+            runs.append(dict(wall=wall, yardstick=(before + after) / 2))
+            print(
+                f"{name}.ipynb top to bottom in a fresh kernel: {wall:.1f} s = "
+                f"{wall / runs[-1]['yardstick']:.1f}x the yardstick ({before:.2f} s before, {after:.2f} s after)",
+                flush=True,
+            )
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    return dict(runs=runs)
+
+
 def run(mode: str) -> dict:
     env = dict(os.environ, JAXTREE_CACHE_DIR="0")
     done = subprocess.run(
@@ -238,8 +293,16 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--census", action="store_true", help="the census of the public first calls")
     parser.add_argument("--calls", default=";".join(CALLS), help="with --census: which calls, ';'-separated")
+    parser.add_argument(
+        "--notebook", help="a notebook of notebooks/ (its name) run top to bottom, against the yardstick"
+    )
     parser.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "bench_first_calls.json"))
     args = parser.parse_args()
+    if args.notebook:
+        print(machine())
+        result = notebook(args.notebook, args.repeats)
+        write_json(os.path.join(os.path.dirname(args.out), f"bench_first_calls_{args.notebook}.json"), result)
+        return
     if args.census:
         print(machine())
         results = census([c.strip() for c in args.calls.split(";") if c.strip()])

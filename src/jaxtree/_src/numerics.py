@@ -132,6 +132,9 @@ def spd_inverse(A):
 # compiles at the top level (a solve, its diagnostics, a campaign's chunk), so the process's XLA
 # settings and the user's own programs are untouched; an XLA_FLAGS that names the option wins.
 CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+# Added for the brief programs of ``program_jit(light=...)`` (benchmarks/FINDINGS.md, "Short
+# programs at XLA's level 0").
+LIGHT_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
 
 
 def _program_options():
@@ -145,11 +148,20 @@ def _program_options():
     return CPU_COMPILER_OPTIONS
 
 
-def program_jit(fn):
+def program_jit(fn=None, *, light=None):
     """``equinox.filter_jit`` of one of jaxtree's top-level programs, compiled on a CPU with
     :data:`CPU_COMPILER_OPTIONS`. Called with traced arguments (inside the user's ``jax.jit``,
     ``vmap`` or ``grad``) it is the plain ``filter_jit``: it is then part of the caller's program,
-    whose compilation options are the caller's (JAX takes options only on a top-level jit)."""
+    whose compilation options are the caller's (JAX takes options only on a top-level jit).
+
+    `light` (``@program_jit(light=...)``): True, or a function of the call's arguments, for a
+    program whose run is brief beside its compilation (a start packed; the diagnostics of a few
+    hundred saved states): such a call is compiled on a CPU at XLA's backend optimization level 0
+    as well (:data:`LIGHT_COMPILER_OPTIONS`), which cuts its compilation 2-3x and runs it 5-8x
+    slower (benchmarks/FINDINGS.md, "Short programs at XLA's level 0"). The choice is static (a
+    shape, an option): each choice is its own compiled program."""
+    if fn is None:
+        return lambda f: program_jit(f, light=light)
     import functools
 
     import equinox as eqx
@@ -157,17 +169,20 @@ def program_jit(fn):
     from . import programs
 
     plain = eqx.filter_jit(fn)
-    tuned = []
+    tuned = {}
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         if any(isinstance(x, Tracer) for x in jax.tree_util.tree_leaves((args, kwargs))):
             return plain(*args, **kwargs)
-        if not tuned:
+        short = bool(light(*args, **kwargs)) if callable(light) else bool(light)
+        if short not in tuned:
             options = _program_options()
+            if short and options is not None:
+                options = {**options, **LIGHT_COMPILER_OPTIONS}
             # (equinox passes jax.jit's keywords through; its typed overloads do not list them)
-            tuned.append((eqx.filter_jit(fn, compiler_options=options) if options else plain, options))  # pyright: ignore[reportCallIssue]
-        jitted, options = tuned[0]
+            tuned[short] = (eqx.filter_jit(fn, compiler_options=options) if options else plain, options)  # pyright: ignore[reportCallIssue]
+        jitted, options = tuned[short]
         # traced once across processes where the program can be kept (jaxtree._src.programs)
         return programs.call(fn, args, kwargs, options, jitted)
 

@@ -36,6 +36,7 @@ from ..integration.core import (
 from ..integration.driver import drive, singular_after_failure
 from ..integration.failures import MESSAGES, Failure, SimulationError, failure_report, report_failures
 from ..integration.radau import with_jacobian
+from ..integration.solution import relative_drift
 from ..numerics import eager_jit, is_traced, program_jit
 from ..vehicle.model import State
 from .model import HybridModel, appendage_body
@@ -149,15 +150,12 @@ class HybridSolution(eqx.Module):
         return out
 
     def energy_drift(self):
-        """``max |E - E_0| / |E_0|`` over the saved times."""
-        e = jnp.asarray(self.energy)
-        return jnp.max(jnp.abs(e - e[0])) / jnp.maximum(jnp.abs(e[0]), jnp.finfo(e.dtype).tiny)
+        """``max |E - E_0| / |E_0|`` over the saved times (as :meth:`jaxtree.Solution.energy_drift`)."""
+        return relative_drift(self.energy)
 
     def momentum_drift(self):
-        """``max |H - H_0| / |H_0|`` over the saved times."""
-        h = jnp.asarray(self.angular_momentum)
-        norm = lambda x: jnp.sqrt(jnp.sum(x * x, -1))
-        return jnp.max(norm(h - h[0])) / jnp.maximum(norm(h[0]), jnp.finfo(h.dtype).tiny)
+        """``max |H - H_0| / |H_0|`` over the saved times (as :meth:`jaxtree.Solution.momentum_drift`)."""
+        return relative_drift(self.angular_momentum)
 
 
 def _hybrid_failure_message(code, t, state, modal):
@@ -320,7 +318,7 @@ def _jacobian(t, y, args: HybridModel):
     return hybrid_jacobian(t, y, args)
 
 
-@program_jit
+@program_jit(light=True)
 def _pack_with_residual(hybrid: HybridModel, y0: State):
     # One compiled call: op by op (eagerly) the projection took ~50 ms of dispatches, more than
     # a whole 10 s run of wings in hybrid coordinates.

@@ -181,7 +181,7 @@ class Problem(eqx.Module):
         return jnp.concatenate([jnp.reshape(p, (-1,)) for p in parts])
 
 
-@program_jit
+@program_jit(light=True)
 def packed_start(problem: Problem, y0: State, X0=None, X_dot0=None):
     """``problem.pack(y0, None, X0, X_dot0)`` as one small program (kept across processes where
     it can be), not a dozen operations compiled one by one in every process."""

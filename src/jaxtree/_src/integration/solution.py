@@ -18,7 +18,7 @@ from ..equations.dynamics import (
     solve_accelerations,
     unknown_labels,
 )
-from ..numerics import program_jit
+from ..numerics import is_traced, program_jit
 from ..vehicle.model import Model, State
 from .failures import condition_at, condition_jit, failure_kind, raise_failures, report_failures
 from .problem import Problem
@@ -92,16 +92,13 @@ class Solution(eqx.Module):
         return self.problem.state(t, self.raw.evaluate(t))
 
     def energy_drift(self):
-        """``max |E(t) - E(t0)| / |E(t0)|`` over the saved times (the absolute drift when E(t0) = 0,
-        e.g. a vehicle at rest: finite, with finite derivatives)."""
-        e = self.energy
-        return jnp.nanmax(jnp.abs(e - e[0])) / _nonzero(jnp.abs(e[0]))
+        """``max |E(t) - E(t0)| / |E(t0)|`` over the saved times (:func:`relative_drift`)."""
+        return relative_drift(self.energy)
 
     def momentum_drift(self):
-        """``max |H(t) - H(t0)| / |H(t0)|`` over the saved times (H about the mass center; the
-        absolute drift when H(t0) = 0: finite, with finite derivatives)."""
-        H = self.angular_momentum
-        return jnp.nanmax(_safe_norm(H - H[0])) / _nonzero(_safe_norm(H[0]))
+        """``max |H(t) - H(t0)| / |H(t0)|`` over the saved times, H about the mass center
+        (:func:`relative_drift`)."""
+        return relative_drift(self.angular_momentum)
 
     def check(self) -> Solution:
         """Raise :class:`SimulationError` (time, state, diagnosis) if the run failed; else return self."""
@@ -109,17 +106,30 @@ class Solution(eqx.Module):
         return self
 
 
-def _safe_norm(x):
+def relative_drift(history):
+    """``max_t |x(t) - x(t0)| / |x(t0)|`` of a history (saved times on axis 0; vectors on axis 1
+    measured by their Euclidean norm), NaN rows (a padded or failed run's) left out; the absolute
+    drift when x(t0) = 0 (a vehicle at rest): finite, with finite derivatives.
+
+    Of a concrete history it is computed by numpy, a number with no program compiled (a notebook's
+    summary of a run; eager ``jax.numpy`` compiles one program per operation and shape); under a
+    trace by ``jax.numpy``."""
+    xp, x = (jnp, history) if is_traced(history) else (np, np.asarray(history))
+    size = (lambda v: xp.abs(v)) if x.ndim == 1 else (lambda v: _safe_norm(v, xp))
+    return xp.nanmax(size(x - x[0])) / _nonzero(size(x[0]), xp)
+
+
+def _safe_norm(x, xp):
     """Euclidean norm over the last axis whose derivative at zero is zero, not NaN (the norm of a
     zero vector, e.g. the angular momentum of a vehicle at rest, has an undefined gradient)."""
-    sq = jnp.sum(x * x, axis=-1)
+    sq = xp.sum(x * x, axis=-1)
     pos = sq > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0)
+    return xp.where(pos, xp.sqrt(xp.where(pos, sq, 1.0)), 0.0)
 
 
-def _nonzero(x):
+def _nonzero(x, xp):
     """`x`, or 1 where it is zero (a relative measure falls back to an absolute one)."""
-    return jnp.where(x > 0, x, jnp.ones_like(x))
+    return xp.where(x > 0, x, xp.ones_like(x))
 
 
 def histories_of(problem: Problem, ts, ys):
@@ -143,7 +153,18 @@ def histories_of(problem: Problem, ts, ys):
     return jax.vmap(row)(ts, ys)
 
 
-@program_jit
+# The diagnostics of `rows` saved states of a tree of `n` hinges compile at XLA's level 0
+# (program_jit's `light`) while rows * (n + 1) is at most this: their loop then runs ~5x slower,
+# ~2 us more per body and row (at most ~40 ms a call), for ~0.3 s less compilation on fig4_free
+# and wings (benchmarks/FINDINGS.md, "Short programs at XLA's level 0").
+LIGHT_BODY_ROWS = 16384
+
+
+def _light_diagnostics(model, law, controller, params, ts, *_, **__) -> bool:
+    return ts.shape[0] * (model.n + 1) <= LIGHT_BODY_ROWS
+
+
+@program_jit(light=_light_diagnostics)
 def run_diagnostics(model: Model, law, controller, params, ts, states: State, zs, count=None):
     """Energy, angular momentum and hold torques of the saved states; with `count` (an integer
     array) of the first `count` rows alone, the others NaN: one program for every number of rows

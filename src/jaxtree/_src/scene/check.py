@@ -33,21 +33,23 @@ def _joint_text(model: Model, k: int) -> str:
             )
         return "prescribed"
     if k in model.sprung:
-        return f"spring {float(model.stiffness[k - 1]):g} N m/rad, damper {float(model.damping[k - 1]):g} N m s/rad"
+        stiffness, damping = float(np.asarray(model.stiffness)[k - 1]), float(np.asarray(model.damping)[k - 1])
+        return f"spring {stiffness:g} N m/rad, damper {damping:g} N m s/rad"
     return "free" if kind in ("free", "") else kind
 
 
 def _tree_lines(model: Model) -> list[str]:
     """An indented drawing of the tree: each body under its parent with its hinge."""
     topo = model.topology
-    lines = [f"0 {model.names[0]}  (reference body b0, {float(model.mass[0]):g} kg)"]
+    masses, axes = np.asarray(model.mass, float), np.asarray(model.axis, float)  # on the host: no program per index
+    lines = [f"0 {model.names[0]}  (reference body b0, {masses[0]:g} kg)"]
 
     def walk(k, prefix):
         kids = topo.children[k]
         for i, c in enumerate(kids):
             last = i == len(kids) - 1
-            g = np.asarray(model.axis[c - 1], float)
-            mass = float(model.mass[c])
+            g = axes[c - 1]
+            mass = float(masses[c])
             tags = []
             if c in model.inert:
                 tags.append("inert: only massless bodies outboard")
