@@ -268,6 +268,9 @@ def _solve_hybrid(
         ts=ts,
         progress_meter=meter,
         check_start=check_start,
+        # `check_start` is set in a traced run alone; an eager run is never differentiated: plain
+        # while loops (diffrax.ForwardMode), without reverse mode's checkpointing
+        adjoint=dfx.RecursiveCheckpointAdjoint() if check_start else dfx.ForwardMode(),
     )
     ts_h, ys_h, t_final, y_final, sol, code = driven[:6]
     states = jax.vmap(hybrid.state)(ts_h, ys_h)

@@ -293,7 +293,8 @@ def simulate(
     - `max_steps`: step limit (the run fails with a :class:`SimulationError` beyond it).
     - `attitude`: ``"quaternion"``, ``"dcm"`` (Eq. 3), ``"euler123"`` (Eqs. 23-24) or an
       :class:`~jaxtree._src.equations.attitude.AbstractAttitude`.
-    - `adjoint`: a diffrax adjoint (default :class:`diffrax.RecursiveCheckpointAdjoint`).
+    - `adjoint`: a diffrax adjoint (default :class:`diffrax.RecursiveCheckpointAdjoint` under a trace,
+      :class:`diffrax.ForwardMode` in an eager call, which nothing differentiates).
     - `event`: a :class:`diffrax.Event` (its functions get ``(t, y, args)`` with ``args`` the
       :class:`Problem`; ``args.state(t, y)`` is the :class:`~jaxtree.State`), or a function
       ``(t, state) -> scalar`` (see :func:`state_event`, :func:`hinge_angle_event`).
@@ -349,10 +350,12 @@ def simulate(
         )
     else:
         choice = given(solver)
-    if adjoint is None:
-        adjoint = dfx.RecursiveCheckpointAdjoint()
     inputs = (model, y0, t0, t1, params, controller, law, saveat, ev, translation, X0, Xd0)
     traced = is_traced((*inputs, rtol, atol, dt0, solver, stepsize_controller, adjoint))
+    if adjoint is None:
+        # an eager run is never differentiated: its loops plain while loops (diffrax.ForwardMode),
+        # without the checkpointing that reverse mode needs (a smaller program to trace)
+        adjoint = dfx.RecursiveCheckpointAdjoint() if traced else dfx.ForwardMode()
     if not traced and throw:
         _check_finite_start(y0, X0, Xd0, t0, att)
     saveat, grid, n_saved = _bucketed(saveat, grid, user_saveat or traced, t0, t1, dtype)
