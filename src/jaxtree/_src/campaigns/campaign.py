@@ -42,6 +42,7 @@ import time as _time
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
+import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -76,6 +77,7 @@ def monte_carlo(
     attitude: str = "quaternion",
     devices: int | None = None,
     progress: bool = False,
+    solver=None,
 ):
     """Run `n` dispersed copies of `model` from t = 0 to `t1` and collect them in a dataset.
 
@@ -120,6 +122,11 @@ def monte_carlo(
       each device runs its members in vmapped groups small enough that jaxlib's batched
       LAPACK calls stay on the calling thread (larger batches are split over XLA's thread
       pool, and two device shards doing that at once can deadlock; see benchmarks/README.md).
+    - `solver`: a diffrax solver for every member (default: :func:`jaxtree.simulate`'s default
+      for a batch, ``diffrax.Dopri8``), e.g. :class:`jaxtree.Radau5` for stiff vehicles. An
+      implicit solver's members run one after another on each device rather than vmapped: in
+      lockstep every member would pay a Jacobian and two factorizations at every step, and wait
+      for the slowest member's steps.
     - `progress`: print one line per finished chunk: its time, the chunks run so far and an
       estimate of the time left (from the chunks after the first, which compiles).
 
@@ -140,7 +147,9 @@ def monte_carlo(
     s = _settings(model, sample, n, t1, saveat, rtol, atol, chunk_size, order, dt, max_steps, attitude, devices)
     models = _draw(model, sample, s.n, key)
     t_pilot = s.t1 * float(pilot_fraction) if order == "pilot" else None
-    cfg = Config(len(s.ts), s.max_steps, attitude, s.dt, t_pilot)
+    if solver is not None and not isinstance(solver, dfx.AbstractSolver):
+        raise TypeError(f"monte_carlo: solver must be a diffrax solver (e.g. jaxtree.Radau5()), got {solver!r}")
+    cfg = Config(len(s.ts), s.max_steps, attitude, s.dt, t_pilot, solver)
     store = None
     settings = {
         "model": model.name,
@@ -154,6 +163,7 @@ def monte_carlo(
         "order": order or "index",
         "fixed_step": s.dt if s.dt is not None else "none",
         "attitude": str(attitude),
+        "solver": "default" if solver is None else type(solver).__name__,
         "dtype": jnp.dtype(s.dtype).name,
         "where": "dask" if client is not None else f"in-process ({jax.default_backend()})",
         "devices": len(jax.local_devices()) if devices is None else int(devices),

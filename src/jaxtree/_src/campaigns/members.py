@@ -50,14 +50,20 @@ class Config(NamedTuple):
     attitude: str
     dt: float | None  # fixed step, or None for the adaptive default of simulate
     t_pilot: float | None  # the pilot run's end (order="pilot"), or None
+    solver: Any = None  # a diffrax solver for every member, or None for simulate's default
+
+
+def _implicit(cfg: Config) -> bool:
+    """Whether the campaign's solver is implicit (its members then run one after another)."""
+    return isinstance(cfg.solver, dfx.AbstractImplicitSolver)
 
 
 def _member(model: Model, ts, t1, rtol, atol, cfg: Config):
     """One member: its histories and per-run figures (a dict of arrays)."""
 
-    kw: dict[str, Any] = {}
+    kw: dict[str, Any] = {} if cfg.solver is None else dict(solver=cfg.solver)
     if cfg.dt is not None:
-        kw = dict(stepsize_controller=dfx.ConstantStepSize(), dt0=jnp.asarray(cfg.dt, ts.dtype))
+        kw.update(stepsize_controller=dfx.ConstantStepSize(), dt0=jnp.asarray(cfg.dt, ts.dtype))
     sol = simulate(
         model,
         t1,
@@ -138,6 +144,7 @@ def _pilot_member(model: Model, ts, t1, rtol, atol, cfg: Config):
         max_steps=cfg.max_steps,
         attitude=cfg.attitude,
         throw=False,
+        **({} if cfg.solver is None else dict(solver=cfg.solver)),
     )
     return dict(steps=sol.stats["num_steps"])
 
@@ -169,6 +176,8 @@ def _sharded(fn, n_devices, group):
         size = jax.tree_util.tree_leaves(models)[0].shape[0]
         if group is None or group >= size:
             return jax.vmap(one, in_axes=(0, None, None, None, None, None))(models, ts, t1, rtol, atol, cfg)
+        if group == 1:  # a plain loop over the members (lax.map's batch_size=1 vmaps each of them)
+            return jax.lax.map(lambda m: one(m, ts, t1, rtol, atol, cfg), models)
         return jax.lax.map(lambda m: one(m, ts, t1, rtol, atol, cfg), models, batch_size=group)
 
     if n_devices <= 1:
@@ -213,6 +222,13 @@ def run_chunk(models, ts, t1, rtol, atol, cfg: Config, pilot: bool = False, devi
     group = None
     if devices > 1 and jax.default_backend() == "cpu":
         group = _cpu_group(models)
+    if _implicit(cfg):
+        # one member after another on each device: under vmap an implicit solver's conditionals
+        # (a new Jacobian, new factorizations) become selects, so every member would pay both
+        # at every step, and every member would wait for the slowest; one by one, each member
+        # costs its single run (64 stiff chains under Radau5 on one device: 62 single runs
+        # against 128 vmapped; benchmarks/FINDINGS.md, "Implicit members one after another")
+        group = 1
     dtype = jnp.result_type(models.mass)
     if devices > 1:  # each device's members placed on it (a sharded program is not kept on disk)
         from jax.sharding import NamedSharding
