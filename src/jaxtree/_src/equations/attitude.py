@@ -51,12 +51,13 @@ def euler123_to_dcm(theta):
     return jnp.stack([jnp.stack(r, -1) for r in rows], -2)
 
 
-def dcm_to_euler123(C):
-    """Inverse of Eq. (23): ``theta`` with ``theta_2`` in [-pi/2, pi/2] (..., 3)."""
-    theta2 = jnp.arcsin(jnp.clip(-C[..., 0, 2], -1.0, 1.0))
-    theta1 = jnp.arctan2(C[..., 1, 2], C[..., 2, 2])
-    theta3 = jnp.arctan2(C[..., 0, 1], C[..., 0, 0])
-    return jnp.stack([theta1, theta2, theta3], -1)
+def dcm_to_euler123(C, xp=jnp):
+    """Inverse of Eq. (23): ``theta`` with ``theta_2`` in [-pi/2, pi/2] (..., 3). `xp`: the array
+    module (numpy for a concrete C on the host)."""
+    theta2 = xp.arcsin(xp.clip(-C[..., 0, 2], -1.0, 1.0))
+    theta1 = xp.arctan2(C[..., 1, 2], C[..., 2, 2])
+    theta3 = xp.arctan2(C[..., 0, 1], C[..., 0, 0])
+    return xp.stack([theta1, theta2, theta3], -1)
 
 
 def euler123_rate_matrix(theta):
@@ -82,32 +83,33 @@ def quaternion_to_dcm(q):
     return C / (q0 * q0 + vv)[..., None, None]
 
 
-def dcm_to_quaternion(C):
-    """Euler parameters (scalar first, ``q0 >= 0``) of a rotation matrix C (Shepperd's method)."""
-    tr = jnp.trace(C, axis1=-2, axis2=-1)
-    d = jnp.diagonal(C, axis1=-2, axis2=-1)
+def dcm_to_quaternion(C, xp=jnp):
+    """Euler parameters (scalar first, ``q0 >= 0``) of a rotation matrix C (Shepperd's method).
+    `xp`: the array module (numpy for a concrete C on the host)."""
+    tr = xp.trace(C, axis1=-2, axis2=-1)
+    d = xp.diagonal(C, axis1=-2, axis2=-1)
     # 4 q_i^2 for i = 0..3; the largest is computed directly, the others from off-diagonals.
-    sq = jnp.stack([1.0 + tr, 1.0 + 2 * d[..., 0] - tr, 1.0 + 2 * d[..., 1] - tr, 1.0 + 2 * d[..., 2] - tr], -1)
+    sq = xp.stack([1.0 + tr, 1.0 + 2 * d[..., 0] - tr, 1.0 + 2 * d[..., 1] - tr, 1.0 + 2 * d[..., 2] - tr], -1)
     a = C[..., 1, 2] - C[..., 2, 1]  # 4 q0 q1
     b = C[..., 2, 0] - C[..., 0, 2]  # 4 q0 q2
     c = C[..., 0, 1] - C[..., 1, 0]  # 4 q0 q3
     e = C[..., 0, 1] + C[..., 1, 0]  # 4 q1 q2
     f = C[..., 0, 2] + C[..., 2, 0]  # 4 q1 q3
     g = C[..., 1, 2] + C[..., 2, 1]  # 4 q2 q3
-    cand = jnp.stack(
+    cand = xp.stack(
         [
-            jnp.stack([sq[..., 0], a, b, c], -1),
-            jnp.stack([a, sq[..., 1], e, f], -1),
-            jnp.stack([b, e, sq[..., 2], g], -1),
-            jnp.stack([c, f, g, sq[..., 3]], -1),
+            xp.stack([sq[..., 0], a, b, c], -1),
+            xp.stack([a, sq[..., 1], e, f], -1),
+            xp.stack([b, e, sq[..., 2], g], -1),
+            xp.stack([c, f, g, sq[..., 3]], -1),
         ],
         -2,
     )  # row i = 4 q_i q
-    i = jnp.argmax(sq, -1)
-    row = jnp.take_along_axis(cand, i[..., None, None], -2)[..., 0, :]
-    q = row / jnp.sqrt(jnp.maximum(jnp.take_along_axis(sq, i[..., None], -1), 1e-300))
+    i = xp.argmax(sq, -1)
+    row = xp.take_along_axis(cand, i[..., None, None], -2)[..., 0, :]
+    q = row / xp.sqrt(xp.maximum(xp.take_along_axis(sq, i[..., None], -1), 1e-300))
     q = 0.5 * q
-    return jnp.where(q[..., :1] < 0, -q, q)
+    return xp.where(q[..., :1] < 0, -q, q)
 
 
 def quaternion_rate(q, omega0):
@@ -131,8 +133,9 @@ class AbstractAttitude(eqx.Module):
     has_singularity: ClassVar[bool] = False
 
     @abc.abstractmethod
-    def from_dcm(self, C) -> jax.Array:
-        """The attitude variables (size,) of a rotation matrix C."""
+    def from_dcm(self, C, xp=jnp) -> jax.Array:
+        """The attitude variables (size,) of a rotation matrix C; `xp` the array module (numpy
+        for a concrete C on the host)."""
 
     @abc.abstractmethod
     def to_dcm(self, x) -> jax.Array:
@@ -159,8 +162,8 @@ class DirectionCosines(AbstractAttitude):
     name: ClassVar[str] = "dcm"
     size: ClassVar[int] = 9
 
-    def from_dcm(self, C):
-        return jnp.reshape(C, (9,))
+    def from_dcm(self, C, xp=jnp):
+        return xp.reshape(C, (9,))
 
     def to_dcm(self, x):
         return jnp.reshape(x, (3, 3))
@@ -178,8 +181,8 @@ class Euler123(AbstractAttitude):
     size: ClassVar[int] = 3
     has_singularity: ClassVar[bool] = True
 
-    def from_dcm(self, C):
-        return dcm_to_euler123(C)
+    def from_dcm(self, C, xp=jnp):
+        return dcm_to_euler123(C, xp)
 
     def to_dcm(self, x):
         return euler123_to_dcm(x)
@@ -200,8 +203,8 @@ class Quaternion(AbstractAttitude):
     name: ClassVar[str] = "quaternion"
     size: ClassVar[int] = 4
 
-    def from_dcm(self, C):
-        return dcm_to_quaternion(C)
+    def from_dcm(self, C, xp=jnp):
+        return dcm_to_quaternion(C, xp)
 
     def to_dcm(self, x):
         return quaternion_to_dcm(x)
