@@ -219,8 +219,7 @@ def test_a_campaign_on_one_device_and_on_two_gives_the_same_states(campaign, tmp
     """A campaign whose chunks are sharded over two host devices (the default where the machine
     has two cores: `import jaxtree` gives the CPU a device per core) and the same campaign on one
     device: the same states and step counts, bit for bit (at the suite's XLA optimization level
-    0; at XLA's default level a member's arithmetic depends on the width of the batch it is
-    vectorized in, benchmarks/FINDINGS.md "Every core by default"). In this process where it has
+    0 here; at XLA's default level in a fresh process below). In this process where it has
     two devices, else in a fresh one asked for two (JAXTREE_HOST_DEVICES, read when JAX starts)."""
     if len(jax.local_devices()) >= 2:
         one, two = run(devices=1), run(devices=2)
@@ -245,6 +244,33 @@ np.savez({str(tmp_path / "two.npz")!r}, omega0=ds.omega0.values, gamma=ds.gamma.
     np.testing.assert_array_equal(two["gamma"], one.gamma.values)
     np.testing.assert_array_equal(two["steps"], one.steps.values)
     assert list(two["failure"]) == list(one.failure.values)
+
+
+def test_bit_for_bit_across_core_counts_and_chunk_sizes_at_xla_default_level(tmp_path):
+    """In a process as a user has it (XLA's default optimization level, jaxtree's own compile
+    options; the suite compiles at level 0), the campaign on one device in chunks of 4, on two
+    devices in chunks of 4 (2 members a device) and on two in chunks of 2: the same histories,
+    step counts and diagnoses, bit for bit. Before the chunk's program was compiled as one LLVM
+    part (numerics.REPRODUCIBLE_OPTIONS) the states on one device and on two differed by ~2e-9 rad."""
+    script = """
+import jax, numpy as np, test_campaign as T
+from jaxtree._src.campaigns.campaign import monte_carlo
+assert len(jax.local_devices()) == 2
+def go(devices, chunk):
+    return monte_carlo(T.jaxtree.load_scene("fig4_free"), T.sample, T.N, T.T1,
+                       key=jax.random.key(T.KEY), saveat=T.SAVES, rtol=T.TOL, atol=T.TOL, chunk_size=chunk,
+                       max_steps=T.MAX_STEPS, devices=devices)
+runs = [go(1, 4), go(2, 4), go(2, 2)]
+for ds in runs[1:]:
+    for k in ("omega0", "gamma", "gamma_dot", "attitude", "energy", "angular_momentum", "steps", "failure"):
+        assert np.array_equal(ds[k].values, runs[0][k].values, equal_nan=ds[k].dtype.kind == "f"), k
+print("same")
+"""
+    path = os.pathsep.join(filter(None, [str(pathlib.Path(__file__).parent), os.environ.get("PYTHONPATH")]))
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAXTREE_HOST_DEVICES")}
+    env.update(PYTHONPATH=path, JAXTREE_HOST_DEVICES="2", JAXTREE_CACHE_DIR=str(tmp_path / "cache"))
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=900, env=env)
+    assert proc.returncode == 0 and "same" in proc.stdout, proc.stderr[-3000:]
 
 
 def test_a_dask_local_cluster_of_two_processes_gives_the_same_numbers_with_a_worker_killed(campaign):

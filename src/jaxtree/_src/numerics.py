@@ -135,20 +135,29 @@ CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 # Added for the brief programs of ``program_jit(light=...)`` (benchmarks/FINDINGS.md, "Short
 # programs at XLA's level 0").
 LIGHT_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
+# For programs whose numbers must not depend on the machine's core count or on how many devices
+# share a batch (a campaign's chunk): XLA:CPU splits a program's LLVM module into parts that it
+# compiles in parallel, and the parts were optimized differently in a program sharded over two
+# devices and in the same program on one, so that a member's states differed by ~1e-9 between
+# the two (benchmarks/FINDINGS.md, "Bit for bit across core counts"). One part: the same machine
+# code for a member wherever it runs, for ~30 % more compilation of that program.
+REPRODUCIBLE_OPTIONS = {"xla_cpu_parallel_codegen_split_count": 1}
 
 
-def _program_options():
+def _program_options(*more: dict | None) -> dict | None:
+    """The XLA options of a top-level program on a CPU: :data:`CPU_COMPILER_OPTIONS` and `more`,
+    less any option that ``XLA_FLAGS`` names (the user's choice, process-wide); None elsewhere."""
     import inspect
     import os
 
-    if "xla_cpu_use_fusion_emitters" in os.environ.get("XLA_FLAGS", ""):
-        return None  # the user's choice, process-wide
     if "compiler_options" not in inspect.signature(jax.jit).parameters or jax.default_backend() != "cpu":
         return None
-    return CPU_COMPILER_OPTIONS
+    flags = os.environ.get("XLA_FLAGS", "")
+    merged = {k: v for o in (CPU_COMPILER_OPTIONS, *more) for k, v in (o or {}).items()}
+    return {k: v for k, v in merged.items() if k not in flags} or None
 
 
-def program_jit(fn=None, *, light=None):
+def program_jit(fn=None, *, light=None, options=None):
     """``equinox.filter_jit`` of one of jaxtree's top-level programs, compiled on a CPU with
     :data:`CPU_COMPILER_OPTIONS`. Called with traced arguments (inside the user's ``jax.jit``,
     ``vmap`` or ``grad``) it is the plain ``filter_jit``: it is then part of the caller's program,
@@ -159,9 +168,11 @@ def program_jit(fn=None, *, light=None):
     hundred saved states): such a call is compiled on a CPU at XLA's backend optimization level 0
     as well (:data:`LIGHT_COMPILER_OPTIONS`), which cuts its compilation 2-3x and runs it 5-8x
     slower (benchmarks/FINDINGS.md, "Short programs at XLA's level 0"). The choice is static (a
-    shape, an option): each choice is its own compiled program."""
+    shape, an option): each choice is its own compiled program.
+
+    `options`: more XLA options for this program on a CPU (e.g. :data:`REPRODUCIBLE_OPTIONS`)."""
     if fn is None:
-        return lambda f: program_jit(f, light=light)
+        return lambda f: program_jit(f, light=light, options=options)
     import functools
 
     import equinox as eqx
@@ -177,14 +188,12 @@ def program_jit(fn=None, *, light=None):
             return plain(*args, **kwargs)
         short = bool(light(*args, **kwargs)) if callable(light) else bool(light)
         if short not in tuned:
-            options = _program_options()
-            if short and options is not None:
-                options = {**options, **LIGHT_COMPILER_OPTIONS}
+            chosen = _program_options(LIGHT_COMPILER_OPTIONS if short else None, options)
             # (equinox passes jax.jit's keywords through; its typed overloads do not list them)
-            tuned[short] = (eqx.filter_jit(fn, compiler_options=options) if options else plain, options)  # pyright: ignore[reportCallIssue]
-        jitted, options = tuned[short]
+            tuned[short] = (eqx.filter_jit(fn, compiler_options=chosen) if chosen else plain, chosen)  # pyright: ignore[reportCallIssue]
+        jitted, chosen = tuned[short]
         # traced once across processes where the program can be kept (jaxtree._src.programs)
-        return programs.call(fn, args, kwargs, options, jitted)
+        return programs.call(fn, args, kwargs, chosen, jitted)
 
     return wrapper
 

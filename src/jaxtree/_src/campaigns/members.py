@@ -17,7 +17,7 @@ from ..equations.attitude import dcm_to_quaternion
 from ..equations.dynamics import SINGULAR_CONDITION
 from ..integration.failures import Failure, condition_jit
 from ..integration.simulate import simulate
-from ..numerics import program_jit
+from ..numerics import REPRODUCIBLE_OPTIONS, program_jit
 from ..vehicle.model import Model, State
 
 # jaxtree's diagnosis of a failed member ("" for a run that reached t1)
@@ -175,6 +175,13 @@ def _sharded(fn, n_devices, group):
     def batched(models, ts, t1, rtol, atol, cfg):
         size = jax.tree_util.tree_leaves(models)[0].shape[0]
         if group is None or group >= size:
+            if size == 1:
+                # a batch of one compiles to other machine code than wider ones (its batch axis
+                # folds away): run it beside a copy, so that a member's numbers do not depend on
+                # how many members share its device
+                pair = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, x]) if eqx.is_array(x) else x, models)
+                out = jax.vmap(one, in_axes=(0, None, None, None, None, None))(pair, ts, t1, rtol, atol, cfg)
+                return jax.tree_util.tree_map(lambda x: x[:1], out)
             return jax.vmap(one, in_axes=(0, None, None, None, None, None))(models, ts, t1, rtol, atol, cfg)
         if group == 1:  # a plain loop over the members (lax.map's batch_size=1 vmaps each of them)
             return jax.lax.map(lambda m: one(m, ts, t1, rtol, atol, cfg), models)
@@ -203,7 +210,9 @@ def _mesh(n_devices: int):
     return Mesh(np.asarray(jax.local_devices()[:n_devices]), ("run",))
 
 
-@program_jit
+# one LLVM module, compiled as one part: a member's numbers the same on any number of devices, in
+# this process or a Dask worker's (numerics.REPRODUCIBLE_OPTIONS)
+@program_jit(options=REPRODUCIBLE_OPTIONS)
 def _run_chunk_jit(models, ts, t1, rtol, atol, cfg: Config, n_devices: int, group, pilot: bool):
     return _sharded(_pilot_member if pilot else _member, n_devices, group)(models, ts, t1, rtol, atol, cfg)
 
