@@ -93,8 +93,11 @@ def monte_carlo(
       vehicle does not depend on the chunking, the ordering or where it runs. Nor do its
       numbers, to the bit, on one machine type: the chunk's program is compiled as one LLVM part
       and a device's lone member runs beside a copy, so that the chunk size and the number of
-      devices change no member's arithmetic (one exception: a tree of 55 hinges or more runs
-      its members one by one on several devices, vmapped on one).
+      devices change no member's arithmetic, as long as every device's share stays on the same
+      side of :func:`batch_first_min` members (below it a member's Eq. (1) is the single-member
+      solve, from it on the batch-first recursion: the same to round-off, not to the bit; and
+      below it, on several devices, a dense-method tree of 18 hinges or more runs in small groups
+      for jaxlib's LAPACK kernels).
     - `saveat`: a number of evenly spaced save times from 0 to t1 (default 101) or an array
       of times.
     - `rtol`, `atol`: tolerances of :func:`jaxtree.simulate` (default
@@ -122,10 +125,12 @@ def monte_carlo(
     - `attitude`: the attitude variables integrated (see :func:`jaxtree.simulate`).
     - `devices`: local devices a chunk is split over (default all: on a CPU, one per core, which
       ``import jaxtree`` sets up when JAX has not started yet; ``JAXTREE_HOST_DEVICES`` or
-      ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` set another count). On the CPU
-      each device runs its members in vmapped groups small enough that jaxlib's batched
-      LAPACK calls stay on the calling thread (larger batches are split over XLA's thread
-      pool, and two device shards doing that at once can deadlock; see benchmarks/README.md).
+      ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` set another count). On the CPU,
+      where a device's members factor Eq. (1) with LAPACK (the dense method, fewer than
+      :func:`batch_first_min` members a device), it runs them in vmapped groups small enough
+      that jaxlib's batched LAPACK calls stay on the calling thread (larger batches are split
+      over XLA's thread pool, and two device shards doing that at once can deadlock; see
+      benchmarks/README.md); otherwise all at once.
     - `solver`: a diffrax solver for every member (default: :func:`jaxtree.simulate`'s default
       for a batch, ``diffrax.Dopri8``), e.g. :class:`jaxtree.Radau5` for stiff vehicles. An
       implicit solver's members run one after another on each device rather than vmapped: in

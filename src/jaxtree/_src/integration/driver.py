@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..equations.dynamics import mass_matrix, unknown_rows
-from ..numerics import regular
+from ..numerics import regular_pivots, spd_inverse
 from .core import default_controller, integrate
 from .events import guard_any
 from .failures import Failure, result_code
@@ -53,12 +53,15 @@ class Driven(NamedTuple):
 
 def singular_configuration(model, gamma):
     """True when Eq. (1)'s matrix in the configuration `gamma` is singular to working precision
-    (a pivot of its unknown rows' Cholesky factor at round-off level, or a failed factorization:
-    :func:`~jaxtree._src.numerics.regular`): one factorization, no eigenvalues, no rates or loads."""
+    (a pivot of its unknown rows' LDL^T factorization at round-off level, or a failed one:
+    :func:`~jaxtree._src.numerics.regular_pivots`): one elimination, no eigenvalues, no rates or
+    loads. The elimination is :func:`~jaxtree._src.numerics.spd_inverse`'s, in JAX: no LAPACK call,
+    whose batched form splits over XLA's thread pool and can deadlock two device shards (so a
+    campaign's members can stay vmapped on every device)."""
     A = mass_matrix(model, gamma)
     u = unknown_rows(model)
     A = A[np.ix_(u, u)]
-    return ~regular(jax.lax.linalg.cholesky(A, symmetrize_input=False), A)
+    return ~regular_pivots(spd_inverse(A)[1], A)
 
 
 def singular_start(args, t0, y) -> jax.Array:
