@@ -19,7 +19,8 @@ saved at 101 times. Prints the machine and versions, then:
   (``multiprocessing``, its natural parallelization on this 2-core machine), at its own
   tolerance for the same error goal; MuJoCo's ``rollout`` (RK4, one thread per core, one
   ``MjModel`` per member for its stiffness) at the largest fixed step that reaches the error goal;
-  the ratios of throughputs (goals: >= 20x Pinocchio, >= 5x MuJoCo; the batch issue, point 3).
+  the ratios of throughputs (goals: >= 15x Pinocchio, >= 5x MuJoCo; the campaigns issue, point 4;
+  the batch issue had asked 20x Pinocchio).
 
 With ``--scene flex95``, the flexible-vehicle campaign instead (the batch issue, point 3: goal
 >= 10x Pinocchio + scipy Radau in two processes): N members (default 256) of bench_hybrid.py's
@@ -368,7 +369,7 @@ def main_fig4():
         ratio = best / (n / wall)
         say(
             f"\n[goal] jaxtree float64 best {best:.1f} runs/s against Pinocchio's {n / wall:.1f}: {ratio:.2f}x "
-            f"(goal >= 20x): {'met' if ratio >= 20 else 'NOT met'}"
+            f"(goal >= 15x): {'met' if ratio >= 15 else 'NOT met'}"
         )
         results["ratio"] = ratio
     if mj_dt is not None:
