@@ -5,7 +5,7 @@ attitude variables, the solver, the save times; and builds its solution after). 
 same things, in this order:
 
 1. the start: finite, and Eq. (1)'s matrix regular in the vehicle's configuration there (one
-   factorization of its unknown rows, :func:`singular_configuration`); a start that fails either
+   elimination of its unknown rows in JAX, :func:`singular_configuration`); a start that fails either
    cannot be integrated (NaN error estimates give NaN steps until ``max_steps``; an exactly
    singular matrix can even give finite garbage), so the vehicle at rest is integrated in its
    place (a vmapped batch does not wait for it) and the run reports ``nonfinite_start`` or
