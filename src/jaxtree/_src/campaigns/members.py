@@ -54,6 +54,11 @@ class Config(NamedTuple):
     solver: Any = None  # a diffrax solver for every member, or None for simulate's default
 
 
+def _solver_kw(cfg: Config) -> dict[str, Any]:
+    """`simulate`'s solver argument of the campaign: none for its default."""
+    return {} if cfg.solver is None else dict(solver=cfg.solver)
+
+
 def _implicit(cfg: Config) -> bool:
     """Whether the campaign's solver is implicit (its members then run one after another)."""
     return isinstance(cfg.solver, dfx.AbstractImplicitSolver)
@@ -62,7 +67,7 @@ def _implicit(cfg: Config) -> bool:
 def _member(model: Model, ts, t1, rtol, atol, cfg: Config):
     """One member: its histories and per-run figures (a dict of arrays)."""
 
-    kw: dict[str, Any] = {} if cfg.solver is None else dict(solver=cfg.solver)
+    kw = _solver_kw(cfg)
     if cfg.dt is not None:
         kw.update(stepsize_controller=dfx.ConstantStepSize(), dt0=jnp.asarray(cfg.dt, ts.dtype))
     sol = simulate(
@@ -145,7 +150,7 @@ def _pilot_member(model: Model, ts, t1, rtol, atol, cfg: Config):
         max_steps=cfg.max_steps,
         attitude=cfg.attitude,
         throw=False,
-        **({} if cfg.solver is None else dict(solver=cfg.solver)),
+        **_solver_kw(cfg),
     )
     return dict(steps=sol.stats["num_steps"])
 
@@ -180,17 +185,18 @@ def _sharded(fn, n_devices, group):
     the other's slowest member); `group` members at a time per device (None: all at once)."""
     one = lambda m, ts, t1, rtol, atol, cfg: fn(m, ts, t1, rtol, atol, cfg)
 
+    vmapped = jax.vmap(one, in_axes=(0, None, None, None, None, None))
+
     def batched(models, ts, t1, rtol, atol, cfg):
         size = jax.tree_util.tree_leaves(models)[0].shape[0]
         if group is None or group >= size:
-            if size == 1:
-                # a batch of one compiles to other machine code than wider ones (its batch axis
-                # folds away): run it beside a copy, so that a member's numbers do not depend on
-                # how many members share its device
-                pair = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, x]) if eqx.is_array(x) else x, models)
-                out = jax.vmap(one, in_axes=(0, None, None, None, None, None))(pair, ts, t1, rtol, atol, cfg)
-                return jax.tree_util.tree_map(lambda x: x[:1], out)
-            return jax.vmap(one, in_axes=(0, None, None, None, None, None))(models, ts, t1, rtol, atol, cfg)
+            if size > 1:
+                return vmapped(models, ts, t1, rtol, atol, cfg)
+            # a batch of one compiles to other machine code than wider ones (its batch axis folds
+            # away): run it beside a copy, so that a member's numbers do not depend on how many
+            # members share its device
+            pair = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, x]) if eqx.is_array(x) else x, models)
+            return jax.tree_util.tree_map(lambda x: x[:1], vmapped(pair, ts, t1, rtol, atol, cfg))
         if group == 1:  # a plain loop over the members (lax.map's batch_size=1 vmaps each of them)
             return jax.lax.map(lambda m: one(m, ts, t1, rtol, atol, cfg), models)
         return jax.lax.map(lambda m: one(m, ts, t1, rtol, atol, cfg), models, batch_size=group)
