@@ -4,7 +4,7 @@ through the single-member solve and MuJoCo's threaded rollout, in one run.
 For each case it prints the time per member of
 
 - ``batch-first``: ``jax.vmap`` of :func:`jaxtree.forward_dynamics` as the engine runs it (from
-  ``BATCH_FIRST_MIN`` members on, the batch-first recursion of
+  ``batch_first_min(model)`` members on, the batch-first recursion of
   ``jaxtree._src.equations.batched``);
 - ``vmap single``: the single-member solve (dense or blocked articulated; ``solve.solve_one``,
   called explicitly) batched by ``vmap``;
@@ -74,6 +74,13 @@ def _args():
         type=int,
         default=0,
         help="time instead the JVP with this many tangents on the state (the derivative rule in a batch)",
+    )
+    p.add_argument(
+        "--group",
+        type=int,
+        nargs="+",
+        default=None,
+        help="members per vmapped group of a device's share in the devices' row (default batch_first_min() = 64)",
     )
     p.add_argument("--json", default=os.path.join(HERE, "results", "bench_batch.json"))
     return p.parse_args()
@@ -151,11 +158,12 @@ def eq1(model):
     return jax.vmap(lambda w, g, gd: jaxtree.forward_dynamics(model, dcm, w, g, gd))
 
 
-def eq1_on_devices(model, size):
+def eq1_on_devices(model, size, group=None):
     """Eq. (1) of a batch split over the local devices (``shard_map``: the CPU's cores, one device
-    per core as ``import jaxtree`` sets up), each device's share in vmapped groups of
-    ``batch_first_min()`` members (the batch-first recursion; a group's working set stays small),
-    as ``jaxtree.monte_carlo`` splits a chunk; None with one device."""
+    per core as ``import jaxtree`` sets up), each device's share in vmapped groups of `group`
+    members (default ``batch_first_min()`` = 64, a campaign chunk's default share of a device: the
+    batch-first recursion; a group's working set stays small), as ``jaxtree.monte_carlo`` splits a
+    chunk; None with one device."""
     from jax.sharding import Mesh
     from jax.sharding import PartitionSpec as P
 
@@ -164,7 +172,7 @@ def eq1_on_devices(model, size):
         return None
     dcm = model.initial.dcm
     one = lambda w, g, gd: jaxtree.forward_dynamics(model, dcm, w, g, gd)
-    group = min(solve.batch_first_min(), size // len(devices))
+    group = min(solve.batch_first_min() if group is None else group, size // len(devices))
     share = lambda w, g, gd: jax.lax.map(lambda a: one(*a), (w, g, gd), batch_size=group)
     mesh = Mesh(np.asarray(devices), ("members",))
     spec = P("members")
@@ -265,10 +273,12 @@ def case(name, size, args):
             rows.append((f"batch-first ({mode})", per / size, first, flops(batch_first(model, mode, 10**9), xs) / size))
         per, first = loop_timing(vmap_single(model), xs, args.loop, args.repeats)
         rows.append(("vmap single", per / size, first, flops(vmap_single(model), xs) / size))
-        sharded = eq1_on_devices(model, size)
-        if sharded is not None:
-            per, first = loop_timing(sharded, xs, args.loop, args.repeats)
-            rows.append((f"batch-first, {jax.device_count()} devices", per / size, first, np.nan))
+        for group in args.group or [None]:
+            sharded = eq1_on_devices(model, size, group)
+            if sharded is not None:
+                per, first = loop_timing(sharded, xs, args.loop, args.repeats)
+                label = f"batch-first, {jax.device_count()} devices" + ("" if group is None else f", groups of {group}")
+                rows.append((label, per / size, first, np.nan))
         mj = mujoco_rollout(model, size, args.mujoco_steps)
         if mj is not None:
             rows.append(("MuJoCo rollout RK4", mj, np.nan, np.nan))
@@ -276,7 +286,7 @@ def case(name, size, args):
     for label, t, first, fl in rows:
         gf = fl / t / 1e9 if np.isfinite(fl) else np.nan
         say(
-            f"{name:10s} B={size:5d} {label:22s} {t * 1e6:9.2f} us/member  compile {first:6.1f} s  "
+            f"{name:10s} B={size:5d} {label:34s} {t * 1e6:9.2f} us/member  compile {first:6.1f} s  "
             f"{fl / 1e3:8.1f} kflop/member  {gf:5.1f} GFLOP/s"
         )
         out.append(dict(case=name, size=size, method=label, us=t * 1e6, compile_s=first, kflop=fl / 1e3, gflops=gf))
@@ -286,7 +296,10 @@ def case(name, size, args):
 def main():
     args = _args()
     say(machine())
-    say(f"jax {jax.__version__}, float64, batch-first from {solve.batch_first_min()} members")
+    say(
+        f"jax {jax.__version__}, float64, batch-first from {solve.BATCH_FIRST_MIN} members "
+        f"({solve.BATCH_FIRST_MIN_LARGE} for trees of {solve.LARGE_TREE_HINGES} hinges and more)"
+    )
     results = []
     for name in args.cases:
         for size in args.sizes or [CASES[name]]:

@@ -87,11 +87,16 @@ def _runs_batch_first(closed) -> bool:
     return walk(closed.jaxpr)
 
 
-def test_vmap_runs_the_batch_first_recursion(scenes):
-    """From batch_first_min() members on, vmap lands in the batch-first program; a smaller batch
-    vmaps the single-member solve."""
-    model = scenes["wings"]
-    size = solve.batch_first_min()
+@pytest.mark.parametrize("name", ["wings", "chain50"])
+def test_vmap_runs_the_batch_first_recursion(scenes, name):
+    """From batch_first_min(model) members on, vmap lands in the batch-first program; a smaller
+    batch vmaps the single-member solve. The threshold falls with the tree: 64 members for
+    wings' 8 hinges, 16 for chain50's 50, whose single-member solve costs twice the recursion's
+    share already at 16 (benchmarks/FINDINGS.md)."""
+    model = scenes[name]
+    size = solve.batch_first_min(model)
+    assert size == (solve.BATCH_FIRST_MIN_LARGE if model.n >= solve.LARGE_TREE_HINGES else solve.BATCH_FIRST_MIN)
+    assert size < solve.BATCH_FIRST_MIN or name == "wings"
 
     def program(size):
         s = states(model, 0, size)

@@ -94,10 +94,10 @@ def monte_carlo(
       numbers, to the bit, on one machine type: the chunk's program is compiled as one LLVM part
       and a device's lone member runs beside a copy, so that the chunk size and the number of
       devices change no member's arithmetic, as long as every device's share stays on the same
-      side of :func:`batch_first_min` members (below it a member's Eq. (1) is the single-member
-      solve, from it on the batch-first recursion: the same to round-off, not to the bit; and
-      below it, on several devices, a dense-method tree of 18 hinges or more runs in small groups
-      for jaxlib's LAPACK kernels).
+      side of :func:`batch_first_min` members (64, or 16 for trees of 48 hinges and more; below
+      it a member's Eq. (1) is the single-member solve, from it on the batch-first recursion:
+      the same to round-off, not to the bit; and below it, on several devices, a dense-method
+      tree of 18 hinges or more runs in small groups for jaxlib's LAPACK kernels).
     - `saveat`: a number of evenly spaced save times from 0 to t1 (default 101) or an array
       of times.
     - `rtol`, `atol`: tolerances of :func:`jaxtree.simulate` (default

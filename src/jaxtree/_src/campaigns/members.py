@@ -161,7 +161,7 @@ def _pilot_member(model: Model, ts, t1, rtol, atol, cfg: Config):
 # shards run on that same pool: two shards that both split a batch can hold every pool thread
 # while their parts wait behind each other, and the process hangs (benchmarks/README.md has the
 # reproduction). Below that size the kernel runs inline. A member's program calls LAPACK only in
-# the dense method's factorization of Eq. (1) member by member, below batch_first_min() members
+# the dense method's factorization of Eq. (1) member by member, below batch_first_min(model) members
 # (the batch-first recursion, the articulated method and the test of a singular start eliminate in
 # JAX). So on the CPU a shard of such members runs them in vmapped groups small enough for the
 # factorization to stay inline, and any other shard runs its members vmapped all at once.
@@ -173,7 +173,7 @@ def _cpu_group(model: Model, members: int) -> int | None:
     LAPACK call is batched (the batch-first recursion from :func:`batch_first_min` members on, or
     the articulated method), else a group whose batched Cholesky of Eq. (1) (order n + 4 with its
     border) stays under jaxlib's threshold for splitting a batch over the pool."""
-    if members >= batch_first_min() or resolve_method(model) == "articulated":
+    if members >= batch_first_min(model) or resolve_method(model) == "articulated":
         return None
     order = model.n + 4
     return max(1, int(_LAPACK_INLINE_FLOPS / (order**3 / 3.0)) - 1)

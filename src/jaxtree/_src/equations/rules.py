@@ -38,6 +38,7 @@ from .solve import (
     Accelerations,
     Inverse,
     all_batched,
+    batch_first_min,
     factored_one,
     factorize,
     full_accelerations,
@@ -287,6 +288,12 @@ class _Spec(NamedTuple):
         return jax.tree_util.tree_unflatten(self.tree, leaves)
 
 
+def _minimum(spec, arr):
+    """The members from which a vmap of the rule runs the batch-first recursion: the model's
+    :func:`batch_first_min`, the same as its solve's."""
+    return batch_first_min(spec.primals(arr)[0])
+
+
 def _over_axes(fn, extra):
     """`fn` of one tangent (or cotangent) mapped over `extra` leading axes of its argument."""
     for _ in range(extra):
@@ -401,7 +408,7 @@ def _tangent_of(spec, per, arr, res, dots):
         return all_batched(_members_jvp(spec, size, tuple(arr_f), extra, arr, d))
 
     one = lambda arr, res, dots: _tangents(spec, per, arr, res, dots)
-    return vmap_dispatch(one, (arr, res, dots), members, unbatched, decide=2)
+    return vmap_dispatch(one, (arr, res, dots), members, unbatched, decide=2, minimum=_minimum(spec, arr))
 
 
 def _cotangent_one(spec, per, arr, res, c):
@@ -431,7 +438,7 @@ def _cotangent_of(spec, per, arr, res, c):
 
     # fewer members: one by one (a batch this small made its factors member by member, solve_plain)
     one = lambda arr, res, c: _cotangent_one(spec, per, arr, res, c)
-    return vmap_dispatch(one, (arr, res, c), members, unbatched, decide=2)
+    return vmap_dispatch(one, (arr, res, c), members, unbatched, decide=2, minimum=_minimum(spec, arr))
 
 
 def _tangent_axes(x, batched, size, extra):

@@ -51,26 +51,39 @@ class Accelerations(NamedTuple):
 # not by conditional": with barriers the batch-first program wins per member from 8 members on,
 # but compiles for longer).
 BATCH_FIRST_MIN = 64
+# The same for trees of at least LARGE_TREE_HINGES hinges, whose single-member solve costs several
+# times the recursion's share already at 16 members (one device, 16 members: chain50 2.1x,
+# random60 3.4x, chain200 2.9x, flex95 8.1x; the compilation 1.2 s longer on chain50, 10 s on
+# flex95, 29 s on random60, 5 s shorter on chain200: FINDINGS, "A batch-first threshold that falls
+# with the tree").
+BATCH_FIRST_MIN_LARGE = 16
+LARGE_TREE_HINGES = 48
 # The same on an accelerator, where each of the batch-first program's kernels is a launch: it lost
 # to the vmapped single solve up to 8192 members and won at 65 536 (FINDINGS, "`bench_gpu.py` on
 # an NVIDIA H200"; between them not measured).
 BATCH_FIRST_MIN_ACCELERATOR = 65536
 
 
-def batch_first_min() -> int:
-    """Members from which a vmapped Eq. (1) runs the batch-first recursion on JAX's default backend."""
-    return BATCH_FIRST_MIN if jax.default_backend() == "cpu" else BATCH_FIRST_MIN_ACCELERATOR
+def batch_first_min(model=None) -> int:
+    """Members from which a vmapped Eq. (1) of `model` runs the batch-first recursion on JAX's
+    default backend (without a model: the threshold of the small trees)."""
+    if jax.default_backend() != "cpu":
+        return BATCH_FIRST_MIN_ACCELERATOR
+    if model is not None and model.n >= LARGE_TREE_HINGES:
+        return BATCH_FIRST_MIN_LARGE
+    return BATCH_FIRST_MIN
 
 
-def vmap_dispatch(one, args, members, unbatched=None, decide=None):
+def vmap_dispatch(one, args, members, unbatched=None, decide=None, *, minimum):
     """``one(*args)``, one member, under a ``custom_vmap`` whose rule takes one of three paths
     for a batch of `size` members, the same decision for the solve of Eq. (1)
-    (:func:`solve_plain`) and for its tangents and cotangents (:mod:`.rules`):
+    (:func:`solve_plain`) and for its tangents and cotangents (:mod:`.rules`), `minimum` the
+    model's :func:`batch_first_min`:
 
     - nothing batched in the first `decide` arguments (the primals; all arguments when None):
       ``unbatched(size, in_batched, *args)``, by default one call of `one`, its result not
       batched (e.g. only tangents batched, in a JVP);
-    - at least :func:`batch_first_min` members: ``members(size, in_batched, *args)``, the
+    - at least `minimum` members: ``members(size, in_batched, *args)``, the
       batch-first recursion of :mod:`.batched`;
     - fewer: `one` member by member (``jax.vmap``).
 
@@ -88,7 +101,7 @@ def vmap_dispatch(one, args, members, unbatched=None, decide=None):
                 return unbatched(size, in_batched, *args)
             out = one(*args)  # nothing batched (e.g. only tangents, in a JVP): one solve
             return out, jax.tree_util.tree_map(lambda _: False, out)
-        if size >= batch_first_min():
+        if size >= minimum:
             return members(size, in_batched, *args)
         return all_batched(jax.vmap(one, in_axes=batch_axes(in_batched), axis_size=size)(*args))
 
@@ -126,7 +139,8 @@ def solve_plain(model, state, t, tau, gdd_p, one=None):
             return (out, placeholder), (jax.tree_util.tree_map(lambda _: True, out), False)
         return all_batched(out)
 
-    return vmap_dispatch(lambda leaves: one(*args(leaves)), (leaves,), members)
+    minimum = batch_first_min(static[0])
+    return vmap_dispatch(lambda leaves: one(*args(leaves)), (leaves,), members, minimum=minimum)
 
 
 def solve_members(size, dyn, flags, static, *, stages=None, scan_min=batched.SCAN_MIN):
