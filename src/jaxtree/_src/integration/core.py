@@ -25,6 +25,7 @@ from ..errors import SceneError, SceneTypeError, short
 from ..numerics import is_traced
 from ..values import as_float, as_int
 from ..vehicle.model import Model, State
+from .clip_floor import one_loop_floor
 from .radau import Radau5
 
 # Default rtol and atol of float64 runs; other dtypes: see default_tolerance.
@@ -124,22 +125,23 @@ def integrate(
     if keeps_statistics(solver):
         saveat = eqx.tree_at(lambda s: s.solver_state, saveat, True)  # its counters (Radau5)
     assert saveat is not None
-    sol = dfx.diffeqsolve(
-        terms(solver, vector_field),
-        solver,
-        t0,
-        t1,
-        dt0,
-        y0,
-        args=args,
-        saveat=saveat,
-        stepsize_controller=controller,
-        adjoint=dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
-        event=event,
-        max_steps=max_steps,
-        throw=False,
-        progress_meter=dfx.NoProgressMeter() if progress_meter is None else progress_meter,
-    )
+    with one_loop_floor():  # diffrax's floor below t1 in one loop (clip_floor.py)
+        sol = dfx.diffeqsolve(
+            terms(solver, vector_field),
+            solver,
+            t0,
+            t1,
+            dt0,
+            y0,
+            args=args,
+            saveat=saveat,
+            stepsize_controller=controller,
+            adjoint=dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
+            event=event,
+            max_steps=max_steps,
+            throw=False,
+            progress_meter=dfx.NoProgressMeter() if progress_meter is None else progress_meter,
+        )
     assert sol.ts is not None and sol.ys is not None  # something is always saved
     sol_ts, sol_ys = sol.ts, sol.ys
     if isinstance(saveat.subs, (tuple, list)):
