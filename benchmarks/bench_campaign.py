@@ -75,7 +75,7 @@ def _args():
         help="tolerances tried (default 1e-6 3e-7 1e-7 3e-8; flex95: the implicit ladder of jaxtree.Radau5 "
         "and scipy's Radau, 1e-4 5e-5 3e-5 2e-5 1e-5 1e-6)",
     )
-    p.add_argument("--dt", type=float, nargs="+", default=[0.02, 0.01], help="fixed steps tried")
+    p.add_argument("--dt", type=float, nargs="+", default=[0.025, 0.02, 0.01], help="fixed steps tried")
     p.add_argument(
         "--mujoco-dt", type=float, nargs="+", default=[0.005, 0.0025, 0.002, 0.00125, 0.001], help="RK4 steps tried"
     )
