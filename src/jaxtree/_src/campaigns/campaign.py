@@ -51,6 +51,7 @@ import numpy as np
 from ..equations.dynamics import batch_first_min
 from ..integration.core import DEFAULT_MAX_STEPS, default_tolerance
 from ..io.results import versions
+from ..numerics import program_jit
 from ..vehicle.model import Model
 from .dataset import chunk_dataset, dispersed
 from .members import Config, diagnose_failures, run_chunk, take
@@ -283,10 +284,12 @@ def default_chunk(model: Model, n: int, saves: int, devices: int | None = None) 
     return per_device * devices
 
 
-@eqx.filter_jit
+@program_jit(light=True)
 def _sampled(sample, n: int, key, model: Model):
     """``sample`` over the members' keys, compiled as one program (run eagerly, each random
-    operation of a sample compiles on its own: 0.8 s of a 64-run campaign's first call)."""
+    operation of a sample compiles on its own: 0.8 s of a 64-run campaign's first call), at XLA's
+    level 0: the draws run once, and their random bits' rounds compiled at the default level took
+    0.56 s of a 64-run campaign's first call (benchmarks/FINDINGS.md)."""
     return eqx.filter_vmap(sample, in_axes=(0, None))(jax.random.split(key, n), model)
 
 
