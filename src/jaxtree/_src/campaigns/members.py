@@ -13,11 +13,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..equations.articulated import resolve_method
 from ..equations.attitude import dcm_to_quaternion
-from ..equations.dynamics import SINGULAR_CONDITION, batch_first_min
+from ..equations.dynamics import SINGULAR_CONDITION
 from ..integration.failures import Failure, condition_jit
 from ..integration.simulate import simulate
+from ..integration.spread import lapack_group
 from ..numerics import REPRODUCIBLE_OPTIONS, program_jit
 from ..vehicle.model import Model, State
 
@@ -155,30 +155,6 @@ def _pilot_member(model: Model, ts, t1, rtol, atol, cfg: Config):
     return dict(steps=sol.stats["num_steps"])
 
 
-# jaxlib's CPU LAPACK kernels (potrf, trsm, syevd, ...) split a batch of matrices over XLA's
-# intra-op thread pool when it is worth more than about 2e5 flops (jax::ParallelBatchMap), and
-# block the calling pool thread until the parts are done. The executions of a program's device
-# shards run on that same pool: two shards that both split a batch can hold every pool thread
-# while their parts wait behind each other, and the process hangs (benchmarks/README.md has the
-# reproduction). Below that size the kernel runs inline. A member's program calls LAPACK only in
-# the dense method's factorization of Eq. (1) member by member, below batch_first_min(model) members
-# (the batch-first recursion, the articulated method and the test of a singular start eliminate in
-# JAX). So on the CPU a shard of such members runs them in vmapped groups small enough for the
-# factorization to stay inline, and any other shard runs its members vmapped all at once.
-_LAPACK_INLINE_FLOPS = 2e5
-
-
-def _cpu_group(model: Model, members: int) -> int | None:
-    """Members per vmapped group on a CPU shard of `members` members: None (all at once) where no
-    LAPACK call is batched (the batch-first recursion from :func:`batch_first_min` members on, or
-    the articulated method), else a group whose batched Cholesky of Eq. (1) (order n + 4 with its
-    border) stays under jaxlib's threshold for splitting a batch over the pool."""
-    if members >= batch_first_min(model) or resolve_method(model) == "articulated":
-        return None
-    order = model.n + 4
-    return max(1, int(_LAPACK_INLINE_FLOPS / (order**3 / 3.0)) - 1)
-
-
 def _sharded(fn, n_devices, group):
     """`fn` over a batch (vmapped), split over the first `n_devices` local devices when more than
     one (``shard_map``: each device runs its own integration loop, so a device does not wait for
@@ -244,7 +220,7 @@ def run_chunk(models, ts, t1, rtol, atol, cfg: Config, pilot: bool = False, devi
         devices -= 1
     group = None
     if devices > 1 and jax.default_backend() == "cpu":
-        group = _cpu_group(models, size // devices)
+        group = lapack_group(models, size // devices)
     if _implicit(cfg):
         # one member after another on each device: under vmap an implicit solver's conditionals
         # (a new Jacobian, new factorizations) become selects, so every member would pay both

@@ -24,6 +24,7 @@ import numpy as np
 from ..cache import checks_without_callbacks
 from ..equations.attitude import AbstractAttitude, get_attitude
 from ..equations.control import AbstractController, with_model_laws
+from ..equations.dynamics import unknown_labels
 from ..equations.kinematics import full_precision
 from ..errors import SceneError, SceneTypeError, SceneWarning, short
 from ..numerics import is_traced, program_jit
@@ -50,10 +51,13 @@ from .failures import (
     Failure,
     SimulationError,
     attitude_margin,
+    condition_at,
     format_failure,
+    raise_failures,
 )
 from .problem import Problem, make_problem, packed_start, problem_field, with_jacobian
 from .solution import Solution, check_solution, histories_of, report_from_callback, rhs_evaluations, run_diagnostics
+from .spread import lapack_group, over_devices
 
 
 def _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw):
@@ -185,6 +189,46 @@ def _solve(problem: Problem, y0: State, run: _Run, opts: _Options) -> dict:
     if opts.report_in_callback:
         report_from_callback(out["failure"], out["t_final"], out["final"], out["margin"], problem)
     return out
+
+
+def _quiet(args):
+    """:func:`_solve`'s arguments without its in-program failure report (for :func:`over_devices`)."""
+    problem, y0, run, opts = args
+    return problem, y0, run, opts._replace(report_in_callback=False)
+
+
+def _report_batch(args, rerun, out) -> None:
+    """The failure report of a batch split over the devices (:func:`.spread.over_devices`), made
+    on the host from the whole batch, as a vmapped run's callback makes it: only where a member
+    failed and the run reports (a traced run with ``throw``); the diagnosis (the condition of
+    Eq. 1 at the failure) computed for the batch only then."""
+    problem, _, _, opts = args
+    code = np.asarray(out["failure"])
+    if not opts.report_in_callback or not np.any(code):
+        return
+    condition, direction = rerun(
+        lambda problem, y0, run, opts, o: condition_at(problem.model, o["final"], o["t_final"])
+    )
+    raise_failures(
+        code,
+        np.asarray(out["t_final"]),
+        jax.tree_util.tree_map(np.asarray, out["final"]),
+        np.asarray(condition),
+        np.asarray(out["margin"]),
+        problem.attitude.name,
+        direction=np.asarray(direction),
+        labels=unknown_labels(problem.model),
+    )
+
+
+def _group(args, share: int):
+    """Members per vmapped group of a device's `share` of a split batch: one after another for an
+    implicit solver (each member then takes its single run's steps), small groups where the
+    dense method's factorization calls LAPACK (:func:`.spread.lapack_group`), else all at once."""
+    problem, _, run, _ = args
+    if isinstance(run.solver, dfx.AbstractImplicitSolver):
+        return 1
+    return lapack_group(problem.model, share)
 
 
 def _at_rest(model: Model, dtype, xp=jnp) -> State:
@@ -322,7 +366,10 @@ def simulate(
     **Returns:** a :class:`Solution`.
 
     Pure: jittable, vmappable over initial states and model parameters, and differentiable
-    (through the diffrax adjoint).
+    (through the diffrax adjoint). An eager ``jax.vmap`` of it (not inside ``jax.jit`` or a
+    derivative) on a CPU runs its members split over the host devices, one per core
+    (:mod:`jaxtree._src.integration.spread`): each device's members vmapped, one after another
+    for an implicit solver, failures reported with their indices in the batch.
     """
     _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw)
     if not isinstance(diagnostics, (bool, np.bool_)):
@@ -372,7 +419,8 @@ def simulate(
         packed = (y_flat, packed_start(problem, jax.device_put(_at_rest(model, np.dtype(dtype), np)), None, None))
     run = _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, packed)
     with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
-        fields = _solve(problem, y0, run, opts)
+        # (an eager jax.vmap of simulate: its members split over the host devices, spread.py)
+        fields = over_devices(_solve, (problem, y0, run, opts), quiet=_quiet, report=_report_batch, group=_group)
     if diagnostics and packed is not None:  # (an eager run)
         fields = _singular_start_after(fields, problem, packed[0], arrays[2])
     fields["stats"] = dict(fields["stats"], solver=choice)
