@@ -111,3 +111,26 @@ def test_under_a_derivative_the_plain_vmap_runs(scenes, splits):
     g2 = jax.vmap(jax.grad(final))(w)
     np.testing.assert_allclose(np.asarray(g1), np.asarray(g2), rtol=1e-8)
     assert splits == []
+
+
+def test_an_eager_vmap_of_simulate_hybrid_is_split_too(scenes, splits):
+    """wings in hybrid coordinates (4 modes), three initial hub rates: split over the devices,
+    each member its single run; a member whose run fails is named by its batch index."""
+    hm = jaxtree.hybrid_model(scenes["wings"], tuple(scenes["wings"].sprung), 4)
+    start = scenes["wings"].initial
+
+    def run(w, max_steps=4096):
+        return jaxtree.simulate_hybrid(
+            hm, 2.0, y0=start._replace(omega0=w), saveat=3, rtol=TOL, atol=TOL, max_steps=max_steps
+        )
+
+    w = rates(3, seed=1)
+    split = jax.vmap(run)(w)
+    assert [s[:2] for s in splits] == [(3, 2)]
+    for i in range(3):
+        single = run(w[i])
+        np.testing.assert_allclose(np.asarray(split.gamma[i]), np.asarray(single.gamma), atol=1e-7)
+        np.testing.assert_allclose(np.asarray(split.modal[i]), np.asarray(single.modal), atol=1e-7)
+    bad = w.at[2, 1].set(jnp.inf)
+    with pytest.raises(jaxtree.SimulationError, match=r"(?s)\[batch index \(2,\)\]"):
+        jax.block_until_ready(jax.vmap(run)(bad).gamma)

@@ -37,6 +37,7 @@ from ..integration.driver import drive, singular_after_failure
 from ..integration.failures import MESSAGES, Failure, SimulationError, failure_report, report_failures
 from ..integration.radau import with_jacobian
 from ..integration.solution import relative_drift
+from ..integration.spread import LAPACK_INLINE_FLOPS, over_devices
 from ..numerics import eager_jit, is_traced, program_jit
 from ..vehicle.model import State
 from .model import HybridModel, appendage_body
@@ -308,6 +309,33 @@ def _solve_hybrid(
     return out
 
 
+_REPORT = 11  # the position of `report` among _solve_hybrid's arguments
+
+
+def _quiet(args):
+    """:func:`_solve_hybrid`'s arguments without its in-program failure report (for
+    :func:`~jaxtree._src.integration.spread.over_devices`)."""
+    return args[:_REPORT] + (False,) + args[_REPORT + 1 :]
+
+
+def _report_batch(args, rerun, sol) -> None:
+    """The failure report of a batch split over the devices, made on the host from the whole
+    batch (as a vmapped run's callback makes it), where the run reports."""
+    if args[_REPORT]:
+        tree = lambda x: jax.tree_util.tree_map(np.asarray, x)
+        _raise_if_failed(np.asarray(sol.failure), np.asarray(sol.t_final), tree(sol.final), tree(sol.final_modal))
+
+
+def _group(args, share: int):
+    """Members per vmapped group of a device's `share`: one after another for an implicit solver,
+    else groups whose dense solve of the hybrid system (at most the state's size) stays under
+    jaxlib's threshold for splitting a batched LAPACK call over the thread pool."""
+    if isinstance(args[8], dfx.AbstractImplicitSolver):
+        return 1
+    order = int(np.shape(args[1])[-1])
+    return max(1, int(LAPACK_INLINE_FLOPS / (order**3 / 3.0)) - 1)
+
+
 def _raise_if_failed(code, t, state, modal):
     """Raise :class:`jaxtree.SimulationError` with the report of the failed hybrid runs, if any."""
     message = _hybrid_failure_message(code, t, state, modal)
@@ -413,24 +441,31 @@ def simulate_hybrid(
     solver = with_jacobian(solver, _jacobian)  # a Radau5 without one: the hybrid model's structured Jacobian
     traced = is_traced((hybrid, y, t0a, t1a, ts, rtol, atol, dt0, solver, stepsize_controller))
     with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
-        sol = _solve_hybrid(
-            hybrid,
-            y,
-            t0a,
-            t1a,
-            ts,
-            jnp.asarray(rtol, dtype),
-            jnp.asarray(atol, dtype),
-            dt0,
-            solver,
-            stepsize_controller,
-            int(max_steps),
-            bool(throw and traced),
-            residual,
-            progress_meter(progress),
-            bool(truncation_error),
-            q_start,
-            traced,  # an eager run tests its start for a singular Eq. (1) only once it failed (below)
+        # (an eager jax.vmap of simulate_hybrid: its members split over the host devices, spread.py)
+        sol = over_devices(
+            _solve_hybrid,
+            (
+                hybrid,
+                y,
+                t0a,
+                t1a,
+                ts,
+                jnp.asarray(rtol, dtype),
+                jnp.asarray(atol, dtype),
+                dt0,
+                solver,
+                stepsize_controller,
+                int(max_steps),
+                bool(throw and traced),
+                residual,
+                progress_meter(progress),
+                bool(truncation_error),
+                q_start,
+                traced,  # an eager run tests its start for a singular Eq. (1) only once it failed (below)
+            ),
+            quiet=_quiet,
+            report=_report_batch,
+            group=_group,
         )
     if not traced:
         sol = _singular_start_after(sol, hybrid, y, t0a)

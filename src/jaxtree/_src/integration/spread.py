@@ -46,7 +46,7 @@ except ImportError:  # pragma: no cover
 # (the batch-first recursion, the articulated method and the test of a singular start eliminate in
 # JAX). So on the CPU a shard of such members runs them in vmapped groups small enough for the
 # factorization to stay inline, and any other shard runs its members vmapped all at once.
-_LAPACK_INLINE_FLOPS = 2e5
+LAPACK_INLINE_FLOPS = 2e5
 
 
 def lapack_group(model, members: int) -> int | None:
@@ -57,7 +57,7 @@ def lapack_group(model, members: int) -> int | None:
     if members >= batch_first_min(model) or resolve_method(model) == "articulated":
         return None
     order = model.n + 4
-    return max(1, int(_LAPACK_INLINE_FLOPS / (order**3 / 3.0)) - 1)
+    return max(1, int(LAPACK_INLINE_FLOPS / (order**3 / 3.0)) - 1)
 
 
 def host_devices() -> int:
@@ -91,29 +91,37 @@ def over_devices(fn: Callable, args: tuple, *, quiet: Callable, report: Callable
     dyn, static = eqx.partition(args, eqx.is_array)
     leaves, tree = jax.tree_util.tree_flatten(dyn)
     rebuild = lambda leaves: eqx.combine(jax.tree_util.tree_unflatten(tree, list(leaves)), static)
+    kept = {}  # the outputs' parts that are not arrays (a custom_vmap returns arrays alone)
+
+    def arrays(out):
+        dyn_out, kept["static"] = eqx.partition(out, eqx.is_array)
+        return dyn_out
 
     @jax.custom_batching.custom_vmap
     def run(leaves):
-        return fn(*rebuild(leaves))
+        return arrays(fn(*rebuild(leaves)))
 
     @run.def_vmap
     def _rule(size, in_batched, leaves):
         (flags,) = in_batched
         axes = [0 if f else None for f in flags]
         if any(isinstance(x, Tracer) for x in leaves) or size < 2:  # (not reached from an eager vmap)
-            out = jax.vmap(lambda *ls: fn(*rebuild(ls)), in_axes=axes, axis_size=size)(*leaves)
+            out = jax.vmap(lambda *ls: arrays(fn(*rebuild(ls))), in_axes=axes, axis_size=size)(*leaves)
             return out, jax.tree_util.tree_map(lambda _: True, out)
         n = min(devices, size)
         share = -(-size // n)
-        out = _split(fn, quiet(rebuild(leaves)), tuple(bool(f) for f in flags), size, n, group(rebuild(leaves), share))
+        out = arrays(
+            _split(fn, quiet(rebuild(leaves)), tuple(bool(f) for f in flags), size, n, group(rebuild(leaves), share))
+        )
+        whole = lambda o: eqx.combine(o, kept["static"])
 
         def rerun(g):
-            return jax.jit(jax.vmap(lambda ls, o: g(*rebuild(ls), o), in_axes=(axes, 0)))(leaves, out)
+            return jax.jit(jax.vmap(lambda ls, o: g(*rebuild(ls), whole(o)), in_axes=(axes, 0)))(leaves, out)
 
-        report(rebuild(leaves), rerun, out)
+        report(rebuild(leaves), rerun, whole(out))
         return out, jax.tree_util.tree_map(lambda _: True, out)
 
-    return run(leaves)
+    return eqx.combine(run(leaves), kept["static"])
 
 
 def _split(fn, args, flags, size, devices, group):
@@ -135,7 +143,7 @@ def _split(fn, args, flags, size, devices, group):
         placed.append(jax.device_put(x, NamedSharding(mesh, P("members") if f else P())))
     dyn = jax.tree_util.tree_unflatten(tree, placed)
     out = _split_jit(fn, flags, devices, group, eqx.combine(dyn, static))
-    return jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)[:size]), out)
+    return jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)[:size]) if eqx.is_array(x) else x, out)
 
 
 @program_jit
@@ -148,15 +156,21 @@ def _split_jit(fn, flags, devices, group, args):
     axes = [0 if f else None for f in flags]
     one = lambda *ls: fn(*eqx.combine(jax.tree_util.tree_unflatten(tree, list(ls)), static))
 
+    kept = {}  # the outputs' parts that are not arrays (a shard_map returns arrays alone)
+
+    def arrays(out):
+        dyn_out, kept["static"] = eqx.partition(out, eqx.is_array)
+        return dyn_out
+
     def share(*ls):
         size = next(x.shape[0] for x, f in zip(ls, flags) if f)
         if group is None or group >= size:
-            return jax.vmap(one, in_axes=axes)(*ls)
+            return jax.vmap(lambda *m: arrays(one(*m)), in_axes=axes)(*ls)
         batched = [x for x, f in zip(ls, flags) if f]
 
         def member(b):
             it = iter(b)
-            return one(*(next(it) if f else x for x, f in zip(ls, flags)))
+            return arrays(one(*(next(it) if f else x for x, f in zip(ls, flags))))
 
         if group == 1:  # a plain loop over the members (lax.map's batch_size=1 vmaps each of them)
             return jax.lax.map(member, batched)
@@ -164,4 +178,5 @@ def _split_jit(fn, flags, devices, group, args):
 
     mesh = Mesh(np.asarray(jax.local_devices()[:devices]), ("members",))
     specs = tuple(P("members") if f else P() for f in flags)
-    return jax.shard_map(share, mesh=mesh, in_specs=specs, out_specs=P("members"), check_vma=False)(*leaves)
+    out = jax.shard_map(share, mesh=mesh, in_specs=specs, out_specs=P("members"), check_vma=False)(*leaves)
+    return eqx.combine(out, kept["static"])
