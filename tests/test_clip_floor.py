@@ -14,7 +14,6 @@ import pytest
 from jaxtree._src.integration import clip_floor
 
 
-
 def values(dtype):
     """Ordinary end times, both zeros, a negative one, the smallest subnormal and normal numbers,
     the largest finite one and both infinities of `dtype`."""

@@ -22,6 +22,7 @@ import contextlib
 import inspect
 import threading
 import types
+from typing import Any
 
 import equinox.internal as eqxi
 import jax
@@ -80,7 +81,7 @@ class _Counting(types.ModuleType):
         self._calls.n = 0
 
 
-_integrate = _module()
+_integrate: Any = _module()  # (Any: diffrax does not export its name for equinox.internal)
 _view = _Counting()
 _lock = threading.Lock()
 _entered = 0

@@ -19,6 +19,7 @@ from the whole batch, so that the failed members keep their indices in the user'
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -76,7 +77,7 @@ def batched_eagerly(tree) -> bool:
     return len({id(x._trace) for x in traced}) == 1
 
 
-def over_devices(fn: Callable, args: tuple, *, quiet: Callable, report: Callable, group: Callable) -> dict:
+def over_devices(fn: Callable, args: tuple, *, quiet: Callable, report: Callable, group: Callable) -> Any:
     """``fn(*args)``; under an eager ``jax.vmap`` on several host devices, its batch split over them.
 
     - `quiet(args)`: the arguments of the split run, with the run's own failure report turned off;
