@@ -74,7 +74,7 @@ def batched_eagerly(tree) -> bool:
         return False
     if not all(type(x) is BatchTracer and not isinstance(x.val, Tracer) for x in traced):
         return False
-    return len({id(x._trace) for x in traced}) == 1
+    return len({id(getattr(x, "_trace", None)) for x in traced}) == 1
 
 
 def over_devices(fn: Callable, args: tuple, *, quiet: Callable, report: Callable, group: Callable) -> Any:
