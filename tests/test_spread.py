@@ -13,9 +13,15 @@ import pytest
 import jaxtree
 from jaxtree._src.integration import spread
 
-pytestmark = pytest.mark.skipif(
-    spread.host_devices() < 2, reason="one host device (JAXTREE_HOST_DEVICES=1): nothing to split"
-)
+# the host devices (one per core; JAXTREE_HOST_DEVICES=1 gives one): with one, nothing is split
+# and the plain vmap must give the same members
+DEVICES = spread.host_devices()
+
+
+def split_over(size):
+    """The devices a batch of `size` members is split over, or None where it runs unsplit."""
+    return min(DEVICES, size) if DEVICES > 1 else None
+
 
 T1, TOL = 1.0, 1e-9
 
@@ -49,10 +55,13 @@ def test_an_eager_vmap_is_split_and_each_member_is_its_single_run(scenes, splits
     w = rates(5)
     split = jax.vmap(run)(w)
     # one split run; the dense method's groups for LAPACK (217 members of fig4_free) hold a share
-    ((size, devices, group),) = splits
-    assert (size, devices) == (5, 2) and group >= 3
+    if split_over(5):
+        ((size, devices, group),) = splits
+        assert (size, devices) == (5, split_over(5)) and group >= 3
+    else:
+        assert splits == []
     together = jax.jit(jax.vmap(run))(w)
-    assert len(splits) == 1  # inside the user's jit the batch is the user's program
+    assert len(splits) == (1 if split_over(5) else 0)  # inside the user's jit the batch is the user's program
     for i in range(5):
         single = run(w[i])
         np.testing.assert_allclose(np.asarray(split.gamma[i]), np.asarray(single.gamma), atol=1e-7)
@@ -72,9 +81,11 @@ def test_a_failure_is_named_by_its_index_in_the_users_batch(scenes, splits):
     def run(w):
         return jaxtree.simulate(model, T1, y0=model.initial._replace(omega0=w), saveat=3).gamma
 
-    with pytest.raises(jaxtree.SimulationError, match=r"(?s)\[batch index \(3,\)\].*initial state is not finite"):
+    # split: a SimulationError from the host; unsplit: the same report from the run's callback
+    error = jaxtree.SimulationError if split_over(5) else Exception
+    with pytest.raises(error, match=r"(?s)\[batch index \(3,\)\].*initial state is not finite"):
         jax.block_until_ready(jax.vmap(run)(w))
-    assert splits and splits[0][:2] == (5, 2)
+    assert [s[:2] for s in splits] == ([(5, split_over(5))] if split_over(5) else [])
 
 
 def test_an_implicit_solver_runs_each_devices_members_one_after_another(splits):
@@ -88,7 +99,7 @@ def test_an_implicit_solver_runs_each_devices_members_one_after_another(splits):
         return jaxtree.simulate(m, 0.1, solver=jaxtree.Radau5(), rtol=1e-6, atol=1e-6, saveat=3)
 
     split = jax.vmap(run)(ks)
-    assert splits == [(4, 2, 1)]
+    assert splits == ([(4, split_over(4), 1)] if split_over(4) else [])
     for i in range(4):
         single = run(ks[i])
         assert int(split.stats["num_steps"][i]) == int(single.stats["num_steps"])
@@ -126,11 +137,11 @@ def test_an_eager_vmap_of_simulate_hybrid_is_split_too(scenes, splits):
 
     w = rates(3, seed=1)
     split = jax.vmap(run)(w)
-    assert [s[:2] for s in splits] == [(3, 2)]
+    assert [s[:2] for s in splits] == ([(3, split_over(3))] if split_over(3) else [])
     for i in range(3):
         single = run(w[i])
         np.testing.assert_allclose(np.asarray(split.gamma[i]), np.asarray(single.gamma), atol=1e-7)
         np.testing.assert_allclose(np.asarray(split.modal[i]), np.asarray(single.modal), atol=1e-7)
     bad = w.at[2, 1].set(jnp.inf)
-    with pytest.raises(jaxtree.SimulationError, match=r"(?s)\[batch index \(2,\)\]"):
+    with pytest.raises(jaxtree.SimulationError if split_over(3) else Exception, match=r"(?s)\[batch index \(2,\)\]"):
         jax.block_until_ready(jax.vmap(run)(bad).gamma)

@@ -367,9 +367,7 @@ def simulate(
 
     Pure: jittable, vmappable over initial states and model parameters, and differentiable
     (through the diffrax adjoint). An eager ``jax.vmap`` of it (not inside ``jax.jit`` or a
-    derivative) on a CPU runs its members split over the host devices, one per core
-    (:mod:`jaxtree._src.integration.spread`): each device's members vmapped, one after another
-    for an implicit solver, failures reported with their indices in the batch.
+    derivative) splits its members over the host devices, one per core (`spread.py`).
     """
     _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw)
     if not isinstance(diagnostics, (bool, np.bool_)):
