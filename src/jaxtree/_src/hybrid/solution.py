@@ -37,7 +37,7 @@ from ..integration.driver import drive, singular_after_failure
 from ..integration.failures import MESSAGES, Failure, SimulationError, failure_report, report_failures
 from ..integration.radau import with_jacobian
 from ..integration.solution import relative_drift
-from ..integration.spread import LAPACK_INLINE_FLOPS, over_devices
+from ..integration.spread import inline_group, over_devices
 from ..numerics import eager_jit, is_traced, program_jit
 from ..vehicle.model import State
 from .model import HybridModel, appendage_body
@@ -332,8 +332,7 @@ def _group(args, share: int):
     jaxlib's threshold for splitting a batched LAPACK call over the thread pool."""
     if isinstance(args[8], dfx.AbstractImplicitSolver):
         return 1
-    order = int(np.shape(args[1])[-1])
-    return max(1, int(LAPACK_INLINE_FLOPS / (order**3 / 3.0)) - 1)
+    return inline_group(int(np.shape(args[1])[-1]))
 
 
 def _raise_if_failed(code, t, state, modal):

@@ -57,7 +57,12 @@ def lapack_group(model, members: int) -> int | None:
     border) stays under jaxlib's threshold for splitting a batch over the pool."""
     if members >= batch_first_min(model) or resolve_method(model) == "articulated":
         return None
-    order = model.n + 4
+    return inline_group(model.n + 4)
+
+
+def inline_group(order: int) -> int:
+    """Members per vmapped group whose batched dense factorization of order `order` stays under
+    jaxlib's threshold for splitting a batch over the thread pool (:data:`LAPACK_INLINE_FLOPS`)."""
     return max(1, int(LAPACK_INLINE_FLOPS / (order**3 / 3.0)) - 1)
 
 
