@@ -365,9 +365,8 @@ def simulate(
 
     **Returns:** a :class:`Solution`.
 
-    Pure: jittable, vmappable over initial states and model parameters, and differentiable
-    (through the diffrax adjoint). An eager ``jax.vmap`` of it (not inside ``jax.jit`` or a
-    derivative) splits its members over the host devices, one per core (`spread.py`).
+    Pure: jittable, vmappable over initial states and model parameters, and differentiable (through
+    the diffrax adjoint); an eager ``jax.vmap`` splits its members over the cores (``spread.py``).
     """
     _check_arguments(model, t0, t1, dt0, translation, solver, stepsize_controller, adjoint, throw)
     if not isinstance(diagnostics, (bool, np.bool_)):
@@ -416,8 +415,7 @@ def simulate(
         y_flat = packed_start(problem, y0, X0, Xd0) if y_flat is None else y_flat
         packed = (y_flat, packed_start(problem, jax.device_put(_at_rest(model, np.dtype(dtype), np)), None, None))
     run = _Run(*arrays, solver, stepsize_controller, saveat, adjoint, ev, meter, packed)
-    with checks_without_callbacks():  # diffrax's checks of inputs checked above: cacheable program
-        # (an eager jax.vmap of simulate: its members split over the host devices, spread.py)
+    with checks_without_callbacks():  # diffrax's checks checked above; over_devices: spread.py
         fields = over_devices(_solve, (problem, y0, run, opts), quiet=_quiet, report=_report_batch, group=_group)
     if diagnostics and packed is not None:  # (an eager run)
         fields = _singular_start_after(fields, problem, packed[0], arrays[2])
