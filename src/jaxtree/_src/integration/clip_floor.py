@@ -4,7 +4,7 @@ At the start of its integration loop, diffrax (``diffrax._integrate.loop``, 0.6-
 number 100 ULPs below ``t1`` (the threshold from which a step is rounded to ``t1``) by applying
 ``equinox.internal.prevbefore`` a hundred times in Python. With ``t1`` traced, as jaxtree keeps it
 (a new end time compiles nothing), these are 100 staged ``nextafter`` operations in every solve's
-program, which cost a fifth of ``simulate(fig4_free)``'s first call (lowering and XLA: 0.30 s of
+program, which cost a sixth of ``simulate(fig4_free)``'s first call (lowering and XLA: 0.30 s of
 1.9 s; benchmarks/FINDINGS.md, "diffrax's end-time floor").
 
 :func:`one_loop_floor` is a context manager around jaxtree's own ``diffeqsolve``: while it is
