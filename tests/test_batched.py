@@ -95,8 +95,7 @@ def test_vmap_runs_the_batch_first_recursion(scenes, name):
     share already at 16 (benchmarks/FINDINGS.md)."""
     model = scenes[name]
     size = solve.batch_first_min(model)
-    assert size == (solve.BATCH_FIRST_MIN_LARGE if model.n >= solve.LARGE_TREE_HINGES else solve.BATCH_FIRST_MIN)
-    assert size < solve.BATCH_FIRST_MIN or name == "wings"
+    assert (size < solve.batch_first_min(scenes["wings"])) == (name == "chain50")
 
     def program(size):
         s = states(model, 0, size)
