@@ -435,7 +435,8 @@ def flex_runner(flex, form, solver, mode):
     "sequence" (one after another in one compiled program, ``lax.map``) or "devices" (the
     sequence split over the host devices by ``shard_map``). Two compiled programs: the members'
     models (a hybrid model rebuilt per member, by ``lax.map``: vmapped, the build's batched complex
-    LU deadlocked in jaxlib's LAPACK pool here) and their integration."""
+    LU deadlocked in jaxlib's LAPACK pool here; with "devices" split over the devices as well) and
+    their integration."""
     from jax.sharding import Mesh, NamedSharding
     from jax.sharding import PartitionSpec as P
 
@@ -454,7 +455,8 @@ def flex_runner(flex, form, solver, mode):
         return sol.omega0, sol.gamma, jnp.stack([jnp.asarray(c, jnp.int32) for c in counts])
 
     one = flex.hybrid if form == "hybrid" else flex.member
-    build = jax.jit(lambda f: jax.lax.map(lambda x: one(x[0], x[1]), f))
+    members = lambda f: jax.lax.map(lambda x: one(x[0], x[1]), f)
+    build = jax.jit(members)
     sharding = None
     if mode == "vmap":
         integrate = jax.jit(jax.vmap(sim, in_axes=(0, None)))
@@ -463,6 +465,8 @@ def flex_runner(flex, form, solver, mode):
     else:
         mesh = Mesh(np.array(jax.devices()[: ARGS.devices]), ("m",))
         sharding = NamedSharding(mesh, P("m"))
+        # the members' models built on the devices too, each its share one after another
+        build = jax.jit(jax.shard_map(members, mesh=mesh, in_specs=P("m"), out_specs=P("m"), check_vma=False))
         integrate = jax.jit(
             jax.shard_map(
                 lambda xs, tol: jax.lax.map(lambda x: sim(x, tol), xs),
@@ -475,9 +479,8 @@ def flex_runner(flex, form, solver, mode):
 
     def run(factors, tol):
         t = time.perf_counter()
-        xs = jax.block_until_ready(build(jnp.asarray(factors)))
-        if sharding is not None:
-            xs = jax.device_put(xs, sharding)
+        f = jnp.asarray(factors) if sharding is None else jax.device_put(jnp.asarray(factors), sharding)
+        xs = jax.block_until_ready(build(f))
         t_build = time.perf_counter() - t
         t = time.perf_counter()
         w, g, counts = jax.block_until_ready(integrate(xs, jnp.asarray(tol, float)))

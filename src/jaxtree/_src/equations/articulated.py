@@ -65,7 +65,7 @@ import numpy as np
 
 from ..numerics import eliminate
 from ..numerics import regular_pivots as _regular_pivots
-from .kinematics import ancestor_sum, cross, dot
+from .kinematics import ancestor_sum, cross, dot, take_rows
 from .spatial import force_cross, inertia_apply, inertia_matrix, motion_cross
 
 METHODS = ("auto", "dense", "articulated")
@@ -309,7 +309,7 @@ def _body_terms(model, cfg, omega, vel, gamma_dot, loads, prescribed_acc):
     # spatial velocities about O, motion of the hinges, velocity-product accelerations
     uO = vel + cross(cfg.rho, omega)  # velocity of the point of b_k at O
     Sw, Su = cfg.axis, cross(cfg.hinge, cfg.axis)
-    cw, cu = motion_cross(omega[par], uO[par], Sw * gamma_dot[:, None], Su * gamma_dot[:, None])
+    cw, cu = motion_cross(take_rows(omega, par), take_rows(uO, par), Sw * gamma_dot[:, None], Su * gamma_dot[:, None])
     if prescribed_acc is not None:
         p = np.asarray(model.prescribed, np.int64) - 1
         cw = cw.at[p].add(Sw[p] * prescribed_acc[:, None])

@@ -49,7 +49,7 @@ import numpy as np
 from ..numerics import eager_jit
 from ..vehicle import hinges
 from ..vehicle.model import Model, State
-from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum
+from .kinematics import ancestor_sum, body_rotations, cross, dot, full_precision, mm, mv, subtree_sum, take_rows
 
 
 class Configuration(NamedTuple):
@@ -117,7 +117,7 @@ def configuration_and_rates(model, gamma, omega0=None, gamma_dot=None):
     topo = model.topology
     par = parent_indices(model)
     R = body_rotations(topo, model.axis.astype(dtype), gamma)
-    Rp = R[par]
+    Rp = take_rows(R, par)
     axis = mv(Rp, model.axis.astype(dtype))
     to_hinge = mv(Rp, model.hinge_on_parent.astype(dtype))
     from_hinge = -mv(R[1:], model.hinge_on_body.astype(dtype))
@@ -132,16 +132,16 @@ def configuration_and_rates(model, gamma, omega0=None, gamma_dot=None):
         rho, omega = both[:, :3], both[:, 3:]
     mass = model.mass.astype(dtype)
     rho = rho - jnp.sum(mass[:, None] * rho, 0) / jnp.sum(mass)
-    hinge = rho[par] + to_hinge
+    hinge = take_rows(rho, par) + to_hinge
     idx = np.asarray(model.massive)
-    Ri = R[idx]
-    inertia = mm(mm(Ri, model.inertia[idx].astype(dtype)), jnp.swapaxes(Ri, -1, -2))
+    Ri = take_rows(R, idx)
+    inertia = mm(mm(Ri, take_rows(model.inertia, idx).astype(dtype)), jnp.swapaxes(Ri, -1, -2))
     return Configuration(R, axis, to_hinge, from_hinge, rho, hinge, inertia), omega
 
 
 def massive_rows(model, x):
     """Rows of the massive bodies (all of `x` when no body is massless)."""
-    return x if len(model.massive) == model.n + 1 else x[np.asarray(model.massive)]
+    return x if len(model.massive) == model.n + 1 else take_rows(x, model.massive)
 
 
 def _composite(model, cfg, extra=None):
@@ -185,7 +185,8 @@ def mass_matrix(model: Model, gamma) -> jax.Array:
 
 def _outer3(a, b):
     """``a @ b.T`` for (m, 3) and (k, 3) arrays, as three outer products (fused by XLA)."""
-    return a[:, None, 0] * b[None, :, 0] + a[:, None, 1] * b[None, :, 1] + a[:, None, 2] * b[None, :, 2]
+    t = a[:, None, :] * b[None, :, :]
+    return (t[..., 0:1] + t[..., 1:2] + t[..., 2:3])[..., 0]
 
 
 def _masks(model):
@@ -235,7 +236,7 @@ def body_angular_velocities(model: Model, cfg: Configuration, omega0, gamma_dot)
 def mass_center_velocities(model, cfg, omega):
     """Velocities of the mass centers relative to the system mass center, {b^0} components."""
     par = parent_indices(model)
-    inc = cross(omega[par], cfg.to_hinge) + cross(omega[1:], cfg.from_hinge)
+    inc = cross(take_rows(omega, par), cfg.to_hinge) + cross(omega[1:], cfg.from_hinge)
     vel = ancestor_sum(model.topology, jnp.concatenate([jnp.zeros((1, 3), inc.dtype), inc], 0))
     mass = model.mass.astype(vel.dtype)
     return vel - jnp.sum(mass[:, None] * vel, 0) / jnp.sum(mass)
@@ -251,10 +252,12 @@ def hinge_torques(model: Model, gamma, gamma_dot):
     if len(model.sprung) == model.n:
         return (-model.stiffness * gamma - model.damping * gamma_dot).astype(dtype)
     i = np.asarray(model.sprung) - 1
-    law = (-model.stiffness[i] * gamma[i] - model.damping[i] * gamma_dot[i]).astype(dtype)
+    law = (
+        -take_rows(model.stiffness, i) * take_rows(gamma, i) - take_rows(model.damping, i) * take_rows(gamma_dot, i)
+    ).astype(dtype)
     where = np.full(model.n, len(i))  # hinges without a law read the appended zero
     where[i] = np.arange(len(i))
-    return jnp.concatenate([law, jnp.zeros((1,), dtype)])[where]
+    return take_rows(jnp.concatenate([law, jnp.zeros((1,), dtype)]), where)
 
 
 class _Rotations(Protocol):
@@ -289,7 +292,8 @@ def _wrenches(model, cfg, omega, gamma_dot, loads, accelerations=None):
     dtype = cfg.rho.dtype
     G = cfg.axis
     # velocity-product parts of the angular accelerations: sum_r epsilon_{rk} gamma_dot_r (omega^r x g^r)
-    rates = cross(omega[par], G) * gamma_dot[:, None]
+    wp = take_rows(omega, par)
+    rates = cross(wp, G) * gamma_dot[:, None]
     if accelerations is None:
         root = jnp.zeros((1, 3), dtype)
     else:
@@ -297,7 +301,7 @@ def _wrenches(model, cfg, omega, gamma_dot, loads, accelerations=None):
         rates = rates + G * accelerations[1].astype(dtype)[:, None]
     zero = jnp.zeros((1, 3), dtype)
     alpha = ancestor_sum(topo, jnp.concatenate([root, rates], 0))
-    wp, ap, wk, ak = omega[par], alpha[par], omega[1:], alpha[1:]
+    ap, wk, ak = take_rows(alpha, par), omega[1:], alpha[1:]
     inc = (
         cross(ap, cfg.to_hinge)
         + cross(wp, cross(wp, cfg.to_hinge))

@@ -46,35 +46,36 @@ def full_precision(fn: Callable[_P, _R]) -> Callable[_P, _R]:
     return wrapper
 
 
-# Small 3-vector / 3x3 algebra on stacks (leading axes are batch axes), written out by
-# components: XLA on CPU fuses these elementwise forms, while a batched 3x3 dot (einsum,
-# matmul) or a reduction over an axis of length 3 runs several times slower.
-# The 3x3 algebra below is written by components, as sums of elementwise products that XLA:CPU
-# fuses into one loop (a dot_general or einsum runs slower on these small stacks: FINDINGS.md),
-# and each operand is split into its components once (one `unstack` each): the same arithmetic
-# in the same order as an entry-by-entry sum, in about a tenth of the primitives, which is what
-# a program's tracing, lowering and compilation pay for.
+# Small 3-vector / 3x3 algebra on stacks (leading axes are batch axes), written as elementwise
+# products and sums that XLA:CPU fuses into one loop: a batched 3x3 dot (einsum, matmul) or a
+# reduction over an axis of length 3 runs several times slower on these small stacks
+# (FINDINGS.md). The components are taken as slices that keep their axis (``a[..., 0:1]``), not
+# as components (``unstack`` lowers to a slice and a reshape per component, ``stack`` to a
+# reshape per component and a concatenation): a program's tracing, lowering and compilation pay
+# per operation. The same arithmetic in the same order as an entry-by-entry sum, and measured as
+# fast (FINDINGS.md, "Fewer operations per product"); a cyclic shift of whole vectors (one
+# concatenation) or a gather gives fewer operations still but made fig4_free's run ~7 % slower.
 
 
 def mv(A, x):
-    """``A @ x`` for stacks of 3x3 matrices and 3-vectors."""
-    a0, a1, a2 = jnp.unstack(A, axis=-1)  # the columns
-    x0, x1, x2 = jnp.unstack(x[..., None, :], axis=-1)
-    return a0 * x0 + a1 * x1 + a2 * x2
+    """``A @ x`` for stacks of 3x3 matrices and 3-vectors: the products ``A_ij x_j`` at once,
+    then the three columns summed in order (9 operations in the lowered program)."""
+    t = A * x[..., None, :]
+    return (t[..., 0:1] + t[..., 1:2] + t[..., 2:3])[..., 0]
 
 
 def mm(A, B):
-    """``A @ B`` for stacks of 3x3 matrices."""
-    a0, a1, a2 = jnp.unstack(A[..., :, :, None], axis=-2)  # the columns, (..., 3, 1)
-    b0, b1, b2 = jnp.unstack(B[..., :, None, :], axis=-3)  # the rows, (..., 1, 3)
-    return a0 * b0 + a1 * b1 + a2 * b2
+    """``A @ B`` for stacks of 3x3 matrices: three outer products of A's columns and B's rows,
+    summed in order (17 operations in the lowered program)."""
+    return A[..., :, 0:1] * B[..., 0:1, :] + A[..., :, 1:2] * B[..., 1:2, :] + A[..., :, 2:3] * B[..., 2:3, :]
 
 
 def cross(a, b):
-    """``a x b`` for stacks of 3-vectors."""
-    a1, a2, a3 = jnp.unstack(a, axis=-1)
-    b1, b2, b3 = jnp.unstack(b, axis=-1)
-    return jnp.stack([a2 * b3 - a3 * b2, a3 * b1 - a1 * b3, a1 * b2 - a2 * b1], -1)
+    """``a x b`` for stacks of 3-vectors: the components as slices that keep their axis, joined
+    by one concatenation (16 operations in the lowered program for operands of one shape)."""
+    a1, a2, a3 = a[..., 0:1], a[..., 1:2], a[..., 2:3]
+    b1, b2, b3 = b[..., 0:1], b[..., 1:2], b[..., 2:3]
+    return jnp.concatenate([a2 * b3 - a3 * b2, a3 * b1 - a1 * b3, a1 * b2 - a2 * b1], -1)
 
 
 def dot(a, b):
@@ -82,10 +83,14 @@ def dot(a, b):
 
 
 def tilde(v):
-    """Cross-product matrix of Def. 24: ``tilde(v) @ w == cross(v, w)``; batches over leading axes."""
-    v1, v2, v3 = v[..., 0], v[..., 1], v[..., 2]
-    z = jnp.zeros_like(v1)
-    return jnp.stack([jnp.stack([z, -v3, v2], -1), jnp.stack([v3, z, -v1], -1), jnp.stack([-v2, v1, z], -1)], -2)
+    """Cross-product matrix of Def. 24: ``tilde(v) @ w == cross(v, w)``; batches over leading axes.
+
+    Its nine entries row by row, ``0, -v3, v2, v3, 0, -v1, -v2, v1, 0``, are one concatenation of
+    slices of ``v`` and ``-v`` (``v2, v3`` and ``-v1, -v2`` adjacent), then a reshape."""
+    z = jnp.zeros_like(v[..., :1])
+    n = -v
+    flat = jnp.concatenate([z, n[..., 2:3], v[..., 1:3], z, n[..., 0:2], v[..., 0:1], z], -1)
+    return flat.reshape(v.shape[:-1] + (3, 3))
 
 
 def hinge_rotation(axis, gamma):
@@ -100,8 +105,37 @@ def hinge_rotation(axis, gamma):
     return eye * c - tilde(axis) * s + ggT * (1 - c)
 
 
+def take_rows(x, idx):
+    """``x[idx]`` for a static index of non-negative rows (a numpy array or tuple): one gather.
+
+    Indexing with an integer array first normalizes negative indices (a comparison, an addition
+    and a selection on the index), which a static, non-negative index does not need: five
+    operations in the lowered program become one, on every one of the tree's parent and jump-table
+    lookups."""
+    idx = np.asarray(idx, dtype=np.int64).reshape(-1)
+    if idx.size and (idx.min() < 0 or idx.max() >= x.shape[0]):
+        raise IndexError(f"row index out of range for {x.shape[0]} rows: {idx.tolist()}")
+    if idx.size == 0:
+        return jnp.zeros((0,) + x.shape[1:], x.dtype)
+    dn = jax.lax.GatherDimensionNumbers(
+        offset_dims=tuple(range(1, x.ndim)), collapsed_slice_dims=(0,), start_index_map=(0,)
+    )
+    return jax.lax.gather(
+        x,
+        idx.astype(np.int32)[:, None],
+        dn,
+        slice_sizes=(1,) + tuple(x.shape[1:]),
+        indices_are_sorted=bool(np.all(np.diff(idx) >= 0)),
+        unique_indices=bool(len(np.unique(idx)) == idx.size),
+        mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS,
+    )
+
+
 def _pad(x, fill):
-    """Append one row (the "no body" slot of the jump tables) to ``x``."""
+    """Append one row (the "no body" slot of the jump tables) to ``x``: zeros by one pad, else
+    `fill` broadcast to a row."""
+    if isinstance(fill, (int, float)) and fill == 0:
+        return jax.lax.pad(x, jnp.zeros((), x.dtype), [(0, 1, 0)] + [(0, 0, 0)] * (x.ndim - 1))
     return jnp.concatenate([x, jnp.broadcast_to(fill, (1,) + x.shape[1:]).astype(x.dtype)], 0)
 
 
@@ -117,7 +151,7 @@ def body_rotations(topology: Topology, axis, gamma):
     R = jnp.concatenate([eye[None], local], 0)
     # Invariant: R[k] = C^{a k} with a the current jump target of k (initially the parent).
     for table in topology.jump_tables:
-        R = mm(_pad(R, eye)[table[:-1]], R)
+        R = mm(take_rows(_pad(R, eye), table[:-1]), R)
     return R
 
 
@@ -132,9 +166,8 @@ def ancestor_sum(topology: Topology, x):
     With ``x[0]`` the root term and ``x[s]`` the term of hinge ``s``, this is the
     path-element sum ``y[k] = x[0] + sum_s epsilon_{sk} x[s]`` (Def. 27).
     """
-    zero = jnp.zeros((), x.dtype)
     for table in topology.jump_tables:
-        x = x + _pad(x, zero)[table[:-1]]
+        x = x + take_rows(_pad(x, 0), table[:-1])
     return x
 
 

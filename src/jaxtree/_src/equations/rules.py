@@ -33,7 +33,7 @@ from .assembly import (
     rotational_equations,
     unbalanced_at,
 )
-from .kinematics import ancestor_sum, cross, mm, tilde
+from .kinematics import ancestor_sum, cross, mm, take_rows, tilde
 from .solve import (
     Accelerations,
     Inverse,
@@ -91,7 +91,7 @@ def configuration_tangent(model, cfg, omega, gamma_dot, d_gamma, d_gamma_dot, d_
         d_omega = ancestor_sum(topo, jnp.concatenate([w0, rates], 0))
         return jax.tree_util.tree_map(jnp.zeros_like, cfg), d_omega
     theta = ancestor_sum(topo, jnp.concatenate([zero, G * jnp.asarray(d_gamma, dtype)[:, None]], 0))
-    tp = theta[par]
+    tp = take_rows(theta, par)
     d_axis = cross(tp, G)
     d_to = cross(tp, cfg.to_hinge)
     d_from = cross(theta[1:], cfg.from_hinge)
@@ -100,7 +100,7 @@ def configuration_tangent(model, cfg, omega, gamma_dot, d_gamma, d_gamma_dot, d_
     both = ancestor_sum(topo, jnp.concatenate([steps, rates], 1))
     mass = model.mass.astype(dtype)
     d_rho = both[:, :3] - jnp.sum(mass[:, None] * both[:, :3], 0) / jnp.sum(mass)
-    d_hinge = d_rho[par] + d_to
+    d_hinge = take_rows(d_rho, par) + d_to
     d_R = mm(tilde(theta), cfg.R)
     th = massive_rows(model, theta)
     turned = mm(tilde(th), cfg.inertia)

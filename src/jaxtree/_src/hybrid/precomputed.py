@@ -18,7 +18,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from ..equations.kinematics import ancestor_sum, body_rotations, cross, mm, mv
+from ..equations.kinematics import ancestor_sum, body_rotations, cross, mm, mv, take_rows
 from ..equations.spatial import force_cross, inertia_apply, inertia_matrix, motion_cross
 from ..vehicle.model import State
 from ..vehicle.topology import Topology
@@ -78,24 +78,26 @@ def _large_frame(hm: HybridModel, bases, t, dcm, w, gL, gdL, v0=None):
         gdcol = jnp.concatenate([gdL, gdp.astype(dtype)])
         gddP = gddP.astype(dtype)
     order = np.asarray([cols.index(k) for k in hinges], np.int64)  # body order -> column order
-    gam, gamd = gcol[order], gdcol[order]
+    gam, gamd = take_rows(gcol, order), take_rows(gdcol, order)
     hk = np.asarray(hinges, np.int64) - 1
-    axis = model.axis[hk].astype(dtype)
+    axis = take_rows(model.axis, hk).astype(dtype)
     R = body_rotations(topo, axis, gam)
     par = np.asarray(parents, np.int64)
     zero3 = jnp.zeros((1, 3), dtype)
-    to_h = mv(R[par], model.hinge_on_parent[hk].astype(dtype))
-    r = ancestor_sum(topo, jnp.concatenate([zero3, to_h - mv(R[1:], model.hinge_on_body[hk].astype(dtype))], 0))
-    g = mv(R[par], axis)
-    S = jnp.concatenate([g, cross(r[par] + to_h, g)], 1)  # (nh, 6) hinge motions
+    Rp = take_rows(R, par)
+    to_h = mv(Rp, take_rows(model.hinge_on_parent, hk).astype(dtype))
+    r = ancestor_sum(topo, jnp.concatenate([zero3, to_h - mv(R[1:], take_rows(model.hinge_on_body, hk).astype(dtype))], 0))
+    g = mv(Rp, axis)
+    S = jnp.concatenate([g, cross(take_rows(r, par) + to_h, g)], 1)  # (nh, 6) hinge motions
     v0 = jnp.concatenate([w, jnp.zeros(3, dtype)]) if v0 is None else v0
     vel = ancestor_sum(topo, jnp.concatenate([v0[None], S * gamd[:, None]], 0))
-    cw, cu = motion_cross(vel[par, :3], vel[par, 3:], S[:, :3] * gamd[:, None], S[:, 3:] * gamd[:, None])
+    vp = take_rows(vel, par)
+    cw, cu = motion_cross(vp[:, :3], vp[:, 3:], S[:, :3] * gamd[:, None], S[:, 3:] * gamd[:, None])
     c = jnp.concatenate([cw, cu], 1)  # (the prescribed accelerations enter through their columns of z)
     cbar = ancestor_sum(topo, jnp.concatenate([jnp.zeros((1, 6), dtype), c], 0))
     bidx = np.asarray(bodies, np.int64)
-    mass = model.mass[bidx].astype(dtype)
-    Jc = mm(mm(R, model.inertia[bidx].astype(dtype)), jnp.swapaxes(R, -1, -2))
+    mass = take_rows(model.mass, bidx).astype(dtype)
+    Jc = mm(mm(R, take_rows(model.inertia, bidx).astype(dtype)), jnp.swapaxes(R, -1, -2))
     eye = jnp.eye(3, dtype=dtype)
     J = Jc + mass[:, None, None] * (jnp.sum(r * r, -1)[:, None, None] * eye - r[:, :, None] * r[:, None, :])
     h = mass[:, None] * r
@@ -130,11 +132,11 @@ def _large_frame(hm: HybridModel, bases, t, dcm, w, gL, gdL, v0=None):
         b = b.at[6 + ci].add(-tau)
     # the substructures' bases
     lbs = np.asarray([local[bb] for bb in bases], np.int64)
-    E = jnp.swapaxes(R[lbs], -1, -2)
-    rb = r[lbs]
-    Jb = _to_base(E, rb, Jac[lbs])
-    vb = _to_base(E, rb, vel[lbs][..., None])[..., 0]
-    cb = _to_base(E, rb, cbar[lbs][..., None])[..., 0]
+    E = jnp.swapaxes(take_rows(R, lbs), -1, -2)
+    rb = take_rows(r, lbs)
+    Jb = _to_base(E, rb, take_rows(Jac, lbs))
+    vb = _to_base(E, rb, take_rows(vel, lbs)[..., None])[..., 0]
+    cb = _to_base(E, rb, take_rows(cbar, lbs)[..., None])[..., 0]
     return A, b, Jb, vb, cb, gddP
 
 

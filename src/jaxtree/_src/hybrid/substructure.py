@@ -50,7 +50,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..equations.kinematics import ancestor_sum, body_rotations, cross, mm, mv
+from ..equations.kinematics import ancestor_sum, body_rotations, cross, mm, mv, take_rows
 from ..equations.spatial import force_cross, inertia_apply, inertia_matrix, motion_cross
 from ..numerics import build_jit, is_traced
 from ..vehicle.topology import Topology
@@ -129,12 +129,13 @@ def _gauss(topo, d: _Bodies, gamma, yd, v):
     axis = d.axis.astype(dtype)
     R = body_rotations(topo, axis, gamma)  # body i -> {b} components; R[0] = U
     par = np.asarray(topo.parents, np.int64)
-    to_hinge = mv(R[par], d.hinge_on_parent.astype(dtype))  # the root's: from b's mass center, {b}
+    Rp = take_rows(R, par)
+    to_hinge = mv(Rp, d.hinge_on_parent.astype(dtype))  # the root's: from b's mass center, {b}
     from_hinge = -mv(R[1:], d.hinge_on_body.astype(dtype))
     zero = jnp.zeros((1, 3), dtype)
     r = ancestor_sum(topo, jnp.concatenate([zero, to_hinge + from_hinge], 0))  # mass centers from b's
-    hp = r[par] + to_hinge
-    g = mv(R[par], axis)
+    hp = take_rows(r, par) + to_hinge
+    g = mv(Rp, axis)
     Sw, Su = g, cross(hp, g)
     # bodies of the substructure: inertia about b's mass center, velocities, bias accelerations
     mass = d.mass.astype(dtype)
@@ -144,7 +145,8 @@ def _gauss(topo, d: _Bodies, gamma, yd, v):
     hm = mass[:, None] * r
     rates = jnp.concatenate([v[None, :], jnp.concatenate([Sw, Su], 1) * yd[:, None]], 0)
     vel = ancestor_sum(topo, rates)  # (nu+1, 6)
-    cw, cu = motion_cross(vel[par, :3], vel[par, 3:], Sw * yd[:, None], Su * yd[:, None])
+    vp = take_rows(vel, par)
+    cw, cu = motion_cross(vp[:, :3], vp[:, 3:], Sw * yd[:, None], Su * yd[:, None])
     cbar = ancestor_sum(topo, jnp.concatenate([jnp.zeros((1, 6), dtype), jnp.concatenate([cw, cu], 1)], 0))
     Lw, Lu = inertia_apply(J, hm, mass, vel[:, :3], vel[:, 3:])
     bw, bu = force_cross(vel[:, :3], vel[:, 3:], Lw, Lu)
