@@ -188,25 +188,30 @@ def pre_blocks(hm: HybridModel, t, parts, with_ww: bool = True):
     # coefficient: tangents of s, a Jacobian's columns, do not pass through the features)
     C1 = jnp.einsum("pilm,pl->pim", pre.bias1.reshape(p, pre.bias1.shape[1], psi.shape[1], -1), psi)
     f1 = jnp.einsum("pim,pm->pi", C1, sS)
-    B = jnp.stack([pre.mat0, jnp.einsum("pijm,pm->pij", pre.mat1, sS)])  # (2, p, 6 + uS, 6)
-    X = jnp.einsum("xpia,pak->xpik", B, Jb)  # (2, p, 6 + uS, nz): bar and caret, base and modal rows
-    Azz = jnp.stack([A, jnp.zeros_like(A)]) + jnp.einsum("pak,xpal->xkl", Jb, X[:, :, :6])
-    Awz = X[:, :, 6:].reshape(2, p * uS, -1)
+    # bar and caret apart, not stacked: a tangent of the modal coordinates alone (a Jacobian's modal
+    # columns) then passes through the caret products only, the bar ones carrying no tangent
+    B1 = jnp.einsum("pijm,pm->pij", pre.mat1, sS)  # (p, 6 + uS, 6): the caret matrix; the bar one is mat0
+    X0 = jnp.einsum("pia,pak->pik", pre.mat0, Jb)  # (p, 6 + uS, nz): base and modal rows
+    X1 = jnp.einsum("pia,pak->pik", B1, Jb)
+    Azz0 = A + jnp.einsum("pak,pal->kl", Jb, X0[:, :6])
+    Azz1 = jnp.einsum("pak,pal->kl", Jb, X1[:, :6])
     Azw = jnp.einsum("pak,pau->kpu", Jb, pre.aw0).reshape(-1, p * uS)  # bar only (Eq. 30c)
-    bz = jnp.stack([b, jnp.zeros_like(b)]) + jnp.einsum("pak,xpa->xk", Jb, jnp.stack([f0[:, :6], f1[:, :6]]))
-    bw = jnp.stack([f0[:, 6:], f1[:, 6:]]).reshape(2, p * uS)
+    bz0 = b + jnp.einsum("pak,pa->k", Jb, f0[:, :6])
+    bz1 = jnp.einsum("pak,pa->k", Jb, f1[:, :6])
     # rows: the kept z rows, then the modal ones; eliminate the translation of b_0 (z 3..5)
     nL, nP = len(hm.large), len(hm.model.prescribed)
     nz = A.shape[0]
     Rz = np.concatenate([np.arange(3), np.arange(6, 6 + nL)])
     T = np.arange(3, 6)
     Kc = np.concatenate([np.arange(3), np.arange(6, nz)])
-    A0, A1 = (jnp.concatenate([Azz[x][Rz], Awz[x]], 0) for x in (0, 1))  # (rows, nz)
-    b0, b1 = (jnp.concatenate([bz[x][Rz], bw[x]]) for x in (0, 1))
+    A0 = jnp.concatenate([Azz0[Rz], X0[:, 6:].reshape(p * uS, -1)], 0)  # (rows, nz)
+    A1 = jnp.concatenate([Azz1[Rz], X1[:, 6:].reshape(p * uS, -1)], 0)
+    b0 = jnp.concatenate([bz0[Rz], f0[:, 6:].reshape(p * uS)])
+    b1 = jnp.concatenate([bz1[Rz], f1[:, 6:].reshape(p * uS)])
     minv = 1.0 / total_mass(hm, dtype)
-    A0T, A1T = Azz[0][T], Azz[1][T]  # the translation rows (3, nz)
+    A0T, A1T = Azz0[T], Azz1[T]  # the translation rows (3, nz)
     AK = A0[:, Kc] + A1[:, Kc] - minv * (A0[:, T] @ A0T[:, Kc] + A1[:, T] @ A0T[:, Kc] + A0[:, T] @ A1T[:, Kc])
-    rhs = -(b0 + b1 - minv * (A0[:, T] @ bz[0][T] + A1[:, T] @ bz[0][T] + A0[:, T] @ bz[1][T]))
+    rhs = -(b0 + b1 - minv * (A0[:, T] @ bz0[T] + A1[:, T] @ bz0[T] + A0[:, T] @ bz1[T]))
     nx = 3 + nL
     if nP:
         assert gddP is not None, "_large_frame returns the prescribed accelerations when there are some"
