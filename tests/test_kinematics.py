@@ -7,7 +7,16 @@ import numpy as np
 import pytest
 
 import jaxtree
-from jaxtree._src.equations.kinematics import ancestor_sum, body_rotations, cross, hinge_rotation, mm, mv, take_rows, tilde
+from jaxtree._src.equations.kinematics import (
+    ancestor_sum,
+    body_rotations,
+    cross,
+    hinge_rotation,
+    mm,
+    mv,
+    take_rows,
+    tilde,
+)
 
 from helpers import TABLE_2, table
 

@@ -86,7 +86,9 @@ def _large_frame(hm: HybridModel, bases, t, dcm, w, gL, gdL, v0=None):
     zero3 = jnp.zeros((1, 3), dtype)
     Rp = take_rows(R, par)
     to_h = mv(Rp, take_rows(model.hinge_on_parent, hk).astype(dtype))
-    r = ancestor_sum(topo, jnp.concatenate([zero3, to_h - mv(R[1:], take_rows(model.hinge_on_body, hk).astype(dtype))], 0))
+    r = ancestor_sum(
+        topo, jnp.concatenate([zero3, to_h - mv(R[1:], take_rows(model.hinge_on_body, hk).astype(dtype))], 0)
+    )
     g = mv(Rp, axis)
     S = jnp.concatenate([g, cross(take_rows(r, par) + to_h, g)], 1)  # (nh, 6) hinge motions
     v0 = jnp.concatenate([w, jnp.zeros(3, dtype)]) if v0 is None else v0
