@@ -70,7 +70,8 @@ def _solve_factored(model, state, t, tau, gdd_p):
 
 def configuration_tangent(model, cfg, omega, gamma_dot, d_gamma, d_gamma_dot, d_omega0):
     """Tangents of ``(cfg, omega)`` of :func:`configuration_and_rates` along state tangents
-    ``(d_gamma, d_gamma_dot, d_omega0)`` (None: zero), in closed form.
+    ``(d_gamma, d_gamma_dot, d_omega0)`` (None: zero), in closed form; the configuration's tangent is
+    None when `d_gamma` is (its rates alone do not move it).
 
     A change ``d_gamma`` of the angles turns every body about the hinge axes inboard of it: body
     k by the small rotation ``theta_k = sum_r epsilon_{rk} d_gamma_r g^r`` (the path-element sum
@@ -87,9 +88,9 @@ def configuration_tangent(model, cfg, omega, gamma_dot, d_gamma, d_gamma_dot, d_
     zero = jnp.zeros((1, 3), dtype)
     w0 = zero if d_omega0 is None else jnp.asarray(d_omega0, dtype)[None, :]
     rates = jnp.zeros_like(G) if d_gamma_dot is None else G * jnp.asarray(d_gamma_dot, dtype)[:, None]
-    if d_gamma is None:
+    if d_gamma is None:  # the configuration does not move: no tangent (None), not a zero one
         d_omega = ancestor_sum(topo, jnp.concatenate([w0, rates], 0))
-        return jax.tree_util.tree_map(jnp.zeros_like, cfg), d_omega
+        return None, d_omega
     theta = ancestor_sum(topo, jnp.concatenate([zero, G * jnp.asarray(d_gamma, dtype)[:, None]], 0))
     tp = take_rows(theta, par)
     d_axis = cross(tp, G)
@@ -467,11 +468,13 @@ def _unbalanced_jvp(primals, tangents, x_u, values, dots, rebuild):
                 return configuration_and_rates(m_rebuild(v), state.gamma, state.omega0, state.gamma_dot)
 
             _, (c_dot, o_dot) = jax.jvp(configuration_of, (m_values,), (m_dots,))
-            cfg_dot = jax.tree_util.tree_map(jnp.add, cfg_dot, c_dot)
+            cfg_dot = c_dot if cfg_dot is None else jax.tree_util.tree_map(jnp.add, cfg_dot, c_dot)
             omega_dot = omega_dot + o_dot
 
     def force(values, cfg, omega):
         m, s, tt, ta, gp = rebuild(values)
         return unbalanced_at(m, s, tt, ta, cfg, omega, *full_accelerations(m, x_u, gp))
 
+    if cfg_dot is None:  # rates only: the geometry carries no tangent, so none of its products is differentiated
+        return jax.jvp(lambda v, o: force(v, cfg, o), (values, omega), (dots, omega_dot))[1]
     return jax.jvp(force, (values, cfg, omega), (dots, cfg_dot, omega_dot))[1]
