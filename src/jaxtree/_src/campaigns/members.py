@@ -64,6 +64,17 @@ def _implicit(cfg: Config) -> bool:
     return isinstance(cfg.solver, dfx.AbstractImplicitSolver)
 
 
+def _euler_parameters(sol, cfg: Config):
+    """The saved attitudes as Euler parameters (q0 >= 0, unit norm): the integrated ones normalized
+    when the attitude variables are Euler parameters (no conversion from C in the program), else
+    from C (Shepperd's method)."""
+    if cfg.attitude != "quaternion":
+        return dcm_to_quaternion(sol.dcm)
+    q = sol.attitude
+    sign = jnp.where(q[..., :1] < 0, -1.0, 1.0).astype(q.dtype)
+    return sign * q / jnp.sqrt(jnp.sum(q * q, -1, keepdims=True))
+
+
 def _member(model: Model, ts, t1, rtol, atol, cfg: Config):
     """One member: its histories and per-run figures (a dict of arrays)."""
 
@@ -86,7 +97,7 @@ def _member(model: Model, ts, t1, rtol, atol, cfg: Config):
         omega0=sol.omega0,
         gamma=sol.gamma,
         gamma_dot=sol.gamma_dot,
-        attitude=dcm_to_quaternion(sol.dcm),
+        attitude=_euler_parameters(sol, cfg),
         energy=sol.energy,
         angular_momentum=sol.angular_momentum,
     )
