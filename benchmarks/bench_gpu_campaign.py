@@ -62,6 +62,7 @@ from _flex95 import FLEX_SAVES, FLEX_T1, Flex, flex_errors, flex_factors, flex_m
 T1, SAVES, GOAL = 10.0, 101, 1e-6
 MJX_DT = {"fig4_free": 0.00125, "flex95": 0.005}
 SECTIONS = ("fig4", "mjx4", "flex", "mjxflex", "flexdopri", "fig4more", "mjx4f32", "mjxflex64", "flexfull")
+MORE = ("flexhost", "flexdoprihost")
 START = time.perf_counter()
 
 
@@ -71,7 +72,7 @@ def _args():
     p.add_argument("--budget", type=float, default=480.0, help="seconds after which no new row starts")
     p.add_argument("--runs", type=int, help="fig4_free members (default 1000; --quick 16)")
     p.add_argument("--flex-runs", type=int, help="flex95 members (default 256; --quick 8)")
-    p.add_argument("--sections", nargs="+", choices=SECTIONS, default=list(SECTIONS), help="rows, in this order")
+    p.add_argument("--sections", nargs="+", choices=SECTIONS + MORE, default=list(SECTIONS), help="rows, in this order")
     p.add_argument("--reference", help="the references' .npz (read when it exists, else computed and written)")
     p.add_argument("--json", help="write the figures to this JSON file (atomically, after each row)")
     a = p.parse_args()
@@ -202,9 +203,11 @@ def jaxtree_fig4(label, dtype, refs, **kw):
     return ds
 
 
-def jaxtree_flex(form, solver_name, tol, refs):
+def jaxtree_flex(form, solver_name, tol, refs, where="device"):
     """The flex95 campaign in one vmapped chunk: the members' models (hybrid: rebuilt, vmapped),
-    then their integration."""
+    then their integration. `where` the models are built: "device" (vmapped on the default
+    device) or "host" (on the host's CPU devices, each its share one after another, ``lax.map``
+    in ``shard_map``; then moved to the default device)."""
     flex = FLEX()
     n = ARGS.flex_runs
     solver = jaxtree.Radau5() if solver_name == "Radau5" else dfx.Dopri8()
@@ -219,17 +222,32 @@ def jaxtree_flex(form, solver_name, tol, refs):
 
     one = flex.hybrid if form == "hybrid" else flex.member
     members = lambda f: one(f[0], f[1])
-    if jax.default_backend() == "cpu":
+    factors = jnp.asarray(flex_factors(n))
+    place, cpus = (lambda xs: xs), []
+    if where == "host":
+        from jax.sharding import Mesh, NamedSharding
+        from jax.sharding import PartitionSpec as P
+
+        cpus = jax.devices("cpu")
+        cpus = cpus[: max(k for k in range(1, len(cpus) + 1) if n % k == 0)]
+        mesh = Mesh(np.array(cpus), ("m",))
+        build = jax.jit(
+            jax.shard_map(
+                lambda fs: jax.lax.map(members, fs), mesh=mesh, in_specs=P("m"), out_specs=P("m"), check_vma=False
+            )
+        )
+        factors = jax.device_put(factors, NamedSharding(mesh, P("m")))
+        place = lambda xs: jax.device_put(xs, jax.devices()[0])
+    elif jax.default_backend() == "cpu":
         # the batched complex LU of a vmapped build deadlocks in jaxlib's CPU LAPACK pool (FINDINGS)
         build = jax.jit(lambda fs: jax.lax.map(members, fs))
     else:
         build = jax.jit(jax.vmap(members))
     integrate = jax.jit(jax.vmap(sim))
-    factors = jnp.asarray(flex_factors(n))
 
     def campaign():
         t = time.perf_counter()
-        xs = jax.block_until_ready(build(factors))
+        xs = jax.block_until_ready(place(build(factors)))
         tb = time.perf_counter() - t
         t = time.perf_counter()
         out = jax.block_until_ready(integrate(xs))
@@ -241,7 +259,7 @@ def jaxtree_flex(form, solver_name, tol, refs):
     (w, g, steps), tb, ti = campaign()
     wall = tb + ti
     e = flex_error(np.asarray(w), np.asarray(g), refs["flex"])
-    label = f"{form} {solver_name} {tol:g}"
+    label = f"{form} {solver_name} {tol:g}" + (f", models on {len(cpus)} host cores" if where == "host" else "")
     row(
         scene="flex95",
         engine="jaxtree",
@@ -502,6 +520,8 @@ def main():
         "mjx4f32": lambda: mjx_fig4("float32"),
         "mjxflex64": lambda: flex_mjx("float64"),
         "flexfull": lambda: jaxtree_flex("full", "Dopri8", 1e-3, refs),
+        "flexhost": lambda: jaxtree_flex("hybrid", "Radau5", 5e-5, refs, where="host"),
+        "flexdoprihost": lambda: jaxtree_flex("hybrid", "Dopri8", 1e-3, refs, where="host"),
     }
     for name in ARGS.sections:
         if left() <= 0:
