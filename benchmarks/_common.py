@@ -66,3 +66,22 @@ def dispersed_fig4(key, model):
             s._replace(omega0=omega0.astype(s.omega0.dtype), gamma_dot=gamma_dot.astype(s.gamma_dot.dtype)),
         ),
     )
+
+
+def use_fast_cpu_flags(*, default_xla=False):
+    """XLA:CPU's older LLVM emitters for this benchmark's process (``--xla_cpu_use_fusion_emitters=false``
+    in ``XLA_FLAGS``), as ``python -m jaxtree`` sets them, unless `default_xla`, an XLA_FLAGS that
+    names the option, or a jaxlib without them (>= 0.11, which aborts on the flag: jaxtree's
+    ``numerics.legacy_cpu_emitters``, not imported here because importing jaxtree sets the
+    process's CPU devices). Call it before JAX starts its backend."""
+    import os
+
+    import jaxlib
+
+    current = os.environ.get("XLA_FLAGS", "")
+    try:
+        legacy = tuple(int(x) for x in jaxlib.__version__.split(".")[:2]) < (0, 11)
+    except ValueError:
+        legacy = False
+    if legacy and not default_xla and "xla_cpu_use_fusion_emitters" not in current:
+        os.environ["XLA_FLAGS"] = f"{current} --xla_cpu_use_fusion_emitters=false".strip()

@@ -22,7 +22,6 @@ Run:  python benchmarks/bench_basilisk.py [--repeats 3] [--json results/bench_ba
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
@@ -44,8 +43,9 @@ def _args():
 
 
 ARGS = _args()
-if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
+from _common import use_fast_cpu_flags
+
+use_fast_cpu_flags()
 
 import jax
 import numpy as np

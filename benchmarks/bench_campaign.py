@@ -100,8 +100,9 @@ def _args():
 
 
 ARGS = _args()
-if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
+from _common import use_fast_cpu_flags
+
+use_fast_cpu_flags()
 if ARGS.scene == "flex95" and ARGS.devices > 1 and "host_platform_device_count" not in os.environ["XLA_FLAGS"]:
     # host devices for the split sequential run only (fig4_free's campaign keeps one device)
     os.environ["XLA_FLAGS"] += f" --xla_force_host_platform_device_count={ARGS.devices}"

@@ -33,8 +33,9 @@ def _args():
 
 
 ARGS = _args()
-if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
+from _common import use_fast_cpu_flags
+
+use_fast_cpu_flags()
 
 import jax
 import jax.numpy as jnp

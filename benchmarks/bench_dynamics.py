@@ -66,9 +66,9 @@ def _blas_threads_from_argv(argv):
 
 def _cpu_emitters_from_argv(argv):
     """XLA:CPU's older emitters unless ``--default-xla`` (must act before JAX starts its backend)."""
-    current = os.environ.get("XLA_FLAGS", "")
-    if "--default-xla" not in argv and "xla_cpu_use_fusion_emitters" not in current:
-        os.environ["XLA_FLAGS"] = f"{current} --xla_cpu_use_fusion_emitters=false".strip()
+    from _common import use_fast_cpu_flags
+
+    use_fast_cpu_flags(default_xla="--default-xla" in argv)
 
 
 if __name__ == "__main__":

@@ -31,11 +31,11 @@ Run: ``python benchmarks/bench_hybrid.py [--scene flex95|panels95|chain200] [--q
 from __future__ import annotations
 
 import argparse
-import os
 import time
 
-if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
+from _common import use_fast_cpu_flags
+
+use_fast_cpu_flags()
 
 import jax
 import jax.numpy as jnp

@@ -17,11 +17,11 @@ Run: ``python benchmarks/bench_methods.py [--quick] [--json PATH]``.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 
-if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
+from _common import use_fast_cpu_flags
+
+use_fast_cpu_flags()
 
 import jax
 import jax.numpy as jnp

@@ -89,8 +89,9 @@ def _args():
 
 
 ARGS = _args()
-if not ARGS.default_xla and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
+from _common import use_fast_cpu_flags
+
+use_fast_cpu_flags(default_xla=ARGS.default_xla)
 
 import jax
 import numpy as np

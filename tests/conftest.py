@@ -4,15 +4,21 @@ import os
 
 # XLA's CPU fusion emitters roughly double compile times for the many small programs of a
 # test run (the ODE solves above all) with no gain in run time at these sizes; set before
-# JAX starts its backend.
-if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
+# JAX starts its backend. jaxlib >= 0.11 has no older emitters and aborts on the flag (jaxtree's
+# numerics.legacy_cpu_emitters; not imported here: importing jaxtree reads the cache directory
+# set below).
+import jaxlib
+
+if tuple(int(x) for x in jaxlib.__version__.split(".")[:2]) < (0, 11) and "xla_cpu_use_fusion_emitters" not in (
+    os.environ.get("XLA_FLAGS", "")
+):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 # Most of the suite's time is XLA compiling programs that then run for milliseconds: at XLA's
 # lowest backend optimization level they compile faster and the whole runs shorter even where a
 # test runs long (six of the slowest tests, 497 -> 404 s on 2026-11-28; benchmarks/FINDINGS.md).
 # The numbers are the same arithmetic (no fast math at any level); speed is the benchmarks' job.
 if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ["XLA_FLAGS"] + " --xla_backend_optimization_level=0").strip()
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
 
 # The tests compile from scratch and leave no files behind, but a program is compiled once per
 # run: the persistent compilation cache that `import jaxtree` turns on lives in a directory of

@@ -500,8 +500,35 @@ def test_own_programs_take_the_cpu_compiler_options():
         assert out.returncode == 0, out.stderr
         return out.stdout.strip()
 
-    assert run() == "{'xla_cpu_use_fusion_emitters': False} True"
-    assert run(XLA_FLAGS="--xla_cpu_use_fusion_emitters=true") == "None True"
+    from jaxtree._src.numerics import legacy_cpu_emitters
+
+    if legacy_cpu_emitters():
+        assert run() == "{'xla_cpu_use_fusion_emitters': False} True"
+        assert run(XLA_FLAGS="--xla_cpu_use_fusion_emitters=true") == "None True"
+    else:  # jaxlib >= 0.11: the option is gone (and the flag would abort the process)
+        assert run() == "None True"
+
+
+def test_compiler_options_only_where_xla_has_them(monkeypatch):
+    """jaxlib >= 0.11 has no ``xla_cpu_use_fusion_emitters``: a program compiled with it fails
+    ("No such compile option") and an XLA_FLAGS naming it aborts the process at the backend's
+    start. Without the older emitters jaxtree neither passes the option nor sets the flag."""
+    from jaxtree._src import numerics
+    from jaxtree._src.cli.common import fast_cpu_compiler
+
+    monkeypatch.setattr(numerics, "legacy_cpu_emitters", lambda: False)
+    monkeypatch.setenv("XLA_FLAGS", "--xla_backend_optimization_level=0")
+    assert numerics._program_options() is None
+    assert numerics._program_options(numerics.LIGHT_COMPILER_OPTIONS) is None  # named by XLA_FLAGS
+    assert numerics._program_options(numerics.REPRODUCIBLE_OPTIONS) == numerics.REPRODUCIBLE_OPTIONS
+    assert numerics.fast_cpu_flags() == ""
+    fast_cpu_compiler()
+    assert os.environ["XLA_FLAGS"] == "--xla_backend_optimization_level=0"
+    monkeypatch.setattr(numerics, "legacy_cpu_emitters", lambda: True)
+    monkeypatch.setenv("XLA_FLAGS", "")
+    assert numerics._program_options() == numerics.CPU_COMPILER_OPTIONS
+    fast_cpu_compiler()
+    assert os.environ["XLA_FLAGS"] == "--xla_cpu_use_fusion_emitters=false"
 
 
 def test_persistent_compilation_cache(tmp_path):

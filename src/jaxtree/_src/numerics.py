@@ -144,9 +144,47 @@ LIGHT_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
 REPRODUCIBLE_OPTIONS = {"xla_cpu_parallel_codegen_split_count": 1}
 
 
+def legacy_cpu_emitters() -> bool:
+    """Whether this jaxlib's XLA:CPU still has its older LLVM emitters, and with them the option
+    ``xla_cpu_use_fusion_emitters`` (jaxlib < 0.11). Read from the version, without starting
+    JAX's backend, for the settings made before it starts: an ``XLA_FLAGS`` that names an option
+    XLA does not know aborts the process (jaxlib 0.11.2: "Unknown flag in XLA_FLAGS")."""
+    import jaxlib
+
+    try:
+        major, minor = (int(x) for x in jaxlib.__version__.split(".")[:2])
+    except ValueError:
+        return False
+    return (major, minor) < (0, 11)
+
+
+def fast_cpu_flags() -> str:
+    """The ``XLA_FLAGS`` entry that selects XLA:CPU's older emitters where it has them (see
+    :data:`CPU_COMPILER_OPTIONS`), else the empty string: for a process's own settings, made before
+    JAX starts its backend (``python -m jaxtree``, the test suite, the benchmarks)."""
+    return "--xla_cpu_use_fusion_emitters=false" if legacy_cpu_emitters() else ""
+
+
+def use_fast_cpu_flags() -> None:
+    """Adds :func:`fast_cpu_flags` to ``XLA_FLAGS`` unless it names the option already. Effective
+    only before JAX starts its backend, which importing jaxtree does not do."""
+    import os
+
+    current = os.environ.get("XLA_FLAGS", "")
+    if fast_cpu_flags() and "xla_cpu_use_fusion_emitters" not in current:
+        os.environ["XLA_FLAGS"] = f"{current} {fast_cpu_flags()}".strip()
+
+
+def _accepted(name: str) -> bool:
+    """Whether this XLA has the compile option `name` (an unknown one fails the compilation: XLA
+    drops options between releases). Only the emitters' option is known to have gone."""
+    return name != "xla_cpu_use_fusion_emitters" or legacy_cpu_emitters()
+
+
 def _program_options(*more: dict | None) -> dict | None:
     """The XLA options of a top-level program on a CPU: :data:`CPU_COMPILER_OPTIONS` and `more`,
-    less any option that ``XLA_FLAGS`` names (the user's choice, process-wide); None elsewhere."""
+    less any option that ``XLA_FLAGS`` names (the user's choice, process-wide) and any this XLA
+    does not have; None elsewhere."""
     import inspect
     import os
 
@@ -154,7 +192,7 @@ def _program_options(*more: dict | None) -> dict | None:
         return None
     flags = os.environ.get("XLA_FLAGS", "")
     merged = {k: v for o in (CPU_COMPILER_OPTIONS, *more) for k, v in (o or {}).items()}
-    return {k: v for k, v in merged.items() if k not in flags} or None
+    return {k: v for k, v in merged.items() if k not in flags and _accepted(k)} or None
 
 
 def program_jit(fn=None, *, light=None, options=None):

@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
-import os
 import pathlib
 import re
 import sys
@@ -61,12 +60,12 @@ class Parser(argparse.ArgumentParser):
 
 def fast_cpu_compiler():
     # XLA:CPU's older LLVM emitters compile these many small fusions about twice as fast as the
-    # default fusion emitters, with the same run time. Only effective before JAX starts its CPU
+    # default fusion emitters, with the same run time; jaxlib >= 0.11 has only the latter, and
+    # aborts on the option (numerics.fast_cpu_flags). Only effective before JAX starts its CPU
     # backend, which importing jaxtree does not do; an explicit XLA_FLAGS setting wins.
-    flag = "--xla_cpu_use_fusion_emitters=false"
-    current = os.environ.get("XLA_FLAGS", "")
-    if "xla_cpu_use_fusion_emitters" not in current:
-        os.environ["XLA_FLAGS"] = f"{current} {flag}".strip()
+    from ..numerics import use_fast_cpu_flags
+
+    use_fast_cpu_flags()
 
 
 def say(*args):
