@@ -202,12 +202,17 @@ def read_matrix_market(mass_path, stiffness_path, nodes, dofs: int = 6) -> FEMod
     except ImportError:
         raise ImportError("read_matrix_market reads MatrixMarket files with scipy: pip install scipy") from None
 
+    import inspect
+
     nodes = np.asarray(nodes, float)
     N = dofs * nodes.shape[0]
     mats = []
+    # newer scipy takes the sparse kind (`spmatrix`: its default changes in scipy 1.20, and 1.18
+    # warns until then); either kind is made dense below
+    kind = {"spmatrix": False} if "spmatrix" in inspect.signature(scipy.io.mmread).parameters else {}
     for name, p in (("mass", mass_path), ("stiffness", stiffness_path)):
         try:
-            A = scipy.io.mmread(str(p))
+            A = scipy.io.mmread(str(p), **kind)
         except (OSError, ValueError) as exc:
             raise SceneError(f"{p}: not a readable MatrixMarket file ({exc})") from None
         dense = getattr(A, "toarray", None)
