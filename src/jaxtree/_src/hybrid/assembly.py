@@ -22,7 +22,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -151,53 +150,6 @@ def hybrid_model(
         tol=tol,
         extra=sum(ap.n_modes for ap in apps),
     )
-    # In a traced build (a member of a campaign, a derivative) whatever depends on no traced value
-    # (the Taylor terms of the substructures and the nominal frames, when only the stiffness is
-    # traced) is evaluated here, once, when the caller's program is traced, instead of being
-    # staged into it: flex95's rebuild of a member with its own stiffness fell from 232 to 2.9
-    # Mflop a call (benchmarks/FINDINGS.md, "A hybrid model rebuilt: what it recomputes").
-    with jax.ensure_compile_time_eval():
-        return _build(
-            model,
-            small,
-            n_modes,
-            cutoff,
-            omega0,
-            gamma,
-            dcm,
-            damping,
-            form,
-            precompute,
-            attitude,
-            rtol,
-            basis,
-            tol,
-            like,
-            apps,
-            no_hinges,
-        )
-
-
-def _build(
-    model,
-    small,
-    n_modes,
-    cutoff,
-    omega0,
-    gamma,
-    dcm,
-    damping,
-    form,
-    precompute,
-    attitude,
-    rtol,
-    basis,
-    tol,
-    like,
-    apps,
-    no_hinges,
-):
-    """:func:`hybrid_model` of checked arguments."""
     S = () if no_hinges else resolve_hinges(model, small)
     groups = _sub.substructures(model, S) if S else ()
     basis, precompute, form = resolve_options(
