@@ -149,10 +149,10 @@ def legacy_cpu_emitters() -> bool:
     ``xla_cpu_use_fusion_emitters`` (jaxlib < 0.11). Read from the version, without starting
     JAX's backend, for the settings made before it starts: an ``XLA_FLAGS`` that names an option
     XLA does not know aborts the process (jaxlib 0.11.2: "Unknown flag in XLA_FLAGS")."""
-    import jaxlib
+    from jaxlib.version import __version__ as jaxlib_version
 
     try:
-        major, minor = (int(x) for x in jaxlib.__version__.split(".")[:2])
+        major, minor = (int(x) for x in jaxlib_version.split(".")[:2])
     except ValueError:
         return False
     return (major, minor) < (0, 11)
