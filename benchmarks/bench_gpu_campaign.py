@@ -34,7 +34,11 @@ lent device is held for minutes, compilation takes most of it); each row is writ
 
 Run:  python benchmarks/bench_gpu_campaign.py [--quick] [--budget 480] [--reference PATH] [--json PATH]
 (on a GPU machine without an install: ``PYTHONPATH=src``; MJX from the ``mujoco-mjx`` wheel whose
-version matches ``mujoco``'s).
+version matches ``mujoco``'s). On the lent H200 of 2026-11-29 (Python 3.12, jax 0.11.2, no network)
+these wheels were carried and installed with ``pip install --no-deps --target``: mujoco 3.17.0
+(cp312, manylinux_2_28), mujoco-mjx 3.17.0, glfw, pyopengl, websockets, trimesh,
+importlib_resources; the references were computed on a CPU beforehand and carried as the .npz of
+``--reference`` (a run without it computes them on the card, about 20-40 s).
 """
 
 from __future__ import annotations
