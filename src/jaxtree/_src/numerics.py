@@ -247,8 +247,11 @@ BUILD_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
 def build_jit(fn):
     """``equinox.filter_jit`` for one-time construction: arrays traced, everything else static
     (hashed), compiled with :data:`BUILD_COMPILER_OPTIONS` (plain jit where the installed JAX
-    does not take ``compiler_options``)."""
-    return _static_jit(fn, BUILD_COMPILER_OPTIONS, numbers_traced=False)
+    does not take ``compiler_options``). Called with known arrays outside a trace or under
+    ``jax.ensure_compile_time_eval`` it runs its compiled executable, kept per static part and
+    argument types: a traced hybrid build evaluates its mass part by the reference build's
+    programs (:func:`jaxtree._src.hybrid.systems.mass_part`) without tracing them again."""
+    return _static_jit(fn, BUILD_COMPILER_OPTIONS, numbers_traced=False, executables=True)
 
 
 def eager_jit(fn: Callable[_P, _R]) -> Callable[_P, _R]:
@@ -268,7 +271,7 @@ def eager_jit(fn: Callable[_P, _R]) -> Callable[_P, _R]:
 _STATIC_JIT_KEEP = 256  # programs kept per function (the oldest dropped first)
 
 
-def _static_jit(fn, options, *, numbers_traced):
+def _static_jit(fn, options, *, numbers_traced, executables=False):
     import functools
     import inspect
 
@@ -276,6 +279,7 @@ def _static_jit(fn, options, *, numbers_traced):
 
     takes_options = "compiler_options" in inspect.signature(jax.jit).parameters
     compiled = {}
+    kept = {}  # with `executables`: the compiled executables by static part and argument types
 
     def as_array(x):
         if isinstance(x, np.number):
@@ -310,6 +314,21 @@ def _static_jit(fn, options, *, numbers_traced):
             if opts is None:
                 opts = {**(_program_options() or {}), **BUILD_COMPILER_OPTIONS} if takes_options else None
             compiled[key] = jax.jit(run, compiler_options=opts) if (opts and takes_options) else jax.jit(run)
+        if executables and _evaluating():
+            # its executable, kept: also called under `jax.ensure_compile_time_eval` inside a
+            # trace (a traced hybrid build's mass part, hybrid.systems.mass_part), where
+            # `jax.jit` would trace and compile the program again
+            dyn_leaves, dyn_def = jax.tree_util.tree_flatten(dynamic)
+            exe_key = (key, dyn_def, tuple(jax.typeof(x) for x in dyn_leaves))
+            exe = kept.get(exe_key)
+            if exe is None:
+                if len(kept) >= _STATIC_JIT_KEEP:
+                    kept.pop(next(iter(kept)))
+                exe = kept[exe_key] = compiled[key].lower(dynamic).compile()
+            try:
+                return exe(dynamic)
+            except ValueError:  # arrays placed elsewhere than the executable's device
+                pass
         try:
             return compiled[key](dynamic)
         except ValueError as err:  # compiler options are refused on a jit nested in another trace
@@ -318,6 +337,17 @@ def _static_jit(fn, options, *, numbers_traced):
             return fn(*args, **kwargs)
 
     return wrapper
+
+
+def _evaluating() -> bool:
+    """True outside any trace, and under ``jax.ensure_compile_time_eval`` inside one: where a
+    program called with known arrays runs now."""
+    try:
+        from jax._src import config, core
+
+        return bool(config.eager_constant_folding.value) or isinstance(core.trace_ctx.trace, core.EvalTrace)
+    except (ImportError, AttributeError):  # another JAX: jit's own path
+        return False
 
 
 def is_traced(tree) -> bool:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -63,6 +64,7 @@ class SmallSet(NamedTuple):
     appendages: tuple[ResolvedAppendage, ...]
     w_nom: Any  # omega0 of the nominal motion
     g_nom: Any  # the hinge angles of the nominal motion
+    frames: Any = None  # :func:`.systems.nominal_frames`: the bases' velocities, a_bar, the bases' frames
 
     @property
     def bases(self) -> tuple[int, ...]:
@@ -121,7 +123,9 @@ def nominal_motion(model, omega0, gamma, dcm):
     w = np.zeros(3, dtype) if omega0 is None else omega0
     g = np.zeros(model.n, dtype) if gamma is None else gamma
     C = np.eye(3, dtype=dtype) if dcm is None else dcm
-    return tuple(x.astype(dtype) if is_traced(x) else jnp.asarray(np.asarray(x, dtype)) for x in (w, g, C))
+    # a known value stays known inside a trace (a traced build's mass part, systems.mass_part)
+    with jax.ensure_compile_time_eval():
+        return tuple(x.astype(dtype) if is_traced(x) else jnp.asarray(np.asarray(x, dtype)) for x in (w, g, C))
 
 
 def hybrid_model_args(

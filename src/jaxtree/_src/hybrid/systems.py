@@ -6,7 +6,9 @@ The systems follow the basis: one per substructure on its held base in the nomin
 (:func:`substructure_systems`, with the finite-element appendages as substructures of their own
 after the small hinges'), or the whole set A (:func:`hybrid_systems`). :func:`nominal_frames`
 gives the bases' motion and ``a_bar`` of the small hinges (Eq. 36d) for them and for the assembly
-(:mod:`.assembly`).
+(:mod:`.assembly`); with the substructures' Taylor terms it is the build's mass part
+(:func:`resolved_set`, :func:`mass_part`), which a traced rebuild with new stiffness evaluates
+once, when it is traced.
 
 **Which modes.** By default (``basis="substructure"``) each substructure has its own modes, on its
 own held base (its base body moving on the nominal motion: cantilever modes, with centrifugal
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -32,7 +35,7 @@ from ..linear.modes import modes as _modes
 from ..numerics import build_jit, is_traced
 from ..vehicle.model import Model
 from . import substructure as _sub
-from .arguments import SmallSet, resolve_damping
+from .arguments import SmallSet, resolve_damping, small_set
 from .basis import base_loads, retained_like, retained_modes
 from .model import HybridModel
 
@@ -64,15 +67,60 @@ def nominal_frames(model: Model, g_nom, w_nom, bases: tuple, small: tuple, carri
     return vb, mass_matrix(model, g_nom)[np.ix_(S, S)], cfg.R[b]
 
 
+def resolved_set(model: Model, S, groups, apps, w_nom, g_nom, with_terms: bool) -> SmallSet:
+    """:func:`.arguments.small_set` with the nominal frames (:func:`nominal_frames`): the build's
+    mass part, which depends on the vehicle's mass properties, geometry and nominal motion and not
+    on its stiffness, damping or loads (:func:`mass_part`)."""
+
+    def part(m):
+        setup = small_set(m, S, groups, apps, w_nom, g_nom, with_terms)
+        ra = setup.appendages
+        carriers = tuple(r.body for r in ra)
+        added = (jnp.stack([r.mass for r in ra]), jnp.stack([r.first_moment for r in ra])) if ra else None
+        return setup.terms, nominal_frames(m, g_nom, w_nom, setup.bases, tuple(S), carriers, added)
+
+    tms, frames = mass_part(part, model, (w_nom, g_nom, apps))
+    return small_set(model, S, groups, apps, w_nom, g_nom, False)._replace(terms=tms, frames=frames)
+
+
+def mass_part(fn, model: Model, others):
+    """``fn(model)``, a function of the vehicle's mass properties, geometry and the arrays
+    `others` only (not of its stiffness, damping, loads or initial state).
+
+    In a build traced through those alone (a campaign member rebuilt with its own stiffness from a
+    concrete nominal vehicle: ``hybrid_model(member, ..., like=nominal)`` inside ``jit``) its
+    inputs are known: it is evaluated now, by the compiled programs of the concrete reference
+    build (the traced leaves stood in by zeros of their shapes: the same programs), and enters the
+    caller's program as values behind an optimization barrier, so that XLA neither recomputes it
+    in every call (232 Mflop for flex95's six wings) nor folds the operations on it at compile
+    time. Otherwise, and in a concrete build, ``fn(model)``."""
+    fixed = (
+        model.mass,
+        model.inertia,
+        model.axis,
+        model.hinge_on_parent,
+        model.hinge_on_body,
+        model.prescription,
+        model.law,
+        model.controller,
+        model.orbit,
+        others,
+    )
+    if not is_traced(model) or is_traced(fixed):
+        return fn(model)
+    with jax.ensure_compile_time_eval():
+        stand_in = jax.tree_util.tree_map(lambda x: jax.lax.full_like(x, 0) if is_traced(x) else x, model)
+        out = fn(stand_in)
+    return jax.lax.optimization_barrier(out)
+
+
 def substructure_systems(setup: SmallSet) -> list:
     """Eq. (42) of each substructure on its held base in the nominal spin about the system mass
     center: ``(rows in A, I, J, K, coordinate names)`` per substructure, then per finite-element
     appendage (its rows after the small hinges', its modal stiffness and damping)."""
     model, S, groups, tms, apps = setup.model, setup.small, setup.groups, setup.terms, setup.appendages
     assert tms is not None, "computed for the substructure basis"
-    carriers = tuple(ra.body for ra in apps)
-    added = (jnp.stack([ra.mass for ra in apps]), jnp.stack([ra.first_moment for ra in apps])) if apps else None
-    vb, _, _ = nominal_frames(model, setup.g_nom, setup.w_nom, setup.bases, tuple(S), carriers, added)
+    vb = setup.frames[0]
     # numpy for a concrete model; jnp where a parameter is traced (a differentiable build)
     xp = jnp if is_traced((model, tms, vb, apps)) else np
     vb = xp.asarray(vb)
