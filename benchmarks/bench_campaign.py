@@ -35,8 +35,8 @@ i's pair does not depend on N, and the subsample is the campaign's first members
   ``jaxtree.hybrid_model(..., like=nominal)``) with jaxtree.Radau5 and with Dopri8, and the full
   Eq. (1) with both (``--no-full`` skips it); each at its loosest tolerance meeting the goal,
   the cheapest integration a member (the subsample's members one after another in one compiled
-  program; the rebuild is timed in the campaign, where a chunk amortizes its fixed part) is the
-  campaign's setting;
+  program; the rebuild is timed in the campaign: its mass part, shared by every member, is
+  evaluated once, when the members' program is traced) is the campaign's setting;
 - jaxtree on the whole campaign with that setting: a single run of the nominal member, then the
   members in chunks of ``--chunk`` three ways: vmapped, one after another in one compiled
   program (``lax.map``), and that split over ``--devices`` host devices (two: the machine's
@@ -576,8 +576,8 @@ def main_flex():
         candidates += [("full", "Radau5", ARGS.tols), ("full", "Dopri8", ARGS.explicit_tols)]
     say(
         f"  each candidate on the {m} members one after another (lax.map): hub / wings error (goal {HUB_GOAL:g} / "
-        f"{SMALL_GOAL:g}), steps, integration time a member (the members' models apart: the hybrid rebuild's "
-        "fixed part, recomputed at every call, dominates a call of few members)"
+        f"{SMALL_GOAL:g}), steps, integration time a member (the members' models apart: their build in "
+        "one call of the subsample's members)"
     )
     rows = []
     for form, solver_name, tols in candidates:
