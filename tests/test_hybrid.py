@@ -966,7 +966,8 @@ def test_traced_rebuild_equals_the_eager_build_with_its_mass_part_evaluated_once
     mass part, the substructures' Taylor terms and nominal frames, is then evaluated when the
     program is traced and enters it as values) and when a mass is traced too (the mass part in the
     program). The stiffness-only program holds none of the mass part: its jaxpr is a fraction of
-    the other's (StableHLO lines)."""
+    the other's (StableHLO lines). And each mode's sign, which its normalization leaves free, is the
+    reference's: a reference with a mode turned over gives rebuilds with that mode turned over."""
     model = _wings()
     small = tuple(range(1, 9))
     spin = [0.0, 0.0, 0.3]
@@ -983,8 +984,8 @@ def test_traced_rebuild_equals_the_eager_build_with_its_mass_part_evaluated_once
     def rebuild_both(ks, km):
         return jaxtree.hybrid_model(member(ks, km), small, like=hm0, omega0=spin)
 
-    def invariants(hm):
-        return np.asarray(hm.frequencies), np.asarray(hm.positions @ hm.project)
+    def invariants(hm):  # the modes' signs are the reference's (below): positions compared as well
+        return np.asarray(hm.frequencies), np.asarray(hm.positions @ hm.project), np.asarray(hm.positions)
 
     for built, eager in (
         (jax.jit(rebuild_stiffness)(1.3), jaxtree.hybrid_model(member(1.3), small, like=hm0, omega0=spin)),
@@ -996,6 +997,19 @@ def test_traced_rebuild_equals_the_eager_build_with_its_mass_part_evaluated_once
     size = lambda f, *a: len(jax.jit(f).lower(*a).as_text().splitlines())
     print("StableHLO lines:", size(rebuild_stiffness, 1.3), size(rebuild_both, 0.8, 1.2))
     assert size(rebuild_stiffness, 1.3) < 0.5 * size(rebuild_both, 0.8, 1.2)
+    # a mode's sign is free (phi^T I phi = U, Eq. 89): a rebuild takes the reference's, traced or
+    # not; here a reference with its first mode turned over (both columns of its complex pair)
+    k = hm0.n_modes
+    assert hm0.form == "first_order" and hm0.positions.shape[1] == 2 * k
+    turned = hm0.positions.at[:, np.asarray([0, k])].multiply(-1.0)
+    ref = eqx.tree_at(lambda h: h.positions, hm0, turned)
+    for hm in (
+        jax.jit(lambda ks: jaxtree.hybrid_model(member(ks), small, like=ref, omega0=spin))(1.0),
+        jaxtree.hybrid_model(model, small, like=ref, omega0=spin),
+    ):
+        np.testing.assert_allclose(
+            np.asarray(hm.positions), np.asarray(turned), atol=1e-9 * float(np.abs(turned).max())
+        )
 
 
 def test_simulate_hybrid_takes_radau5_and_reports_its_counters():

@@ -106,9 +106,9 @@ def hybrid_model(
       ``"euler123"``).
 
     - `like`: a hybrid model of the same vehicle and set A (built from concrete values): its
-      retained modes (indices in each substructure's modes, global order), basis, form and
-      precomputation are kept, and `n_modes`, `cutoff`, `tol`, `basis`, `form`, `precompute`
-      are ignored. This makes the build differentiable: under ``jax.grad`` (or ``jvp``) with
+      retained modes (indices in each substructure's modes, global order), basis, form,
+      precomputation and the sign of each mode are kept, and `n_modes`, `cutoff`, `tol`, `basis`,
+      `form`, `precompute` are ignored. This makes the build differentiable: under ``jax.grad`` (or ``jvp``) with
       respect to the model's parameters (stiffness, masses, geometry) or the nominal motion, the
       modes are recomputed from the traced matrices (``jnp``) with the selection fixed. Damped
       (general) modes are differentiated by JAX's eigenvector derivatives, which need every mode
@@ -213,8 +213,15 @@ def _assemble_model(
     zg = [np.zeros(len(b[1])) for b in blocks]
     for q, (_, g, j) in enumerate(order):
         zg[g][j] = zeta[q]
+    ref = [None] * len(blocks)
+    if retained.reference is not None:  # each block's modes in the reference's positions
+        k_all = len(order)
+        pos = {(g, j): q for q, (_, g, j) in enumerate(order)}
+        for g, (rows, _sig, cand, *_r) in enumerate(blocks):
+            q = np.asarray([pos[(g, j)] for j in range(len(cand))], np.int64)
+            ref[g] = retained.reference[np.ix_(np.asarray(rows, np.int64), np.concatenate([q, k_all + q]))]
     parts_g = [
-        (rows, sig, modal_matrices(md, I, K, cand, form, zg[g], xp))
+        (rows, sig, modal_matrices(md, I, K, cand, form, zg[g], xp, ref[g]))
         for g, (rows, sig, cand, md, I, K) in enumerate(blocks)
     ]
     parts, mode_order, mmaps, umaps = _global_modal_matrices(parts_g, nu, form, order)

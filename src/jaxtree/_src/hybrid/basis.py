@@ -263,14 +263,28 @@ def truncation_terms(systems, mds, form, owners, nu, dtype) -> Truncation:
     )
 
 
-def modal_matrices(md, I, K, cand, form, zeta, xp=np):
+def _signs(x, ref, xp):
+    """+-1 per column of `x` (a mode's real basis vectors), -1 where its inner product with the same
+    column of the reference `ref` is negative."""
+    return xp.where(xp.sum(x * xp.asarray(ref), 0) < 0, -1.0, 1.0)
+
+
+def modal_matrices(md, I, K, cand, form, zeta, xp=np, ref=None):
     """Modal matrices of the retained modes `cand` of one set of coordinates (module docstring):
-    ``positions, rates (nu, m), accel, rows (nu, u), kin (u, u), kin_rhs (u, m), project (m, 2nu)``."""
+    ``positions, rates (nu, m), accel, rows (nu, u), kin (u, u), kin_rhs (u, m), project (m, 2nu)``.
+
+    `ref`: the `positions` of the same modes in a reference build (`like`): each mode's sign,
+    which its normalization leaves free (``phi^T I phi = U``; Eq. 89 for first-order modes) and
+    two eigensolvers may pick differently, is then the reference's, so that the modal coordinates
+    of a rebuilt member and of its reference mean the same (a complex pair's real and imaginary
+    parts turn together)."""
     nu, k = I.shape[0], len(cand)
     sig = xp.asarray(md.frequencies)[np.asarray(cand, np.int64)]
     Z = xp.zeros((nu, k))
     if form == "real":
         phi = xp.real(xp.asarray(md.shapes))[:, np.asarray(cand, np.int64)]  # Eq. (119), phi^T I phi = U
+        if ref is not None:
+            phi = phi * _signs(phi, ref[:, :k], xp)
         Ip = phi.T @ I
         return dict(
             positions=xp.concatenate([phi, Z], 1),
@@ -283,6 +297,13 @@ def modal_matrices(md, I, K, cand, form, zeta, xp=np):
         )
     tol = 0.0 if xp is jnp else 1e-9 * max(float(np.abs(np.asarray(md.eigenvalues)).max()), 1e-300)
     T, V = _real_pairs(md, cand, tol, xp)
+    if ref is not None:  # a complex pair turns as a whole; a pair of real eigenvalues column by column
+        lam = None if xp is jnp else np.asarray(md.eigenvalues)
+        paired = np.asarray([lam is None or abs(np.imag(lam[j])) > tol for j in cand] * 2)
+        prod = T[:nu] * xp.asarray(ref)
+        whole = xp.sum(prod[:, :k] + prod[:, k:], 0)
+        d = xp.where(paired, xp.concatenate([whole, whole]), xp.sum(prod, 0))
+        T = T * xp.where(d < 0, -1.0, 1.0)  # the left vectors W follow T (normalized against it below)
     W = xp.concatenate([K.T @ V[:nu], V[nu:]], 0)  # left vectors of the unscaled rows (30d)
     Pu = xp.block([[xp.eye(nu), xp.zeros((nu, nu))], [xp.zeros((nu, nu)), I]])
     W = W @ xp.linalg.inv(W.T @ Pu @ T).T  # W^T diag(U, I) T = U (Eqs. 116-117)

@@ -22,7 +22,7 @@ removes the modes left out.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -177,12 +177,14 @@ class Retained(NamedTuple):
     keep some and `picked` ``(system, indices)`` of each (:func:`.basis.retained_modes`), the
     global order of a reference build's modes, ``(_, block, local index)``
     (:func:`.basis.retained_like`; None: ascending frequency), and the modal damping ratios
-    `zeta` in the global order."""
+    `zeta` in the global order; `reference`: the reference build's `positions` (their signs are
+    kept, :func:`.basis.modal_matrices`), None without one."""
 
     blocks: list
     picked: list
     order: list | None
     zeta: np.ndarray
+    reference: Any = None
 
 
 def retained(setup: SmallSet, systems, mds, like, *, n_modes, cutoff, form, basis, tol, damping) -> Retained:
@@ -204,4 +206,4 @@ def retained(setup: SmallSet, systems, mds, like, *, n_modes, cutoff, form, basi
         sum(len(b[1]) for b in blocks),
         kinds[0] if len(set(kinds)) == 1 else "general" if "general" in kinds else kinds[0],
     )
-    return Retained(blocks, picked, order, zeta)
+    return Retained(blocks, picked, order, zeta, None if like is None else like.positions)
