@@ -213,13 +213,7 @@ def _assemble_model(
     zg = [np.zeros(len(b[1])) for b in blocks]
     for q, (_, g, j) in enumerate(order):
         zg[g][j] = zeta[q]
-    ref = [None] * len(blocks)
-    if retained.reference is not None:  # each block's modes in the reference's positions
-        k_all = len(order)
-        pos = {(g, j): q for q, (_, g, j) in enumerate(order)}
-        for g, (rows, _sig, cand, *_r) in enumerate(blocks):
-            q = np.asarray([pos[(g, j)] for j in range(len(cand))], np.int64)
-            ref[g] = retained.reference[np.ix_(np.asarray(rows, np.int64), np.concatenate([q, k_all + q]))]
+    ref = _reference_blocks(retained.reference, blocks, order)
     parts_g = [
         (rows, sig, modal_matrices(md, I, K, cand, form, zg[g], xp, ref[g]))
         for g, (rows, sig, cand, md, I, K) in enumerate(blocks)
@@ -270,6 +264,21 @@ def _assemble_model(
         else None,
     )
     return with_inverse(hm)
+
+
+def _reference_blocks(reference, blocks, order) -> list:
+    """Each block's modes in a reference build's `positions` (its rows, the columns of its modes in
+    the global `order`, a complex pair's two), for :func:`.basis.modal_matrices`' signs; Nones
+    without a reference."""
+    if reference is None:
+        return [None] * len(blocks)
+    k = len(order)
+    pos = {(g, j): q for q, (_, g, j) in enumerate(order)}
+    out = []
+    for g, (rows, _sig, cand, *_rest) in enumerate(blocks):
+        q = np.asarray([pos[(g, j)] for j in range(len(cand))], np.int64)
+        out.append(reference[np.ix_(np.asarray(rows, np.int64), np.concatenate([q, k + q]))])
+    return out
 
 
 def _truncation(systems, mds, which, owners, form, nu, dtype, first=0):
