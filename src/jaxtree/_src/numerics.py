@@ -341,10 +341,13 @@ def _static_jit(fn, options, *, numbers_traced, executables=False):
 
 def _evaluating() -> bool:
     """True outside any trace, and under ``jax.ensure_compile_time_eval`` inside one: where a
-    program called with known arrays runs now."""
+    program called with known arrays runs now (not under ``jax.disable_jit``: operation by
+    operation there)."""
     try:
         from jax._src import config, core
 
+        if config.disable_jit.value:
+            return False
         return bool(config.eager_constant_folding.value) or isinstance(core.trace_ctx.trace, core.EvalTrace)
     except (ImportError, AttributeError):  # another JAX: jit's own path
         return False
