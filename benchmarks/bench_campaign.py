@@ -40,7 +40,8 @@ i's pair does not depend on N, and the subsample is the campaign's first members
 - jaxtree on the whole campaign with that setting: a single run of the nominal member, then the
   members in chunks of ``--chunk`` three ways: vmapped, one after another in one compiled
   program (``lax.map``), and that split over ``--devices`` host devices (two: the machine's
-  cores); first chunk (compile + run) apart from the campaign's time, the members' rebuild
+  cores); first chunk (compile + run, the persistent cache off unless ``--cache``) apart from
+  the campaign's time, the members' rebuild
   (hybrid) apart from their integration, members per second, steps, Radau5's Jacobians and
   factorizations a member;
 - the peer: Pinocchio's ABA under scipy's Radau (the forward-difference Jacobian of
@@ -89,6 +90,9 @@ def _args():
     p.add_argument("--no-full", action="store_true", help="flex95: leave the full Eq. (1) out of the choice")
     p.add_argument("--devices", type=int, default=2, help="flex95: host devices of the split sequential run")
     p.add_argument("--note", help="a line printed under the machine's (e.g. who else used it)")
+    p.add_argument(
+        "--cache", action="store_true", help="keep jaxtree's persistent compilation cache on (off by default here)"
+    )
     p.add_argument("--no-peer", action="store_true")
     p.add_argument("--json")
     a = p.parse_args()
@@ -107,6 +111,8 @@ if ARGS.scene == "flex95" and ARGS.devices > 1 and "host_platform_device_count" 
     # host devices for the split sequential run only (fig4_free's campaign keeps one device)
     os.environ["XLA_FLAGS"] += f" --xla_force_host_platform_device_count={ARGS.devices}"
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+if not ARGS.cache:  # a first chunk's compile is XLA's, not a read of what an earlier run left on disk
+    os.environ.setdefault("JAXTREE_CACHE_DIR", "0")
 
 import equinox as eqx
 import jax
@@ -250,6 +256,7 @@ def peer_error(hist, ref, n):
 def main_fig4():
     results = {"machine": machine(), "runs": ARGS.runs, "t1": T1, "saves": SAVES}
     say(results["machine"])
+    say(f"jaxtree's persistent compilation cache: {'on' if ARGS.cache else 'off'}")
     if ARGS.note:
         say(ARGS.note)
     try:
@@ -535,6 +542,7 @@ def main_flex():
 
     results = {"machine": machine(), "scene": "flex95", "runs": ARGS.runs, "t1": FLEX_T1, "saves": FLEX_SAVES}
     say(results["machine"])
+    say(f"jaxtree's persistent compilation cache: {'on' if ARGS.cache else 'off'}")
     if ARGS.note:
         say(ARGS.note)
         results["note"] = ARGS.note
