@@ -11,12 +11,13 @@ For each case it prints the time per member of
 - ``batch-first (<stage>)`` with ``--stages``: the recursion called explicitly
   (``solve.batch_first``) with the stages cut another way;
 - ``batch-first, N devices``: the batch split over the host devices (``shard_map``), each
-  device's share in vmapped groups of ``batch_first_min()`` members;
+  device's share as one ``jax.vmap`` (the engine runs more than ``solve.BATCH_GROUP`` members
+  group after group), or with `--group` in ``lax.map`` groups of that many;
 - ``MuJoCo rollout``: ``mujoco.rollout`` with one thread per core, RK4, time per member and per
   right side (a step is four), where the scene is representable (massless bodies get a tiny mass);
 
-with compile time apart, XLA's flop count per member (of the batch-first program with every level
-unrolled: a ``lax.scan`` body is counted once) and the GFLOP/s it reaches. Timings: the batch
+with compile time apart, XLA's flop count per member (of one group's batch-first program with every
+level unrolled: a ``lax.scan`` body is counted once) and the GFLOP/s it reaches. Timings: the batch
 evaluated in a jitted ``fori_loop`` of `--loop` calls (arguments shifted by the loop index, so
 nothing is hoisted), minimum of `--repeats`. The flex95 hybrid right side (3 modes per wing) is
 vmapped as it is today (no batch-first form yet).
@@ -80,7 +81,8 @@ def _args():
         type=int,
         nargs="+",
         default=None,
-        help="members per vmapped group of a device's share in the devices' row (default batch_first_min() = 64)",
+        help="members per lax.map group of a device's share in the devices' row (default: the share as one vmap, "
+        "which the engine runs in groups of at most solve.BATCH_GROUP)",
     )
     p.add_argument("--json", default=os.path.join(HERE, "results", "bench_batch.json"))
     return p.parse_args()
@@ -160,10 +162,10 @@ def eq1(model):
 
 def eq1_on_devices(model, size, group=None):
     """Eq. (1) of a batch split over the local devices (``shard_map``: the CPU's cores, one device
-    per core as ``import jaxtree`` sets up), each device's share in vmapped groups of `group`
-    members (default ``batch_first_min()`` = 64, a campaign chunk's default share of a device: the
-    batch-first recursion; a group's working set stays small), as ``jaxtree.monte_carlo`` splits a
-    chunk; None with one device."""
+    per core as ``import jaxtree`` sets up), each device's share vmapped, by default as one
+    ``jax.vmap`` (the engine then runs it in groups of ``solve.member_groups``, at most
+    ``BATCH_GROUP`` = 64 members), with `group` in ``lax.map`` groups of `group` members as
+    ``jaxtree.monte_carlo`` splits a chunk; None with one device."""
     from jax.sharding import Mesh
     from jax.sharding import PartitionSpec as P
 
@@ -172,7 +174,7 @@ def eq1_on_devices(model, size, group=None):
         return None
     dcm = model.initial.dcm
     one = lambda w, g, gd: jaxtree.forward_dynamics(model, dcm, w, g, gd)
-    group = min(solve.batch_first_min() if group is None else group, size // len(devices))
+    group = size // len(devices) if group is None else min(group, size // len(devices))
     share = lambda w, g, gd: jax.lax.map(lambda a: one(*a), (w, g, gd), batch_size=group)
     mesh = Mesh(np.asarray(devices), ("members",))
     spec = P("members")
@@ -265,12 +267,15 @@ def case(name, size, args):
         fn = eq1(model)
         per, first = loop_timing(fn, xs, args.loop, args.repeats)
         unrolled = batch_first(model, scan_min=10**9)
-        rows = [(f"batch-first ({batched.default_stages()})", per / size, first, flops(unrolled, xs) / size)]
+        each = solve.member_groups(size)[1]  # a batch of more runs group after group: one group's flops
+        group_xs = tuple(x[:each] for x in xs)
+        rows = [(f"batch-first ({batched.default_stages()})", per / size, first, flops(unrolled, group_xs) / each)]
         for mode in args.stages or ():
             if mode == batched.default_stages():
                 continue
             per, first = loop_timing(batch_first(model, stages=mode), xs, args.loop, args.repeats)
-            rows.append((f"batch-first ({mode})", per / size, first, flops(batch_first(model, mode, 10**9), xs) / size))
+            fl = flops(batch_first(model, mode, 10**9), group_xs) / each
+            rows.append((f"batch-first ({mode})", per / size, first, fl))
         per, first = loop_timing(vmap_single(model), xs, args.loop, args.repeats)
         rows.append(("vmap single", per / size, first, flops(vmap_single(model), xs) / size))
         for group in args.group or [None]:

@@ -198,6 +198,72 @@ def test_dispersed_parameters_and_times(scenes):
         assert_same(batch, {i: jaxtree.solve_accelerations(mi, si, t[i])}, mi, {i: si})
 
 
+def _scan_lengths(closed):
+    """The lengths of the ``scan`` loops in a jaxpr, nested ones included."""
+    found = []
+
+    def walk(jaxpr):
+        for e in jaxpr.eqns:
+            if e.primitive.name == "scan":
+                found.append(e.params["length"])
+            for v in e.params.values():
+                for x in v if isinstance(v, (list, tuple)) else [v]:
+                    inner = getattr(x, "jaxpr", x)
+                    if hasattr(inner, "eqns"):
+                        walk(inner)
+
+    walk(closed.jaxpr)
+    return found
+
+
+def test_a_batch_of_more_than_a_group_runs_group_after_group(scenes):
+    """On a CPU a batch of more than BATCH_GROUP members runs the recursion group after group, as
+    even as can be, the last group filled up by repeating the last member: 131 members of
+    fig4_free with dispersed masses, states and times run as 3 groups of 44 (a loop of 3 in the
+    program) and give each member's single solve, the first and last of each group and the last
+    member included."""
+    model = scenes["fig4_free"]
+    size = 2 * solve.BATCH_GROUP + 3
+    assert solve.member_groups(size) == (3, 44)
+    assert solve.member_groups(solve.BATCH_GROUP) == (1, solve.BATCH_GROUP)
+    rng = np.random.default_rng(13)
+    masses = jnp.asarray(np.asarray(model.mass) * (1 + 0.1 * rng.uniform(-1, 1, (size, 1))))
+    models = eqx.tree_at(lambda m: m.mass, model, masses)
+    blank = jax.tree_util.tree_map(lambda _: None, model)
+    axes = eqx.tree_at(lambda m: m.mass, blank, 0, is_leaf=lambda x: x is None)
+    s = states(model, 6, size)
+    t = jnp.linspace(0.0, 5.0, size)
+    f = jax.vmap(lambda m, s, t: jaxtree.solve_accelerations(m, s, t), in_axes=(axes, 0, 0))
+    program = jax.make_jaxpr(f)(models, s, t)
+    assert _runs_batch_first(program) and 3 in _scan_lengths(program)
+    batch = jax.jit(f)(models, s, t)
+    for i in (0, 43, 44, 87, 88, 100, size - 1):
+        mi = eqx.tree_at(lambda m: m.mass, model, masses[i])
+        si = jax.tree_util.tree_map(lambda x: x[i], s)
+        assert_same(batch, {i: jaxtree.solve_accelerations(mi, si, t[i])}, mi, {i: si})
+
+
+def test_cos_and_sin_of_the_recursion_to_an_ulp():
+    """The recursion's vectorizable cos and sin (``components.cos_sin``: fdlibm's polynomials
+    after a reduction by pi/2) against numpy's, to an ulp of 1 for angles up to 1e5 rad and at
+    the quadrants' edges; angles beyond 2^19 pi by the C library's; the derivatives -sin and cos;
+    float32 by ``jnp.cos`` and ``jnp.sin``."""
+    from jaxtree._src.equations.components import cos_sin
+
+    rng = np.random.default_rng(21)
+    edges = np.pi / 4 * np.arange(-16, 17)
+    q = np.concatenate([rng.uniform(-s, s, 20000) for s in (1e-3, 1.0, 40.0, 1e5)] + [edges, edges + 1e-9])
+    c, s = (np.asarray(x) for x in jax.jit(cos_sin)(q))
+    assert np.max(np.abs(c - np.cos(q))) <= 2.3e-16 and np.max(np.abs(s - np.sin(q))) <= 2.3e-16
+    big = np.array([0.3, 3.0e6, -1.0e9])
+    c, s = (np.asarray(x) for x in jax.jit(cos_sin)(big))
+    assert np.max(np.abs(c - np.cos(big))) <= 2.3e-16 and np.max(np.abs(s - np.sin(big))) <= 2.3e-16
+    d = jax.jacfwd(lambda x: jnp.stack(cos_sin(x)))(0.7)
+    np.testing.assert_allclose(np.asarray(d), [-np.sin(0.7), np.cos(0.7)], rtol=0, atol=2.3e-16)
+    c32, s32 = cos_sin(jnp.float32(0.7))
+    assert c32.dtype == jnp.float32 and abs(float(s32) - np.sin(0.7)) < 1e-7
+
+
 def test_float32(scenes):
     model = scenes["wings"]
     s = states(model, 5)

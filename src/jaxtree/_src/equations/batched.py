@@ -55,6 +55,7 @@ from .components import (
     add,
     body_inertia,
     components_of,
+    cos_sin,
     cross,
     ldl6,
     ldl6_solve,
@@ -277,7 +278,7 @@ def _articulate(M21, p, carry, S, tau, free):
     if free is not None:
         Dinv = jnp.where(free > 0, Dinv, 0.0)
     u = tau - total([S[i] * pA[i] for i in range(6)])
-    return stacked(IA, pA, U, (Dinv, u))
+    return stacked(U, (Dinv, u), IA, pA)
 
 
 def _articulated(IA, pA, U, Dinv, u, S, cb, gdd, free, all_locked):
@@ -313,7 +314,7 @@ def _hold(a, IA, pA, S, tau):
 
 def _hold_from(a, A, Sc, tau):
     """:func:`_hold` from the stacked results of :func:`_articulate` and the kinematics stage."""
-    IA, pA = split_stacked(A, (21, 6))
+    _, _, IA, pA = split_stacked(A, (6, 2, 21, 6))
     (S,) = split_stacked(Sc, (6,))
     return _hold(a, IA, pA, S, tau)
 
@@ -361,7 +362,7 @@ class _Pass(NamedTuple):
     dtype: Any
 
 
-def _unit_data(x: Inputs, starts, units):
+def _unit_data(x: Inputs, starts, units, stage):
     """The inputs of each unit's levels ``{unit: {field: rows}}``, a run's with a leading axis of
     levels (a scan's): every array split once at the units' first rows (one operation an array,
     not one a unit and pass)."""
@@ -375,11 +376,13 @@ def _unit_data(x: Inputs, starts, units):
         ]
 
     bpieces = functools.partial(pieces, first=1)
+    cs = stage(lambda q: jnp.stack(cos_sin(q)), x.gamma)  # every hinge's at once: one loop
     fields = dict(
         g=tuple(pieces(c) for c in x.axis),
         hp=tuple(pieces(c) for c in x.hinge_on_parent),
         hb=tuple(pieces(c) for c in x.hinge_on_body),
-        gam=pieces(x.gamma),
+        co=pieces(cs[0]),
+        si=pieces(cs[1]),
         gd=pieces(x.gamma_dot),
         tau=pieces(x.tau),
         gdd=pieces(x.gdd),
@@ -404,7 +407,7 @@ def _kinematics_step(ps: _Pass, d, K_prev, xd):
     acceleration passes read, ``(S and c, rigid inertias, bias forces)``."""
     stage, lv = ps.stage, ps.levels[d - 1]
     first, par_w = d == 1, 1 if d == 1 else len(ps.levels[d - 2].bodies)
-    co_si = stage(lambda q: jnp.stack([jnp.cos(q), jnp.sin(q)]), xd["gam"])
+    co_si = (xd["co"], xd["si"])
     K, Sc = stage(
         lambda K_prev, cs, g, hp, hb, gd: _level_kinematics(_gather_rows(K_prev, lv, par_w), cs, g, hp, hb, gd, first),
         *(K_prev, co_si, xd["g"], xd["hp"], xd["hb"], xd["gd"]),
@@ -470,7 +473,7 @@ def _solve(pl: Plan, x: Inputs, stage, scan_min: int):
     p0 = split_stacked(stage(lambda M, w, F, T: _bias(M, z3, w, z3, F, T, None), M0, w0, F0, T0), (6,))[0]
 
     units = _units(levels, scan_min)
-    data = _unit_data(x, starts, units)
+    data = _unit_data(x, starts, units, stage)
 
     def nothing_outboard(u):  # the inward carry entering the deepest levels' run
         shape = (len(levels[u[1] - 1].bodies),) + jnp.shape(x.gamma)[1:]
@@ -526,13 +529,13 @@ def _sweep(units, step, carry, inputs, reverse=False, start=None):
 
 def _unpack(A):
     """``(I^A, p^A, U, 1/D, u)`` of :func:`_articulate`'s stacked result."""
-    IA, pA, U, (Dinv, u) = split_stacked(A, (21, 6, 6, 2))
+    U, (Dinv, u), IA, pA = split_stacked(A, (6, 2, 21, 6))
     return IA, pA, U, Dinv, u
 
 
 def _accelerate_from(a_prev, Sc, A, gdd, free, all_locked, lv, par_w):
     S, cb = split_stacked(Sc, (6, 6))
-    _, _, U, (Dinv, u) = split_stacked(A, (21, 6, 6, 2))
+    U, (Dinv, u) = split_stacked(A, (6, 2))
     return _accelerate(components_of(_gather_rows(a_prev, lv, par_w)), cb, S, U, Dinv, u, gdd, free, all_locked)
 
 

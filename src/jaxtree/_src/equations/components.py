@@ -9,6 +9,7 @@ import functools
 import operator
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -140,3 +141,60 @@ def ldl6_solve(Ld, b, diag):
     tol = SINGULAR_PIVOT * float(np.sqrt(6.0)) * float(jnp.finfo(d[0].dtype).eps)
     ok = functools.reduce(jnp.logical_and, [d[i] > tol * diag[i] for i in range(6)])
     return stacked(tuple(jnp.where(ok, xi, jnp.nan) for xi in x))
+
+
+# ----------------------------------------------------------------------------- cos and sin
+
+# XLA:CPU evaluates cos and sin by a call of the C library's scalar functions per element: on
+# flex95's batch of 64 they took about an eighth of the recursion's samples (perf), and with the
+# polynomials below, which vectorize like the rest of a stage, the recursion ran 4-5 % faster
+# (benchmarks/FINDINGS.md, "Eq. (1) in groups of members"). fdlibm's kernels on [-pi/4, pi/4]
+# (k_sin.c, k_cos.c) after a reduction by the nearest multiple n of pi/2, with pi/2 in two parts
+# (e_rem_pio2.c's first step: n * _PIO2_HI exact for |n| < 2^20); an array with a larger angle
+# goes to jnp.cos and jnp.sin as a whole.
+_PIO2_HI = 1.57079632673412561417e00  # the first 33 bits of pi/2
+_PIO2_LO = 6.07710050650619224932e-11  # pi/2 - _PIO2_HI
+_REDUCE_MAX = 2.0**19 * np.pi  # |q| below this: n < 2^20
+_S = (-1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04,
+      2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10)  # fmt: skip
+_C = (4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015872894767294178e-05,
+      -2.75573143513906633035e-07, 2.08757232129817482790e-09, -1.13596475577881948265e-11)  # fmt: skip
+
+
+def _horner(coeffs, z):
+    acc = coeffs[-1]
+    for c in coeffs[-2::-1]:
+        acc = c + z * acc
+    return acc
+
+
+def _cos_sin_reduced(q):
+    n = jnp.round(q * (2.0 / np.pi))
+    r = (q - n * _PIO2_HI) - n * _PIO2_LO
+    z = r * r
+    s = r + r * z * _horner(_S, z)
+    c = 1.0 - (0.5 * z - z * z * _horner(_C, z))
+    k = n - 4.0 * jnp.floor(0.25 * n)  # the quadrant, 0 ... 3
+    odd = (k == 1.0) | (k == 3.0)
+    cos = jnp.where(odd, s, c) * jnp.where((k == 1.0) | (k == 2.0), -1.0, 1.0)
+    sin = jnp.where(odd, c, s) * jnp.where(k >= 2.0, -1.0, 1.0)
+    return cos, sin
+
+
+@jax.custom_jvp
+def cos_sin(q):
+    """``(cos q, sin q)`` elementwise, to within an ulp or two of ``jnp.cos`` and ``jnp.sin``, by
+    vectorizable polynomials (float64; other types, and any |q| >= 2^19 pi in the array, by
+    ``jnp.cos`` and ``jnp.sin``)."""
+    q = jnp.asarray(q)
+    if q.dtype != jnp.float64:
+        return jnp.cos(q), jnp.sin(q)
+    small = jnp.all(jnp.abs(q) < _REDUCE_MAX)
+    return jax.lax.cond(small, _cos_sin_reduced, lambda x: (jnp.cos(x), jnp.sin(x)), q)
+
+
+@cos_sin.defjvp
+def _cos_sin_jvp(primals, tangents):
+    (q,), (dq,) = primals, tangents
+    c, s = cos_sin(q)
+    return (c, s), (-s * dq, c * dq)

@@ -143,10 +143,50 @@ def solve_plain(model, state, t, tau, gdd_p, one=None):
     return vmap_dispatch(lambda leaves: one(*args(leaves)), (leaves,), members, minimum=minimum)
 
 
+# On a CPU a batch of more than this many members runs the recursion group after group (a
+# ``lax.map``), each group's arrays small enough to stay in a core's cache: flex95, one device,
+# 9.7 us a member in groups of 64 against 30 us as one group of 256 (benchmarks/FINDINGS.md,
+# "Eq. (1) in groups of members").
+BATCH_GROUP = 64
+
+
+def member_groups(size: int) -> tuple[int, int]:
+    """``(groups, members in each)`` that a batch of `size` members runs as on JAX's default
+    backend: one group but on a CPU, where groups of at most :data:`BATCH_GROUP`, as even as
+    can be (the last group made full by repeating the last member)."""
+    if jax.default_backend() != "cpu" or size <= BATCH_GROUP:
+        return 1, size
+    groups = -(-size // BATCH_GROUP)
+    return groups, -(-size // groups)
+
+
 def solve_members(size, dyn, flags, static, *, stages=None, scan_min=batched.SCAN_MIN):
     """Eq. (1) for a batch (members on axis 0 of the leaves flagged in `flags`) by the batch-first
     recursion: the hinge laws, torques and loads of each member by ``jax.vmap``, then one
-    recursion over all members with the members as the contiguous axis."""
+    recursion over the members with the members as the contiguous axis, group after group of
+    :func:`member_groups`."""
+    groups, each = member_groups(size)
+    if groups == 1:
+        return _solve_group(size, dyn, flags, static, stages, scan_min)
+    padded = groups * each
+
+    def split(a, batched_leaf):  # (size, ...) -> (groups, each, ...); others left out
+        if not batched_leaf:
+            return None
+        if padded > size:
+            a = jnp.concatenate([a, jnp.broadcast_to(a[-1:], (padded - size,) + a.shape[1:])])
+        return a.reshape((groups, each) + a.shape[1:])
+
+    parts = jax.tree_util.tree_map(split, dyn, flags)
+    shared = jax.tree_util.tree_map(lambda a, b: None if b else a, dyn, flags)
+    out = jax.lax.map(
+        lambda part: _solve_group(each, eqx.combine(part, shared), flags, static, stages, scan_min), parts
+    )
+    return jax.tree_util.tree_map(lambda o: o.reshape((padded,) + o.shape[2:])[:size], out)
+
+
+def _solve_group(size, dyn, flags, static, stages, scan_min):
+    """:func:`solve_members` for one group of `size` members."""
     model, state, t, tau, gdd_p = eqx.combine(dyn, static)
     mflags, sflags = eqx.combine(flags, static)[:2]
     axes = batch_axes(flags)
