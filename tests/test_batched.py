@@ -364,6 +364,31 @@ def test_derivative_rule_in_the_batch_first_form(batch_first_derivatives):
             assert rel(got[i], want) < tol
 
 
+def test_massless_bodies_masses_are_no_parameters_in_a_batch_either(batch_first_derivatives):
+    """The single-member solve leaves the scene's massless bodies out (their mass and inertia
+    leaves are no parameters: the derivatives along them are zero); the batch-first recursion
+    and its derivatives treat them so too, instead of differentiating their zero masses (which
+    gave fig4_free's gimbal frames a derivative like their neighbours'). Gimbal frames, the
+    gradient along every mass by the vmapped batch-first form against each member's."""
+    model = gimbal_model(np.random.default_rng(8))
+    light = [k for k in range(model.n + 1) if k not in model.massive]
+    assert light
+    s = states(model, 14)
+
+    def loss(mass, state):
+        m = eqx.tree_at(lambda m: m.mass, model, mass)
+        acc = jaxtree.solve_accelerations(m, state)
+        return jnp.sum(acc.omega0_dot**2) + jnp.sum(acc.gamma_ddot**2)
+
+    batch = jax.jit(jax.vmap(jax.grad(loss), in_axes=(None, 0)))(model.mass, s)
+    assert batch_first_derivatives
+    one = jax.jit(jax.grad(loss))
+    for i in range(0, B, 21):
+        want = one(model.mass, jax.tree_util.tree_map(lambda x: x[i], s))
+        assert np.all(np.abs(np.asarray(want)[light]) < 1e-12 * np.max(np.abs(np.asarray(want))))
+        assert rel(batch[i], want) < tolerance(model, jax.tree_util.tree_map(lambda x: x[i], s))
+
+
 def test_second_derivatives_through_the_rule(scenes, batch_first_derivatives):
     """The rule differentiated again: forward over forward under vmap equals each member's, and
     a member's forward-over-reverse Hessian (through the transposed solve) equals its

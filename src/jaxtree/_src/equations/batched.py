@@ -558,6 +558,12 @@ def inputs(model, pl: Plan, omega0, gamma, gamma_dot, tau, gdd, loads, batched):
     brows = np.concatenate([[0], pl.order])
     mass = _members_last(model.mass, batched["mass"])[brows]
     I = _members_last(model.inertia, batched["inertia"])[brows]  # (n+1, 3, 3, B)
+    if len(model.massive) < model.n + 1:
+        # the scene's massless bodies carry no mass and no inertia, as in the single-member solve
+        # (which leaves them out): their leaves are no parameters, their derivatives zero there too
+        keep = np.isin(brows, np.asarray(model.massive))
+        mass = jnp.where(keep[:, None], mass, 0.0)
+        I = jnp.where(keep[:, None, None, None], I, 0.0)
     inertia = {(i, j): I[:, i, j] for i in range(3) for j in range(i, 3)}
 
     def vec(a, key):  # (n, 3) -> 3 of (n, B) in plan order
