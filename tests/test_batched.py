@@ -13,7 +13,7 @@ import pytest
 import jaxtree
 from jaxtree._src.equations import dynamics, rules, solve
 
-from helpers import random_state, scene_names
+from helpers import equations, random_state, scene_names
 from trees import deep_and_wide, gimbal_model, random_tree
 
 # Both paths solve the same equations in a different order of operations (an articulated-body
@@ -72,19 +72,7 @@ def assert_same(batch, singles, model, state):
 
 def _runs_batch_first(closed) -> bool:
     """Whether a jaxpr holds operations of the batch-first recursion (named ``batch_first``)."""
-
-    def walk(jaxpr):
-        for e in jaxpr.eqns:
-            if "batch_first" in str(e.source_info.name_stack):
-                return True
-            for v in e.params.values():
-                for x in v if isinstance(v, (list, tuple)) else [v]:
-                    inner = getattr(x, "jaxpr", x)
-                    if hasattr(inner, "eqns") and walk(inner):
-                        return True
-        return False
-
-    return walk(closed.jaxpr)
+    return any("batch_first" in str(e.source_info.name_stack) for e in equations(closed.jaxpr))
 
 
 @pytest.mark.parametrize("name", ["wings", "chain50"])
@@ -200,20 +188,7 @@ def test_dispersed_parameters_and_times(scenes):
 
 def _scan_lengths(closed):
     """The lengths of the ``scan`` loops in a jaxpr, nested ones included."""
-    found = []
-
-    def walk(jaxpr):
-        for e in jaxpr.eqns:
-            if e.primitive.name == "scan":
-                found.append(e.params["length"])
-            for v in e.params.values():
-                for x in v if isinstance(v, (list, tuple)) else [v]:
-                    inner = getattr(x, "jaxpr", x)
-                    if hasattr(inner, "eqns"):
-                        walk(inner)
-
-    walk(closed.jaxpr)
-    return found
+    return [e.params["length"] for e in equations(closed.jaxpr) if e.primitive.name == "scan"]
 
 
 def test_a_batch_of_more_than_a_group_runs_group_after_group(scenes):

@@ -17,6 +17,7 @@ import jaxtree
 from jaxtree._src.equations.barycentric import seed_equations
 
 from helpers import ConstantLoads, count_equations, random_state, scene_names
+from helpers import equations as jaxpr_equations
 from oracle import oracle_at, oracle_body_states
 from trees import chain, deep_and_wide, gimbal_model, random_tree, star
 
@@ -408,20 +409,7 @@ def test_float32(scenes):
 
 def _dot_precisions(closed_jaxpr):
     """The precision of every dot_general in a jaxpr, nested jaxprs (jit, while, cond) included."""
-    found = []
-
-    def walk(jaxpr):
-        for eqn in jaxpr.eqns:
-            if eqn.primitive.name == "dot_general":
-                found.append(eqn.params["precision"])
-            for value in eqn.params.values():
-                for sub in value if isinstance(value, (tuple, list)) else (value,):
-                    inner = getattr(sub, "jaxpr", None)
-                    if inner is not None:
-                        walk(inner if hasattr(inner, "eqns") else inner.jaxpr)
-
-    walk(closed_jaxpr.jaxpr)
-    return found
+    return [e.params["precision"] for e in jaxpr_equations(closed_jaxpr.jaxpr) if e.primitive.name == "dot_general"]
 
 
 def test_float32_products_run_at_full_precision(scenes):
